@@ -1,0 +1,208 @@
+//! Byte transports between host and core: a pty pair (a real serial line in one process), a
+//! serial device, TCP, and stdio. Each yields a [`Duplex`]: a reader and a writer that can be
+//! moved to different threads.
+
+use std::io::{self, Read, Write};
+use std::net::{TcpListener, TcpStream, ToSocketAddrs};
+use std::time::Duration;
+
+use serialport::{SerialPort, TTYPort};
+
+/// How long a read waits before it reports `TimedOut`, so that callers can check deadlines
+/// and shutdown flags.
+pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
+
+/// Errors opening a transport.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    /// The pty pair could not be created.
+    #[error("cannot open a pty pair: {0}")]
+    Pty(#[source] serialport::Error),
+    /// The serial device could not be opened.
+    #[error("cannot open serial device {path} at {baud} baud: {source}")]
+    Serial {
+        /// Device path.
+        path: String,
+        /// Baud rate.
+        baud: u32,
+        /// Cause.
+        #[source]
+        source: serialport::Error,
+    },
+    /// A TCP connection failed.
+    #[error("TCP {what} {addr}: {source}")]
+    Tcp {
+        /// `connect to` or `listen on`.
+        what: &'static str,
+        /// Address.
+        addr: String,
+        /// Cause.
+        #[source]
+        source: io::Error,
+    },
+}
+
+/// Both directions of a byte link.
+pub struct Duplex {
+    /// Incoming bytes. Reads time out after [`POLL_INTERVAL`] where the transport supports it.
+    pub reader: Box<dyn Read + Send>,
+    /// Outgoing bytes.
+    pub writer: Box<dyn Write + Send>,
+    /// Human-readable description (device path, address).
+    pub name: String,
+}
+
+impl std::fmt::Debug for Duplex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Duplex").field("name", &self.name).finish()
+    }
+}
+
+fn tty_duplex(mut port: TTYPort, name: String) -> Result<Duplex, serialport::Error> {
+    port.set_timeout(POLL_INTERVAL)?;
+    let writer = port.try_clone_native()?;
+    Ok(Duplex {
+        reader: Box::new(PtyReader(port)),
+        writer: Box::new(writer),
+        name,
+    })
+}
+
+/// A tty read fails with a hang-up (`BrokenPipe` from poll, or `EIO`) once the other end is
+/// closed; report that as the end of the stream, as a socket would.
+struct PtyReader(TTYPort);
+
+const EIO: i32 = 5;
+
+impl Read for PtyReader {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self.0.read(buf) {
+            Err(e) if e.kind() == io::ErrorKind::BrokenPipe || e.raw_os_error() == Some(EIO) => {
+                Ok(0)
+            }
+            other => other,
+        }
+    }
+}
+
+/// Opens a pty pair: `(host end, board end)`. Bytes cross the kernel's tty layer in raw mode,
+/// exactly as over a USB serial adaptor.
+pub fn pty_pair() -> Result<(Duplex, Duplex), TransportError> {
+    let (master, slave) = TTYPort::pair().map_err(TransportError::Pty)?;
+    let slave_name = slave.name().unwrap_or_else(|| "pty".into());
+    let host =
+        tty_duplex(master, format!("pty master of {slave_name}")).map_err(TransportError::Pty)?;
+    let board = tty_duplex(slave, slave_name).map_err(TransportError::Pty)?;
+    Ok((host, board))
+}
+
+/// Opens a serial device (hardware board, or a pty made by another program).
+pub fn serial(path: &str, baud: u32) -> Result<Duplex, TransportError> {
+    let err = |source| TransportError::Serial {
+        path: path.to_string(),
+        baud,
+        source,
+    };
+    let port = serialport::new(path, baud)
+        .timeout(POLL_INTERVAL)
+        .open_native()
+        .map_err(err)?;
+    tty_duplex(port, path.to_string()).map_err(err)
+}
+
+fn tcp_duplex(
+    stream: TcpStream,
+    addr: String,
+    what: &'static str,
+) -> Result<Duplex, TransportError> {
+    let err = |source| TransportError::Tcp {
+        what,
+        addr: addr.clone(),
+        source,
+    };
+    stream.set_nodelay(true).map_err(err)?;
+    stream.set_read_timeout(Some(POLL_INTERVAL)).map_err(err)?;
+    let writer = stream.try_clone().map_err(err)?;
+    Ok(Duplex {
+        reader: Box::new(stream),
+        writer: Box::new(writer),
+        name: format!("tcp {addr}"),
+    })
+}
+
+/// Connects to a TCP peer.
+pub fn tcp_connect(addr: impl ToSocketAddrs + std::fmt::Display) -> Result<Duplex, TransportError> {
+    let name = addr.to_string();
+    let stream = TcpStream::connect(&addr).map_err(|source| TransportError::Tcp {
+        what: "connect to",
+        addr: name.clone(),
+        source,
+    })?;
+    tcp_duplex(stream, name, "connect to")
+}
+
+/// Accepts one TCP connection on `listener`.
+pub fn tcp_accept(listener: &TcpListener) -> Result<Duplex, TransportError> {
+    let name = listener
+        .local_addr()
+        .map(|a| a.to_string())
+        .unwrap_or_default();
+    let (stream, peer) = listener.accept().map_err(|source| TransportError::Tcp {
+        what: "listen on",
+        addr: name.clone(),
+        source,
+    })?;
+    tcp_duplex(stream, format!("{name} from {peer}"), "listen on")
+}
+
+/// Standard input and output (for running the simulated board as a child process).
+pub fn stdio() -> Duplex {
+    Duplex {
+        reader: Box::new(io::stdin()),
+        writer: Box::new(io::stdout()),
+        name: "stdio".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pty_pair_carries_bytes_both_ways_and_reports_close() {
+        let (mut host, mut board) = pty_pair().unwrap();
+        host.writer.write_all(&[1, 2, 0, 255]).unwrap();
+        let mut got = [0u8; 4];
+        board.reader.read_exact(&mut got).unwrap();
+        assert_eq!(got, [1, 2, 0, 255]);
+        board.writer.write_all(b"ok").unwrap();
+        let mut got = [0u8; 2];
+        host.reader.read_exact(&mut got).unwrap();
+        assert_eq!(&got, b"ok");
+        drop(host);
+        let mut buf = [0u8; 8];
+        assert_eq!(board.reader.read(&mut buf).unwrap(), 0);
+    }
+
+    #[test]
+    fn tcp_loopback_carries_bytes() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        let t = std::thread::spawn(move || tcp_accept(&listener).unwrap());
+        let mut host = tcp_connect(addr).unwrap();
+        let mut board = t.join().unwrap();
+        host.writer.write_all(&[0, 7]).unwrap();
+        let mut got = [0u8; 2];
+        board.reader.read_exact(&mut got).unwrap();
+        assert_eq!(got, [0, 7]);
+    }
+
+    #[test]
+    fn missing_serial_device_names_the_path() {
+        let err = serial("/dev/does-not-exist-ttyX", 115_200).err().unwrap();
+        assert!(
+            err.to_string().contains("/dev/does-not-exist-ttyX"),
+            "{err}"
+        );
+    }
+}

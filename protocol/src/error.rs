@@ -1,0 +1,196 @@
+//! Typed errors: framing errors on either end, and the error codes the core reports.
+
+use core::fmt;
+
+use serde::{Deserialize, Serialize};
+
+use crate::handshake::Version;
+
+/// Why a received frame was rejected. The decoder has already resynchronised when it reports
+/// one of these: the next frame after the delimiter decodes normally.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DecodeError {
+    /// More bytes than [`crate::MAX_FRAME_LEN`] arrived before a delimiter; they were dropped.
+    Oversized,
+    /// The bytes between two delimiters are not valid COBS.
+    Cobs,
+    /// The decoded frame is shorter than a CRC plus one byte of message.
+    Truncated,
+    /// The CRC-32C does not match the body.
+    Crc,
+    /// The CRC matched but the body is not a valid message of the expected direction.
+    Malformed,
+    /// The body decoded to a message but bytes were left over.
+    TrailingBytes,
+}
+
+impl fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            DecodeError::Oversized => "frame longer than the protocol's maximum frame length",
+            DecodeError::Cobs => "frame is not valid COBS",
+            DecodeError::Truncated => "frame too short to hold a CRC and a message",
+            DecodeError::Crc => "frame CRC-32C mismatch (corrupted frame)",
+            DecodeError::Malformed => "frame body is not a valid message",
+            DecodeError::TrailingBytes => "frame body has bytes after the message",
+        })
+    }
+}
+
+impl core::error::Error for DecodeError {}
+
+/// Why a message could not be encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EncodeError {
+    /// The message body exceeds [`crate::MAX_PAYLOAD_LEN`] (cannot happen for the protocol's
+    /// own message types; guards generic use).
+    PayloadTooLarge,
+    /// The output buffer is smaller than the encoded frame; size it with
+    /// [`crate::MAX_FRAME_LEN`].
+    BufferTooSmall,
+}
+
+impl fmt::Display for EncodeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            EncodeError::PayloadTooLarge => "message body exceeds the protocol's maximum payload",
+            EncodeError::BufferTooSmall => "output buffer smaller than the encoded frame",
+        })
+    }
+}
+
+impl core::error::Error for EncodeError {}
+
+/// The field of a host message that failed validation.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InvalidField {
+    /// A noise parameter is negative or not finite.
+    NoiseParams,
+    /// An initial standard deviation is not positive or not finite.
+    InitSigma,
+    /// The hand-eye rotation is not a unit quaternion, or a value is not finite.
+    HandEye,
+    /// The outlier gate is not positive or not finite.
+    Gate,
+    /// A divergence threshold is out of range (λ outside (0,1), or a threshold ≤ 0).
+    Divergence,
+    /// A rate is not positive and finite.
+    Rate,
+    /// The still window is empty.
+    StillSamples,
+    /// An `Init` position is not finite.
+    InitPosition,
+    /// An `Init` yaw or orientation is not finite or not a unit quaternion.
+    InitAttitude,
+    /// An IMU sample holds a non-finite value.
+    ImuNotFinite,
+    /// A correspondence part index or count is out of range.
+    CorrespondencePart,
+    /// Correspondence `index` (within its message) holds a non-finite point.
+    CorrespondenceNotFinite {
+        /// Index within the message.
+        index: u8,
+    },
+    /// Correspondence `index` has a covariance that is not positive semi-definite.
+    CorrespondenceCovariance {
+        /// Index within the message.
+        index: u8,
+    },
+}
+
+impl fmt::Display for InvalidField {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            InvalidField::NoiseParams => f.write_str("noise parameter negative or not finite"),
+            InvalidField::InitSigma => f.write_str("initial sigma not positive or not finite"),
+            InvalidField::HandEye => f.write_str("hand-eye rotation not a unit quaternion"),
+            InvalidField::Gate => f.write_str("outlier gate not positive"),
+            InvalidField::Divergence => f.write_str("divergence threshold out of range"),
+            InvalidField::Rate => f.write_str("rate not positive"),
+            InvalidField::StillSamples => f.write_str("still window is empty"),
+            InvalidField::InitPosition => f.write_str("init position not finite"),
+            InvalidField::InitAttitude => f.write_str("init yaw/orientation invalid"),
+            InvalidField::ImuNotFinite => f.write_str("IMU sample not finite"),
+            InvalidField::CorrespondencePart => f.write_str("correspondence part out of range"),
+            InvalidField::CorrespondenceNotFinite { index } => {
+                write!(f, "correspondence {index} not finite")
+            }
+            InvalidField::CorrespondenceCovariance { index } => {
+                write!(
+                    f,
+                    "correspondence {index} covariance not positive semi-definite"
+                )
+            }
+        }
+    }
+}
+
+impl core::error::Error for InvalidField {}
+
+/// Error codes the core reports in [`crate::CoreToHost::Error`].
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ErrorCode {
+    /// The host's major protocol version differs from the core's (variant index frozen at 0).
+    VersionMismatch {
+        /// The core's version.
+        core: Version,
+        /// The version the host announced.
+        host: Version,
+    },
+    /// A received frame was rejected.
+    Decode(DecodeError),
+    /// A message field failed validation; the message was ignored.
+    Invalid(InvalidField),
+    /// A message other than `Hello` arrived before the handshake.
+    NoHandshake,
+    /// A message that needs a configuration arrived before `Configure`.
+    NotConfigured,
+    /// An IMU time stamp did not increase.
+    TimestampNotIncreasing {
+        /// Previous time stamp [µs].
+        last_us: u64,
+        /// Offending time stamp [µs].
+        got_us: u64,
+    },
+    /// The gap between two IMU samples exceeds what the core integrates in one step.
+    TimestampGap {
+        /// Previous time stamp [µs].
+        last_us: u64,
+        /// Offending time stamp [µs].
+        got_us: u64,
+    },
+    /// More correspondences for one frame than the core holds.
+    TooManyCorrespondences {
+        /// Frame id.
+        frame_id: u32,
+    },
+}
+
+impl fmt::Display for ErrorCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ErrorCode::VersionMismatch { core, host } => write!(
+                f,
+                "protocol version mismatch: core speaks {core}, host speaks {host}"
+            ),
+            ErrorCode::Decode(e) => write!(f, "frame rejected: {e}"),
+            ErrorCode::Invalid(field) => write!(f, "invalid message: {field}"),
+            ErrorCode::NoHandshake => f.write_str("message before Hello"),
+            ErrorCode::NotConfigured => f.write_str("message before Configure"),
+            ErrorCode::TimestampNotIncreasing { last_us, got_us } => {
+                write!(f, "IMU time stamp {got_us} µs not after {last_us} µs")
+            }
+            ErrorCode::TimestampGap { last_us, got_us } => {
+                write!(f, "IMU time stamp gap from {last_us} µs to {got_us} µs")
+            }
+            ErrorCode::TooManyCorrespondences { frame_id } => {
+                write!(
+                    f,
+                    "frame {frame_id} has more correspondences than the core holds"
+                )
+            }
+        }
+    }
+}
+
+impl core::error::Error for ErrorCode {}

@@ -1,0 +1,603 @@
+//! The messages. Units are SI (m, s, rad) unless a field says otherwise; time stamps are
+//! microseconds on the IMU's clock. Quaternions are Hamilton, `[w, x, y, z]`, and `q_ba` rotates
+//! a vector from frame `a` into frame `b` (DESIGN.md §3). Symmetric matrices are sent as their
+//! upper triangle, row by row: [`Sym2`] = `[xx, xy, yy]`, [`Sym3`] = `[xx, xy, xz, yy, yz, zz]`,
+//! [`Sym6`] = the 21 entries `(0,0), (0,1) … (0,5), (1,1) … (5,5)`.
+//!
+//! Compatibility rule: the variant index of [`HostToCore::Hello`] (0), [`CoreToHost::HelloAck`]
+//! (0), [`CoreToHost::Error`] (1) and [`ErrorCode::VersionMismatch`] (0), and the layout of
+//! [`Version`], never change, so that peers of any two versions can tell each other so.
+
+use heapless::Vec;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{ErrorCode, InvalidField};
+use crate::handshake::Version;
+use crate::limits::{MAX_CORRESPONDENCES_PER_MESSAGE, MAX_PARTS_PER_FRAME};
+
+/// Symmetric 2×2 matrix, upper triangle `[xx, xy, yy]`.
+pub type Sym2 = [f32; 3];
+/// Symmetric 3×3 matrix, upper triangle `[xx, xy, xz, yy, yz, zz]`.
+pub type Sym3 = [f32; 6];
+/// Symmetric 6×6 matrix, upper triangle row by row (21 entries).
+pub type Sym6 = [f32; 21];
+
+/// Index of entry `(r, c)` of an `n`×`n` symmetric matrix stored as its upper triangle.
+pub const fn sym_index(n: usize, r: usize, c: usize) -> usize {
+    let (r, c) = if r <= c { (r, c) } else { (c, r) };
+    r * n - r * (r + 1) / 2 + c
+}
+
+// ------------------------------------------------------------------------------------------------
+// Host → core
+// ------------------------------------------------------------------------------------------------
+
+/// A message from the vision host to the fusion core.
+// No heap on the core: the large `Correspondences` variant cannot be boxed, and one message
+// value at a time is all either end holds.
+#[allow(clippy::large_enum_variant)]
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub enum HostToCore {
+    /// Opens a session; the core answers [`CoreToHost::HelloAck`] or, for another major version,
+    /// [`CoreToHost::Error`] with [`ErrorCode::VersionMismatch`].
+    Hello(Hello),
+    /// Chooses the filter model and its parameters. Clears any filter state.
+    Configure(Config),
+    /// Starts (re)initialisation from a position and an optional orientation.
+    Init(Init),
+    /// One IMU sample, in time order.
+    Imu(ImuSample),
+    /// One part of one camera frame's 2D/3D correspondences.
+    Correspondences(Correspondences),
+    /// Drops all filter state and returns to the configured, uninitialised mode.
+    Reset,
+}
+
+/// Session opening.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Hello {
+    /// The host's protocol version.
+    pub version: Version,
+}
+
+/// The three system models of the paper (DESIGN.md §4).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ModelKind {
+    /// Gyroscopes only: constant velocity, 16 states.
+    Gyro,
+    /// Gyroscopes + accelerometer as gravity sensor: 19 states.
+    Gravity,
+    /// Gyroscopes + accelerometer with free acceleration: 22 states.
+    Acc,
+}
+
+impl ModelKind {
+    /// All models, in the paper's order.
+    pub const ALL: [ModelKind; 3] = [ModelKind::Gyro, ModelKind::Gravity, ModelKind::Acc];
+
+    /// Number of filter states of this model.
+    pub const fn state_dim(self) -> usize {
+        match self {
+            ModelKind::Gyro => 16,
+            ModelKind::Gravity => 19,
+            ModelKind::Acc => 22,
+        }
+    }
+
+    /// Lower-case name as used on command lines and in reports.
+    pub const fn name(self) -> &'static str {
+        match self {
+            ModelKind::Gyro => "gyro",
+            ModelKind::Gravity => "gravity",
+            ModelKind::Acc => "acc",
+        }
+    }
+}
+
+/// Noise parameters. Process noises are continuous-time white-noise densities (rate
+/// independent; the core discretises them with the actual sample interval); measurement
+/// noises are standard deviations of one sample.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct NoiseParams {
+    /// Density of the motion-model noise `v_s̈`: white acceleration in the constant-velocity
+    /// models [m/s²/√Hz], white jerk in the acc model [m/s³/√Hz].
+    pub motion: f32,
+    /// Density of the angular-velocity noise `v_ω`: white angular acceleration [rad/s²/√Hz].
+    pub angular: f32,
+    /// Gyroscope bias random walk `v_bω` [rad/s²/√Hz].
+    pub gyro_bias_walk: f32,
+    /// Accelerometer bias random walk `v_ba` [m/s³/√Hz].
+    pub accel_bias_walk: f32,
+    /// Gyroscope measurement noise `v_yω`, standard deviation per sample [rad/s].
+    pub gyro_meas: f32,
+    /// Accelerometer measurement noise `v_ya`, standard deviation per sample [m/s²]. In the
+    /// gravity model it also absorbs the free acceleration.
+    pub accel_meas: f32,
+}
+
+/// Standard deviations of the initial state (re-used on re-initialisation).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct InitSigma {
+    /// Position [m].
+    pub position: f32,
+    /// Velocity [m/s].
+    pub velocity: f32,
+    /// Free acceleration, acc model only [m/s²].
+    pub acceleration: f32,
+    /// Roll and pitch [rad].
+    pub tilt: f32,
+    /// Yaw [rad], when yaw was not given (otherwise `tilt` applies to yaw too).
+    pub yaw: f32,
+    /// Angular velocity [rad/s].
+    pub angular_velocity: f32,
+    /// Gyroscope bias [rad/s].
+    pub gyro_bias: f32,
+    /// Accelerometer bias [m/s²].
+    pub accel_bias: f32,
+}
+
+/// Hand-eye calibration: the rigid transform between IMU and camera.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct HandEye {
+    /// Rotation from sensor to camera frame, `q_cs`, unit quaternion `[w, x, y, z]`.
+    pub q_cs: [f32; 4],
+    /// Camera origin in the sensor frame, `c_s` [m].
+    pub c_s: [f32; 3],
+}
+
+/// Divergence monitor thresholds (DESIGN.md §4, paper §4.6).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct DivergenceParams {
+    /// Low-pass factor `λ` of `g ← λg + (1−λ)s_i`, in (0, 1).
+    pub residual_lowpass: f32,
+    /// Divergence when the low-passed normalised residual `g` exceeds this.
+    pub residual_threshold: f32,
+    /// Divergence when the Frobenius norm of the state covariance exceeds this.
+    pub covariance_frobenius: f32,
+    /// Divergence when `|‖q‖ − 1|` before normalisation exceeds this.
+    pub quaternion_norm: f32,
+}
+
+/// Filter configuration.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct Config {
+    /// Which system model to run.
+    pub model: ModelKind,
+    /// Noise parameters.
+    pub noise: NoiseParams,
+    /// Initial standard deviations.
+    pub init_sigma: InitSigma,
+    /// Hand-eye calibration.
+    pub hand_eye: HandEye,
+    /// Outlier gate on the normalised residual `s_i` (eq. 17); χ²₂(0.95) = 5.991.
+    pub gate: f32,
+    /// Divergence monitor thresholds.
+    pub divergence: DivergenceParams,
+    /// Nominal IMU rate [Hz].
+    pub imu_rate_hz: f32,
+    /// Nominal camera rate [Hz].
+    pub camera_rate_hz: f32,
+    /// IMU samples averaged for roll and pitch at (re)initialisation (device held still).
+    pub still_samples: u16,
+}
+
+/// Orientation given at initialisation.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum InitAttitude {
+    /// Roll and pitch from gravity; yaw unknown (zero with a large variance).
+    Gravity,
+    /// Roll and pitch from gravity; yaw of the sensor frame given [rad].
+    GravityAndYaw(f32),
+    /// Full orientation `q_sw` given (from an absolute orientation sensor or a pose).
+    Full([f32; 4]),
+}
+
+/// (Re)initialisation request.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct Init {
+    /// IMU origin in the world, `s_w` [m].
+    pub position: [f32; 3],
+    /// Orientation source.
+    pub attitude: InitAttitude,
+}
+
+/// One IMU sample.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct ImuSample {
+    /// Time stamp [µs], strictly increasing.
+    pub t_us: u64,
+    /// Angular velocity in the sensor frame [rad/s].
+    pub gyro: [f32; 3],
+    /// Specific force in the sensor frame [m/s²].
+    pub accel: [f32; 3],
+    /// The camera was triggered at this sample: the core answers with a
+    /// [`CoreToHost::PosePrediction`] for this time stamp.
+    pub trigger: bool,
+}
+
+/// One 2D/3D correspondence.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct Correspondence {
+    /// Registered image point in normalised coordinates `m_n` (undistorted, `K⁻¹ m_p`).
+    pub m_n: [f32; 2],
+    /// Covariance of `m_n` (normalised units²).
+    pub cov_n: Sym2,
+    /// Model point in the world `m_w` [m].
+    pub m_w: [f32; 3],
+    /// Covariance of `m_w` [m²].
+    pub cov_w: Sym3,
+}
+
+/// One part of one camera frame's correspondences.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct Correspondences {
+    /// Frame id from the core's [`PosePrediction`].
+    pub frame_id: u32,
+    /// Trigger time stamp of that frame [µs].
+    pub trigger_us: u64,
+    /// Index of this part, `0 ≤ part < parts`.
+    pub part: u8,
+    /// Number of parts of this frame, `1 ≤ parts ≤ MAX_PARTS_PER_FRAME`.
+    pub parts: u8,
+    /// The correspondences of this part.
+    pub items: Vec<Correspondence, MAX_CORRESPONDENCES_PER_MESSAGE>,
+}
+
+/// A frame's correspondences do not fit into [`MAX_PARTS_PER_FRAME`] messages.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TooManyCorrespondences {
+    /// How many were offered.
+    pub count: usize,
+}
+
+impl core::fmt::Display for TooManyCorrespondences {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "{} correspondences exceed the protocol's {} per frame",
+            self.count,
+            crate::limits::MAX_CORRESPONDENCES_PER_FRAME
+        )
+    }
+}
+
+impl core::error::Error for TooManyCorrespondences {}
+
+impl Correspondences {
+    /// Splits one frame's correspondences into as many messages as needed (never truncates).
+    /// A frame with no correspondences still yields one empty part, so the core learns that
+    /// the frame was processed and saw nothing.
+    pub fn split(
+        frame_id: u32,
+        trigger_us: u64,
+        all: &[Correspondence],
+    ) -> Result<impl Iterator<Item = Correspondences> + '_, TooManyCorrespondences> {
+        if all.len() > crate::limits::MAX_CORRESPONDENCES_PER_FRAME {
+            return Err(TooManyCorrespondences { count: all.len() });
+        }
+        let parts = all.len().div_ceil(MAX_CORRESPONDENCES_PER_MESSAGE).max(1);
+        Ok((0..parts).map(move |part| {
+            let start = part * MAX_CORRESPONDENCES_PER_MESSAGE;
+            let end = (start + MAX_CORRESPONDENCES_PER_MESSAGE).min(all.len());
+            let mut items = Vec::new();
+            for c in &all[start..end] {
+                // Cannot fail: each chunk holds at most MAX_CORRESPONDENCES_PER_MESSAGE.
+                let _ = items.push(*c);
+            }
+            Correspondences {
+                frame_id,
+                trigger_us,
+                // Both fit in u8: parts ≤ MAX_PARTS_PER_FRAME (checked above).
+                part: part as u8,
+                parts: parts as u8,
+                items,
+            }
+        }))
+    }
+}
+
+const _: () = assert!(MAX_PARTS_PER_FRAME <= u8::MAX as usize);
+
+// ------------------------------------------------------------------------------------------------
+// Core → host
+// ------------------------------------------------------------------------------------------------
+
+/// A message from the fusion core to the vision host.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub enum CoreToHost {
+    /// Answer to a compatible [`HostToCore::Hello`].
+    HelloAck(HelloAck),
+    /// Something the host sent was refused.
+    Error(ErrorReport),
+    /// Pose prediction for a triggered camera frame.
+    PosePrediction(PosePrediction),
+    /// Full filter state after an IMU step.
+    State(StateReport),
+    /// Result of applying one [`Correspondences`] part.
+    UpdateReport(UpdateReport),
+    /// Tracking mode change, with the reason.
+    Status(Status),
+}
+
+/// What the core can hold.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Capacities {
+    /// Largest frame the core accepts [bytes].
+    pub max_frame_len: u16,
+    /// Most correspondences per message.
+    pub max_correspondences_per_message: u16,
+    /// Most correspondences per camera frame the core applies.
+    pub max_correspondences_per_frame: u16,
+    /// IMU samples kept for delayed correspondences (sets the longest accepted latency).
+    pub delay_buffer_samples: u16,
+    /// Bits of the filter's floating-point scalar (32 on the MCU, 64 on the PC).
+    pub scalar_bits: u8,
+}
+
+/// Answer to a compatible `Hello`.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HelloAck {
+    /// The core's protocol version.
+    pub version: Version,
+    /// Model currently configured, if any.
+    pub model: Option<ModelKind>,
+    /// The core's capacities.
+    pub capacities: Capacities,
+}
+
+/// A refusal, with its reason.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ErrorReport {
+    /// What went wrong.
+    pub code: ErrorCode,
+}
+
+/// Predicted camera pose at a camera trigger (eq. 5-6).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct PosePrediction {
+    /// Frame id assigned by the core (increments per trigger).
+    pub frame_id: u32,
+    /// Trigger time stamp [µs].
+    pub t_us: u64,
+    /// Camera origin in the world, `c_w` [m].
+    pub c_w: [f32; 3],
+    /// Camera orientation `q_cw`.
+    pub q_cw: [f32; 4],
+    /// Covariance of `[c_w, θ]`, where `θ` is the small rotation error of `q_cw` as a rotation
+    /// vector in the world frame [m², rad²].
+    pub cov: Sym6,
+}
+
+/// Tracking mode.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Mode {
+    /// No configuration received yet.
+    Unconfigured,
+    /// Configured, waiting for `Init`.
+    AwaitingInit,
+    /// Averaging the accelerometer over the still window.
+    Initialising,
+    /// Vision measurements are being applied.
+    Tracking,
+    /// No vision measurements recently: IMU only.
+    DeadReckoning,
+    /// The divergence monitor fired.
+    Diverged,
+    /// Re-initialising from the last good position after divergence.
+    Reinitialising,
+}
+
+/// Why the mode changed.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StatusReason {
+    /// A `Configure` was applied.
+    Configured,
+    /// An `Init` or `Reset` was received.
+    HostRequest,
+    /// The still window is complete; the filter runs.
+    InitComplete,
+    /// Correspondences were accepted.
+    VisionAccepted,
+    /// Frames passed without accepted correspondences.
+    NoVision,
+    /// Low-passed normalised residual above its threshold.
+    ResidualLowpass,
+    /// Covariance Frobenius norm above its threshold.
+    CovarianceNorm,
+    /// Quaternion norm far from 1 before normalisation.
+    QuaternionNorm,
+    /// A state or covariance entry became non-finite.
+    NonFiniteState,
+}
+
+/// Filter health figures.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct Health {
+    /// Current mode.
+    pub mode: Mode,
+    /// Frobenius norm of the state covariance.
+    pub covariance_frobenius: f32,
+    /// Low-passed normalised residual `g`.
+    pub residual_lowpass: f32,
+    /// `|‖q‖ − 1|` before the last normalisation.
+    pub quaternion_norm_error: f32,
+}
+
+/// Full filter state (states a model does not have are zero).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct StateReport {
+    /// Time stamp of the last IMU sample applied [µs].
+    pub t_us: u64,
+    /// IMU origin in the world `s_w` [m].
+    pub s_w: [f32; 3],
+    /// Orientation `q_sw`.
+    pub q_sw: [f32; 4],
+    /// Velocity `ṡ_w` [m/s].
+    pub v_w: [f32; 3],
+    /// Free acceleration `s̈_w` [m/s²].
+    pub a_w: [f32; 3],
+    /// Angular velocity `ω_s` [rad/s].
+    pub omega_s: [f32; 3],
+    /// Gyroscope bias `b_ω` [rad/s].
+    pub gyro_bias: [f32; 3],
+    /// Accelerometer bias `b_a` [m/s²].
+    pub accel_bias: [f32; 3],
+    /// Health figures.
+    pub health: Health,
+}
+
+/// Whether a correspondence part was applied.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UpdateOutcome {
+    /// Applied at the trigger time and re-propagated to the present.
+    Applied,
+    /// The frame's snapshot has left the delay buffer.
+    TooOld,
+    /// This part of this frame was already applied.
+    Duplicate,
+    /// No prediction with this frame id and time stamp was issued.
+    UnknownFrame,
+    /// The filter is not running (not configured or not initialised).
+    NotRunning,
+}
+
+/// Result of one correspondence part.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct UpdateReport {
+    /// Frame id.
+    pub frame_id: u32,
+    /// Part index.
+    pub part: u8,
+    /// Whether the part was applied.
+    pub outcome: UpdateOutcome,
+    /// Correspondences that passed the gate and were applied.
+    pub accepted: u16,
+    /// Correspondences rejected by the gate (or as invalid).
+    pub rejected: u16,
+    /// Normalised residual `s_i` of each correspondence, in the order sent.
+    pub residuals: Vec<f32, MAX_CORRESPONDENCES_PER_MESSAGE>,
+    /// Mean distance, in normalised image units, between each correspondence's predicted
+    /// position (before the update) and its registered position: the paper's prediction error
+    /// (multiply by the focal length for pixels).
+    pub prediction_error: f32,
+}
+
+/// A mode change.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Status {
+    /// Time stamp of the last IMU sample [µs].
+    pub t_us: u64,
+    /// New mode.
+    pub mode: Mode,
+    /// Why.
+    pub reason: StatusReason,
+}
+
+impl CoreToHost {
+    /// Builds an error message.
+    pub const fn error(code: ErrorCode) -> Self {
+        CoreToHost::Error(ErrorReport { code })
+    }
+}
+
+impl HostToCore {
+    /// Short name of the message kind, for logs and errors.
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            HostToCore::Hello(_) => "Hello",
+            HostToCore::Configure(_) => "Configure",
+            HostToCore::Init(_) => "Init",
+            HostToCore::Imu(_) => "Imu",
+            HostToCore::Correspondences(_) => "Correspondences",
+            HostToCore::Reset => "Reset",
+        }
+    }
+
+    /// Checks every field against its documented range: finite numbers, unit quaternions,
+    /// positive semi-definite covariances, part indices in range, parameters in range. The core
+    /// calls this on every message before use and answers [`ErrorCode::Invalid`] on failure.
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        crate::validate::host_message(self)
+    }
+}
+
+impl CoreToHost {
+    /// Short name of the message kind, for logs and errors.
+    pub const fn kind(&self) -> &'static str {
+        match self {
+            CoreToHost::HelloAck(_) => "HelloAck",
+            CoreToHost::Error(_) => "Error",
+            CoreToHost::PosePrediction(_) => "PosePrediction",
+            CoreToHost::State(_) => "State",
+            CoreToHost::UpdateReport(_) => "UpdateReport",
+            CoreToHost::Status(_) => "Status",
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sym_index_enumerates_the_upper_triangle_row_by_row() {
+        for n in [2usize, 3, 6] {
+            let mut k = 0;
+            for r in 0..n {
+                for c in r..n {
+                    assert_eq!(sym_index(n, r, c), k);
+                    assert_eq!(sym_index(n, c, r), k);
+                    k += 1;
+                }
+            }
+            assert_eq!(k, n * (n + 1) / 2);
+        }
+    }
+
+    fn corr(i: usize) -> Correspondence {
+        Correspondence {
+            m_n: [i as f32, 0.0],
+            cov_n: [1e-6, 0.0, 1e-6],
+            m_w: [0.0, 0.0, i as f32],
+            cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+        }
+    }
+
+    #[test]
+    fn split_never_truncates() {
+        for n in [
+            0usize,
+            1,
+            15,
+            16,
+            17,
+            40,
+            MAX_CORRESPONDENCES_PER_MESSAGE * MAX_PARTS_PER_FRAME,
+        ] {
+            let all: heapless::Vec<Correspondence, 128> = (0..n).map(corr).collect();
+            let parts: heapless::Vec<Correspondences, 8> =
+                Correspondences::split(7, 99, &all).unwrap().collect();
+            assert_eq!(
+                parts.len(),
+                n.div_ceil(MAX_CORRESPONDENCES_PER_MESSAGE).max(1)
+            );
+            let mut seen = 0;
+            for (i, p) in parts.iter().enumerate() {
+                assert_eq!((p.frame_id, p.trigger_us, p.part as usize), (7, 99, i));
+                assert_eq!(p.parts as usize, parts.len());
+                assert_eq!(&p.items[..], &all[seen..seen + p.items.len()]);
+                seen += p.items.len();
+            }
+            assert_eq!(seen, n);
+        }
+    }
+
+    #[test]
+    fn split_refuses_more_than_a_frame_holds() {
+        let all = [corr(0); MAX_CORRESPONDENCES_PER_MESSAGE * MAX_PARTS_PER_FRAME + 1];
+        assert_eq!(
+            Correspondences::split(0, 0, &all).err(),
+            Some(TooManyCorrespondences { count: all.len() })
+        );
+    }
+}

@@ -1,0 +1,209 @@
+//! One representative instance of every message kind: the worked examples of `PROTOCOL.md`
+//! (checked byte for byte by a test), the loop-back self-test's traffic, and the size table.
+
+use heapless::Vec;
+
+use crate::error::{DecodeError, ErrorCode, InvalidField};
+use crate::handshake::{PROTOCOL_VERSION, Version};
+use crate::messages::*;
+
+/// A typical configuration: acc model, noise close to an XSens MT9-class IMU, hand-eye of a
+/// camera looking along the sensor's x axis.
+pub const fn config() -> Config {
+    Config {
+        model: ModelKind::Acc,
+        noise: NoiseParams {
+            motion: 5.0,
+            angular: 2.0,
+            gyro_bias_walk: 1e-4,
+            accel_bias_walk: 1e-3,
+            gyro_meas: 0.01,
+            accel_meas: 0.05,
+        },
+        init_sigma: InitSigma {
+            position: 0.05,
+            velocity: 0.1,
+            acceleration: 1.0,
+            tilt: 0.05,
+            yaw: 0.5,
+            angular_velocity: 0.1,
+            gyro_bias: 0.02,
+            accel_bias: 0.1,
+        },
+        hand_eye: HandEye {
+            q_cs: [0.5, -0.5, 0.5, -0.5],
+            c_s: [0.02, 0.0, -0.01],
+        },
+        gate: 30.0,
+        divergence: DivergenceParams {
+            residual_lowpass: 0.95,
+            residual_threshold: 50.0,
+            covariance_frobenius: 10.0,
+            quaternion_norm: 0.01,
+        },
+        imu_rate_hz: 100.0,
+        camera_rate_hz: 25.0,
+        still_samples: 50,
+    }
+}
+
+/// A correspondence with small isotropic covariances.
+pub const fn correspondence(m_n: [f32; 2], m_w: [f32; 3]) -> Correspondence {
+    Correspondence {
+        m_n,
+        cov_n: [1e-6, 0.0, 1e-6],
+        m_w,
+        cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+    }
+}
+
+/// Named host messages, one per kind (two for `Init`).
+pub fn host_messages() -> [(&'static str, HostToCore); 7] {
+    let mut items = Vec::new();
+    let _ = items.push(correspondence([0.125, -0.25], [0.5, 0.25, 0.0]));
+    let _ = items.push(correspondence([-0.0625, 0.5], [0.0, 0.1, 0.2]));
+    [
+        (
+            "Hello",
+            HostToCore::Hello(Hello {
+                version: PROTOCOL_VERSION,
+            }),
+        ),
+        ("Configure", HostToCore::Configure(config())),
+        (
+            "Init (gravity and yaw)",
+            HostToCore::Init(Init {
+                position: [0.0, -0.5, 1.25],
+                attitude: InitAttitude::GravityAndYaw(1.5),
+            }),
+        ),
+        (
+            "Init (full orientation)",
+            HostToCore::Init(Init {
+                position: [1.0, 2.0, 3.0],
+                attitude: InitAttitude::Full([1.0, 0.0, 0.0, 0.0]),
+            }),
+        ),
+        (
+            "Imu",
+            HostToCore::Imu(ImuSample {
+                t_us: 1_000_000,
+                gyro: [0.01, -0.02, 0.5],
+                accel: [0.1, 0.0, 9.81],
+                trigger: true,
+            }),
+        ),
+        (
+            "Correspondences",
+            HostToCore::Correspondences(Correspondences {
+                frame_id: 42,
+                trigger_us: 1_000_000,
+                part: 0,
+                parts: 1,
+                items,
+            }),
+        ),
+        ("Reset", HostToCore::Reset),
+    ]
+}
+
+/// Named core messages, one per kind (three for `Error`).
+pub fn core_messages() -> [(&'static str, CoreToHost); 9] {
+    let mut cov = [0.0f32; 21];
+    for i in 0..6 {
+        cov[sym_index(6, i, i)] = if i < 3 { 1e-4 } else { 1e-5 };
+    }
+    let mut residuals = Vec::new();
+    let _ = residuals.push(0.5);
+    let _ = residuals.push(3.25);
+    let _ = residuals.push(120.0);
+    [
+        (
+            "HelloAck",
+            CoreToHost::HelloAck(HelloAck {
+                version: PROTOCOL_VERSION,
+                model: Some(ModelKind::Acc),
+                capacities: Capacities {
+                    max_frame_len: crate::MAX_FRAME_LEN as u16,
+                    max_correspondences_per_message: crate::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
+                    max_correspondences_per_frame: 64,
+                    delay_buffer_samples: 32,
+                    scalar_bits: 32,
+                },
+            }),
+        ),
+        (
+            "Error (version mismatch)",
+            CoreToHost::error(ErrorCode::VersionMismatch {
+                core: PROTOCOL_VERSION,
+                host: Version { major: 2, minor: 0 },
+            }),
+        ),
+        (
+            "Error (invalid field)",
+            CoreToHost::error(ErrorCode::Invalid(InvalidField::CorrespondenceCovariance {
+                index: 3,
+            })),
+        ),
+        (
+            "Error (decode)",
+            CoreToHost::error(ErrorCode::Decode(DecodeError::Crc)),
+        ),
+        (
+            "PosePrediction",
+            CoreToHost::PosePrediction(PosePrediction {
+                frame_id: 42,
+                t_us: 1_000_000,
+                c_w: [0.0, -0.5, 1.25],
+                q_cw: [0.5, -0.5, 0.5, -0.5],
+                cov,
+            }),
+        ),
+        (
+            "State",
+            CoreToHost::State(StateReport {
+                t_us: 1_010_000,
+                s_w: [0.0, -0.5, 1.25],
+                q_sw: [1.0, 0.0, 0.0, 0.0],
+                v_w: [0.1, 0.0, 0.0],
+                a_w: [0.0, 0.0, 0.0],
+                omega_s: [0.0, 0.0, 0.5],
+                gyro_bias: [0.001, -0.002, 0.0],
+                accel_bias: [0.0, 0.0, 0.01],
+                health: Health {
+                    mode: Mode::Tracking,
+                    covariance_frobenius: 0.25,
+                    residual_lowpass: 1.5,
+                    quaternion_norm_error: 1e-6,
+                },
+            }),
+        ),
+        (
+            "UpdateReport",
+            CoreToHost::UpdateReport(UpdateReport {
+                frame_id: 42,
+                part: 0,
+                outcome: UpdateOutcome::Applied,
+                accepted: 2,
+                rejected: 1,
+                residuals,
+                prediction_error: 0.004,
+            }),
+        ),
+        (
+            "Status",
+            CoreToHost::Status(Status {
+                t_us: 1_010_000,
+                mode: Mode::DeadReckoning,
+                reason: StatusReason::NoVision,
+            }),
+        ),
+        (
+            "Error (timestamp)",
+            CoreToHost::error(ErrorCode::TimestampNotIncreasing {
+                last_us: 1_010_000,
+                got_us: 1_000_000,
+            }),
+        ),
+    ]
+}

@@ -1,0 +1,190 @@
+//! Field validation of host messages. The framing guarantees that a message arrived intact;
+//! this guarantees that its numbers mean something before the filter touches them.
+
+use crate::error::InvalidField;
+use crate::limits::MAX_PARTS_PER_FRAME;
+use crate::messages::{
+    Config, Correspondence, Correspondences, HostToCore, Init, InitAttitude, Sym2, Sym3,
+};
+
+/// How far a quaternion's norm may be from 1 and still count as a unit quaternion. Generous
+/// enough for f32 round trips of any normalised quaternion.
+pub const UNIT_QUATERNION_TOLERANCE: f32 = 1e-3;
+
+/// Relative tolerance of the semi-definiteness checks of covariances (f32 rounding).
+const PSD_TOLERANCE: f32 = 1e-5;
+
+pub(crate) fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
+    match msg {
+        HostToCore::Hello(_) | HostToCore::Reset => Ok(()),
+        HostToCore::Configure(c) => config(c),
+        HostToCore::Init(i) => init(i),
+        HostToCore::Imu(s) => {
+            if all_finite(&s.gyro) && all_finite(&s.accel) {
+                Ok(())
+            } else {
+                Err(InvalidField::ImuNotFinite)
+            }
+        }
+        HostToCore::Correspondences(c) => correspondences(c),
+    }
+}
+
+fn all_finite(v: &[f32]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+fn positive(x: f32) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+fn non_negative(x: f32) -> bool {
+    x.is_finite() && x >= 0.0
+}
+
+/// Whether `q` is a finite quaternion of norm 1 within [`UNIT_QUATERNION_TOLERANCE`].
+pub fn is_unit_quaternion(q: &[f32; 4]) -> bool {
+    let n2: f32 = q.iter().map(|x| x * x).sum();
+    all_finite(q) && (n2 - 1.0).abs() <= 2.0 * UNIT_QUATERNION_TOLERANCE
+}
+
+fn config(c: &Config) -> Result<(), InvalidField> {
+    let n = &c.noise;
+    let noises = [
+        n.motion,
+        n.angular,
+        n.gyro_bias_walk,
+        n.accel_bias_walk,
+        n.gyro_meas,
+        n.accel_meas,
+    ];
+    if !noises.iter().all(|&x| non_negative(x)) || !positive(n.gyro_meas) {
+        return Err(InvalidField::NoiseParams);
+    }
+    let s = &c.init_sigma;
+    let sigmas = [
+        s.position,
+        s.velocity,
+        s.acceleration,
+        s.tilt,
+        s.yaw,
+        s.angular_velocity,
+        s.gyro_bias,
+        s.accel_bias,
+    ];
+    if !sigmas.iter().all(|&x| positive(x)) {
+        return Err(InvalidField::InitSigma);
+    }
+    if !is_unit_quaternion(&c.hand_eye.q_cs) || !all_finite(&c.hand_eye.c_s) {
+        return Err(InvalidField::HandEye);
+    }
+    if !positive(c.gate) {
+        return Err(InvalidField::Gate);
+    }
+    let d = &c.divergence;
+    let lambda_ok =
+        d.residual_lowpass.is_finite() && d.residual_lowpass > 0.0 && d.residual_lowpass < 1.0;
+    if !lambda_ok
+        || !positive(d.residual_threshold)
+        || !positive(d.covariance_frobenius)
+        || !positive(d.quaternion_norm)
+    {
+        return Err(InvalidField::Divergence);
+    }
+    if !positive(c.imu_rate_hz) || !positive(c.camera_rate_hz) {
+        return Err(InvalidField::Rate);
+    }
+    if c.still_samples == 0 {
+        return Err(InvalidField::StillSamples);
+    }
+    Ok(())
+}
+
+fn init(i: &Init) -> Result<(), InvalidField> {
+    if !all_finite(&i.position) {
+        return Err(InvalidField::InitPosition);
+    }
+    let ok = match &i.attitude {
+        InitAttitude::Gravity => true,
+        InitAttitude::GravityAndYaw(yaw) => yaw.is_finite(),
+        InitAttitude::Full(q) => is_unit_quaternion(q),
+    };
+    if ok {
+        Ok(())
+    } else {
+        Err(InvalidField::InitAttitude)
+    }
+}
+
+fn correspondences(c: &Correspondences) -> Result<(), InvalidField> {
+    let parts = c.parts as usize;
+    if parts == 0 || parts > MAX_PARTS_PER_FRAME || c.part >= c.parts {
+        return Err(InvalidField::CorrespondencePart);
+    }
+    for (i, item) in c.items.iter().enumerate() {
+        // Fits: items hold at most MAX_CORRESPONDENCES_PER_MESSAGE (< 256) entries.
+        correspondence(item, i as u8)?;
+    }
+    Ok(())
+}
+
+fn correspondence(c: &Correspondence, index: u8) -> Result<(), InvalidField> {
+    if !all_finite(&c.m_n) || !all_finite(&c.m_w) || !all_finite(&c.cov_n) || !all_finite(&c.cov_w)
+    {
+        return Err(InvalidField::CorrespondenceNotFinite { index });
+    }
+    if psd2(&c.cov_n) && psd3(&c.cov_w) {
+        Ok(())
+    } else {
+        Err(InvalidField::CorrespondenceCovariance { index })
+    }
+}
+
+/// Whether a packed symmetric 2×2 matrix is positive semi-definite (within f32 rounding).
+pub fn psd2(m: &Sym2) -> bool {
+    let [a, b, d] = *m;
+    let scale = a.abs().max(d.abs());
+    let tol = PSD_TOLERANCE * scale;
+    a >= -tol && d >= -tol && a * d - b * b >= -tol * scale
+}
+
+/// Whether a packed symmetric 3×3 matrix is positive semi-definite (within f32 rounding):
+/// every principal minor is non-negative.
+pub fn psd3(m: &Sym3) -> bool {
+    let [a, b, c, d, e, f] = *m;
+    let scale = a.abs().max(d.abs()).max(f.abs());
+    let tol = PSD_TOLERANCE * scale;
+    let minors_ok = a * d - b * b >= -tol * scale
+        && a * f - c * c >= -tol * scale
+        && d * f - e * e >= -tol * scale;
+    let det = a * (d * f - e * e) - b * (b * f - e * c) + c * (b * e - d * c);
+    a >= -tol && d >= -tol && f >= -tol && minors_ok && det >= -tol * scale * scale
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn semi_definite_checks() {
+        assert!(psd2(&[1.0, 0.0, 1.0]));
+        assert!(psd2(&[0.0, 0.0, 0.0]));
+        assert!(psd2(&[1.0, 1.0, 1.0])); // rank 1
+        assert!(!psd2(&[1.0, 2.0, 1.0]));
+        assert!(!psd2(&[-1.0, 0.0, 1.0]));
+        assert!(psd3(&[1.0, 0.0, 0.0, 1.0, 0.0, 1.0]));
+        assert!(psd3(&[0.0; 6]));
+        assert!(psd3(&[1.0, 1.0, 1.0, 1.0, 1.0, 1.0])); // rank 1
+        assert!(!psd3(&[1.0, 0.0, 0.0, 1.0, 0.0, -1.0]));
+        // All 2×2 minors fine, determinant negative.
+        assert!(!psd3(&[1.0, 0.9, 0.9, 1.0, -0.9, 1.0]));
+    }
+
+    #[test]
+    fn unit_quaternions() {
+        assert!(is_unit_quaternion(&[1.0, 0.0, 0.0, 0.0]));
+        assert!(is_unit_quaternion(&[0.5, 0.5, 0.5, 0.5]));
+        assert!(!is_unit_quaternion(&[1.0, 0.1, 0.0, 0.0]));
+        assert!(!is_unit_quaternion(&[f32::NAN, 0.0, 0.0, 0.0]));
+    }
+}

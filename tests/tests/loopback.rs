@@ -1,0 +1,25 @@
+//! The protocol's loop-back self-test over a real pty pair: host-vision's link on one end,
+//! firmware-sim's board on the other.
+
+#[test]
+fn selftest_over_a_pty_pair_passes_and_reports_every_message_kind() {
+    let report = host_vision::selftest::run_over_pty(500).expect("self-test");
+    assert_eq!(report.imu_samples, 500);
+    // 2 Hellos + 5 sample messages + 500 IMU + Reset.
+    assert_eq!(report.host_messages_checked, 2 + 5 + 500 + 1);
+    assert_eq!(
+        report.core_messages_checked,
+        protocol::samples::core_messages().len()
+    );
+    assert_eq!(report.corrupted_frames_rejected, 5 + 4);
+    assert!(
+        report.version_mismatch.contains("version mismatch"),
+        "{}",
+        report.version_mismatch
+    );
+    assert!(report.imu_rate > 0.0);
+    for row in &report.sizes {
+        assert!(row.frame <= protocol::MAX_FRAME_LEN, "{row:?}");
+        assert!(row.frame > row.body, "{row:?}");
+    }
+}

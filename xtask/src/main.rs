@@ -1,0 +1,238 @@
+//! Project commands, run as `cargo xtask <command>`:
+//!
+//! - `demo`: the main job (today: the protocol loop-back self-test over a pty pair);
+//! - `test`: every check CI runs: format, lints, tests, and the no_std crates built for the
+//!   Cortex-M4F target;
+//! - `setup`: only the machine set-up both of the above start with.
+//!
+//! Set-up is idempotent and quick when everything is present: on Debian as root it installs
+//! missing system packages with apt-get and missing rustup components and targets; elsewhere it
+//! says exactly what to install by hand.
+
+use std::env;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+use std::time::Instant;
+
+/// The Cortex-M4F target the no_std crates must build for.
+const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
+
+/// Crates that must build for [`THUMB_TARGET`] (one by one: see TOOLCHAIN.md).
+const NO_STD_CRATES: &[&str] = &["protocol", "fusion-core"];
+
+/// Debian packages each command needs at run time (none yet: the renderer and the QEMU
+/// firmware tests add theirs).
+const DEMO_PACKAGES: &[&str] = &[];
+const TEST_PACKAGES: &[&str] = &[];
+
+fn main() -> ExitCode {
+    let args: Vec<String> = env::args().skip(1).collect();
+    let result = match args.first().map(String::as_str) {
+        Some("demo") => setup(DEMO_PACKAGES, false).and_then(|_| demo(&args[1..])),
+        Some("test") => setup(TEST_PACKAGES, true).and_then(|_| test()),
+        Some("setup") => setup(TEST_PACKAGES, true),
+        _ => {
+            eprintln!(
+                "usage: cargo xtask <demo|test|setup>\n\n  \
+                 demo   run the main job on the built-in default scenario\n  \
+                 test   run every check CI runs (fmt, clippy, tests, thumbv7em builds)\n  \
+                 setup  install what the two commands need (Debian, as root)"
+            );
+            return ExitCode::from(2);
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(msg) => {
+            eprintln!("\nxtask: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn workspace_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask lives one level below the workspace root")
+        .to_path_buf()
+}
+
+fn cargo() -> Command {
+    let mut cmd = Command::new(env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cmd.current_dir(workspace_root());
+    cmd
+}
+
+/// Runs a command, echoing it; fails with its exit status.
+fn run(mut cmd: Command) -> Result<(), String> {
+    let shown = format!(
+        "{} {}",
+        cmd.get_program().to_string_lossy(),
+        cmd.get_args()
+            .map(|a| a.to_string_lossy().into_owned())
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
+    println!("\n==> {shown}");
+    let start = Instant::now();
+    let status = cmd
+        .status()
+        .map_err(|e| format!("cannot start `{shown}`: {e}"))?;
+    println!(
+        "<== {shown}: {status} after {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("`{shown}` failed ({status})"))
+    }
+}
+
+/// Whether a command runs and exits successfully (output discarded).
+fn succeeds(program: &str, args: &[&str]) -> bool {
+    Command::new(program)
+        .args(args)
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+fn output(program: &str, args: &[&str]) -> Option<String> {
+    let out = Command::new(program).args(args).output().ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn is_root() -> bool {
+    output("id", &["-u"]).is_some_and(|s| s.trim() == "0")
+}
+
+fn is_debian() -> bool {
+    Path::new("/etc/debian_version").exists() && succeeds("apt-get", &["--version"])
+}
+
+fn deb_installed(pkg: &str) -> bool {
+    output("dpkg-query", &["-W", "-f=${Status}", pkg])
+        .is_some_and(|s| s.contains("install ok installed"))
+}
+
+/// Installs what the commands need; `dev_tools` adds rustfmt, clippy and the thumb target.
+fn setup(packages: &[&str], dev_tools: bool) -> Result<(), String> {
+    let mut missing_by_hand = Vec::new();
+
+    let missing: Vec<&str> = packages
+        .iter()
+        .copied()
+        .filter(|p| !deb_installed(p))
+        .collect();
+    if !missing.is_empty() {
+        if is_debian() && is_root() {
+            println!("xtask: installing Debian packages: {}", missing.join(" "));
+            let mut update = Command::new("apt-get");
+            update.args(["update", "-q"]);
+            run(update)?;
+            let mut install = Command::new("apt-get");
+            install
+                .args(["install", "-y", "-q", "--no-install-recommends"])
+                .args(&missing)
+                .env("DEBIAN_FRONTEND", "noninteractive");
+            run(install)?;
+        } else {
+            missing_by_hand.push(format!(
+                "system packages {} (Debian/Ubuntu: `sudo apt-get install {}`; \
+                 elsewhere their equivalents)",
+                missing.join(", "),
+                missing.join(" ")
+            ));
+        }
+    }
+
+    if dev_tools {
+        let has_rustup = succeeds("rustup", &["--version"]);
+        for (component, probe) in [("rustfmt", "fmt"), ("clippy", "clippy")] {
+            if succeeds("cargo", &[probe, "--version"]) {
+                continue;
+            }
+            if has_rustup {
+                let mut add = Command::new("rustup");
+                add.args(["component", "add", component]);
+                run(add)?;
+            } else {
+                missing_by_hand.push(format!("the Rust component {component}"));
+            }
+        }
+        let installed = output("rustup", &["target", "list", "--installed"]).unwrap_or_default();
+        if !installed.lines().any(|l| l.trim() == THUMB_TARGET) {
+            if has_rustup {
+                let mut add = Command::new("rustup");
+                add.args(["target", "add", THUMB_TARGET]);
+                run(add)?;
+            } else {
+                missing_by_hand.push(format!(
+                    "the Rust target {THUMB_TARGET} (with rustup: `rustup target add {THUMB_TARGET}`)"
+                ));
+            }
+        }
+    }
+
+    if missing_by_hand.is_empty() {
+        Ok(())
+    } else {
+        Err(format!(
+            "cannot install automatically (needs Debian and root; this is {}{}). Install by hand:\n  - {}",
+            if is_debian() { "Debian" } else { "not Debian" },
+            if is_root() { ", root" } else { ", not root" },
+            missing_by_hand.join("\n  - ")
+        ))
+    }
+}
+
+fn demo(extra: &[String]) -> Result<(), String> {
+    let mut cmd = cargo();
+    cmd.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "host-vision",
+        "--",
+        "selftest",
+    ])
+    .args(extra);
+    run(cmd)
+}
+
+fn test() -> Result<(), String> {
+    let start = Instant::now();
+    let mut fmt = cargo();
+    fmt.args(["fmt", "--all", "--check"]);
+    run(fmt)?;
+
+    let mut clippy = cargo();
+    clippy.args([
+        "clippy",
+        "--workspace",
+        "--all-targets",
+        "--",
+        "-D",
+        "warnings",
+    ]);
+    run(clippy)?;
+
+    let mut tests = cargo();
+    tests.args(["test", "--workspace"]);
+    run(tests)?;
+
+    for krate in NO_STD_CRATES {
+        let mut build = cargo();
+        build.args(["build", "--release", "-p", krate, "--target", THUMB_TARGET]);
+        run(build)?;
+    }
+    println!(
+        "\nxtask: all checks passed in {:.0} s",
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
