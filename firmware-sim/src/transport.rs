@@ -63,9 +63,24 @@ fn tty_duplex(mut port: TTYPort, name: String) -> Result<Duplex, serialport::Err
     let writer = port.try_clone_native()?;
     Ok(Duplex {
         reader: Box::new(PtyReader(port)),
-        writer: Box::new(writer),
+        writer: Box::new(TtyWriter(writer)),
         name,
     })
+}
+
+/// `TTYPort` writes go straight to the kernel; its `flush` is `tcdrain`, which waits until the
+/// peer has read everything and fails if the peer closes meanwhile. A framed writer only needs
+/// the bytes handed to the kernel, so flushing is a no-op here.
+struct TtyWriter(TTYPort);
+
+impl Write for TtyWriter {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.0.write(buf)
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
 }
 
 /// A tty read fails with a hang-up (`BrokenPipe` from poll, or `EIO`) once the other end is

@@ -8,16 +8,20 @@ use crate::error::DecodeError;
 use crate::framing::crc32c;
 use crate::limits::{CRC_LEN, MAX_FRAME_LEN};
 
+/// Most encoded bytes between two delimiters.
+const MAX_ENCODED_LEN: usize = MAX_FRAME_LEN - 2;
+
 /// Accumulates bytes, in chunks of any size, into frames and decodes them.
 ///
-/// The buffer holds one frame ([`MAX_FRAME_LEN`] bytes). A frame longer than that is dropped
+/// The buffer holds the encoded bytes of one frame ([`MAX_FRAME_LEN`] less its two
+/// delimiters). A frame longer than that is dropped
 /// up to its delimiter and reported as [`DecodeError::Oversized`]; any other bad frame is
 /// reported with its reason. Either way the decoder is in sync again at the next delimiter.
 /// Empty frames (two delimiters in a row) are skipped silently: a sender may emit a lone
 /// `0x00` to flush a receiver's partial frame.
 #[derive(Clone)]
 pub struct Decoder {
-    buf: [u8; MAX_FRAME_LEN],
+    buf: [u8; MAX_ENCODED_LEN],
     len: usize,
     overflowed: bool,
 }
@@ -41,7 +45,7 @@ impl Decoder {
     /// An empty decoder.
     pub const fn new() -> Self {
         Decoder {
-            buf: [0; MAX_FRAME_LEN],
+            buf: [0; MAX_ENCODED_LEN],
             len: 0,
             overflowed: false,
         }
@@ -109,9 +113,7 @@ impl Decoder {
         if self.overflowed {
             return;
         }
-        // One byte stays free: a frame of MAX_FRAME_LEN - 1 encoded bytes plus the delimiter is
-        // the largest legal frame.
-        let room = MAX_FRAME_LEN - 1 - self.len;
+        let room = MAX_ENCODED_LEN - self.len;
         if body.len() > room {
             self.overflowed = true;
             self.len = 0;
@@ -225,14 +227,14 @@ mod tests {
 
     #[test]
     fn largest_legal_encoded_length_is_accepted_by_the_buffer() {
-        // MAX_FRAME_LEN - 1 non-zero bytes fit (they fail later checks, but not as Oversized).
+        // MAX_ENCODED_LEN non-zero bytes fit (they fail later checks, but not as Oversized).
         let mut dec = Decoder::new();
-        let mut stream = vec![0x01u8; MAX_FRAME_LEN - 1];
+        let mut stream = vec![0x01u8; MAX_ENCODED_LEN];
         stream.push(0);
         let got: Vec<_> = dec.feed::<HostToCore>(&stream).collect();
         assert_eq!(got.len(), 1);
         assert_ne!(got[0], Err(DecodeError::Oversized));
-        let mut stream = vec![0x01u8; MAX_FRAME_LEN];
+        let mut stream = vec![0x01u8; MAX_ENCODED_LEN + 1];
         stream.push(0);
         let got: Vec<_> = dec.feed::<HostToCore>(&stream).collect();
         assert_eq!(got, vec![Err(DecodeError::Oversized)]);

@@ -1,7 +1,10 @@
-//! Framing: `COBS(postcard(msg) ‖ CRC-32C(postcard(msg)) as little-endian u32) ‖ 0x00`.
+//! Framing: `0x00 ‖ COBS(postcard(msg) ‖ CRC-32C(postcard(msg)) as little-endian u32) ‖ 0x00`.
 //!
-//! COBS removes every zero byte from the frame, so `0x00` marks frame ends unambiguously and a
-//! receiver that lost sync finds the next frame at the next zero. The CRC-32C (Castagnoli,
+//! COBS removes every zero byte from the frame, so `0x00` marks frame boundaries unambiguously
+//! and a receiver that lost sync finds the next frame at the next zero. Each frame is delimited
+//! on both sides: if a frame's closing delimiter is corrupted, the next frame's opening one
+//! still ends the damage there, so only the corrupted frame is lost. (The receiver skips the
+//! empty frame between two delimiters.) The CRC-32C (Castagnoli,
 //! reflected, init and xor-out `0xFFFFFFFF`, check value `0xE3069283`) detects corruption.
 
 use crc::{CRC_32_ISCSI, Crc};
@@ -22,7 +25,7 @@ pub fn body_len<T: Serialize>(msg: &T) -> Result<usize, EncodeError> {
     postcard::experimental::serialized_size(msg).map_err(|_| EncodeError::PayloadTooLarge)
 }
 
-/// Encodes `msg` as one complete frame (delimiter included) into `out` and returns the frame.
+/// Encodes `msg` as one complete frame (both delimiters included) into `out` and returns the frame.
 /// `out` of [`crate::MAX_FRAME_LEN`] bytes always suffices for the protocol's messages.
 pub fn encode_frame<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o [u8], EncodeError> {
     let mut raw = [0u8; MAX_PAYLOAD_LEN + CRC_LEN];
@@ -33,15 +36,19 @@ pub fn encode_frame<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o 
     raw[body_len..body_len + CRC_LEN].copy_from_slice(&crc.to_le_bytes());
     let raw = &raw[..body_len + CRC_LEN];
 
-    // The delimiter needs one byte after the COBS output.
-    let cobs_room = out
+    // Room for the two delimiters around the COBS output.
+    let cobs_end = out
         .len()
         .checked_sub(1)
         .ok_or(EncodeError::BufferTooSmall)?;
+    if cobs_end < 1 {
+        return Err(EncodeError::BufferTooSmall);
+    }
+    out[0] = 0;
     let n =
-        cobs::try_encode(raw, &mut out[..cobs_room]).map_err(|_| EncodeError::BufferTooSmall)?;
-    out[n] = 0;
-    Ok(&out[..n + 1])
+        cobs::try_encode(raw, &mut out[1..cobs_end]).map_err(|_| EncodeError::BufferTooSmall)?;
+    out[1 + n] = 0;
+    Ok(&out[..n + 2])
 }
 
 #[cfg(test)]
@@ -68,7 +75,7 @@ mod tests {
     }
 
     #[test]
-    fn frames_hold_exactly_one_zero_at_the_end() {
+    fn frames_hold_zeros_only_at_both_ends() {
         let msg = crate::HostToCore::Imu(crate::ImuSample {
             t_us: 0,
             gyro: [0.0; 3],
@@ -77,7 +84,7 @@ mod tests {
         });
         let mut out = [0u8; crate::MAX_FRAME_LEN];
         let frame = encode_frame(&msg, &mut out).unwrap();
-        assert_eq!(frame.iter().filter(|&&b| b == 0).count(), 1);
-        assert_eq!(frame.last(), Some(&0));
+        assert_eq!(frame.iter().filter(|&&b| b == 0).count(), 2, "{frame:?}");
+        assert_eq!((frame.first(), frame.last()), (Some(&0), Some(&0)));
     }
 }

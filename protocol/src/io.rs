@@ -195,8 +195,8 @@ mod tests {
         let mut w = FrameWriter::new(Vec::new());
         w.send(&HostToCore::Reset).unwrap();
         let mut bytes = w.into_inner();
-        bytes.pop(); // drop the delimiter
-        let n = bytes.len();
+        bytes.pop(); // drop the closing delimiter
+        let n = bytes.len() - 1; // all but the opening delimiter are pending
         let mut r = FrameReader::new(&bytes[..]);
         match r.recv::<HostToCore>() {
             Err(RecvError::Closed { partial }) => assert_eq!(partial, n),

@@ -18,16 +18,16 @@ pub const CRC_LEN: usize = 4;
 /// message kind against it).
 pub const MAX_PAYLOAD_LEN: usize = 1024;
 
-/// Largest frame on the wire, in bytes: COBS of body and CRC, plus the `0x00` delimiter.
-pub const MAX_FRAME_LEN: usize = cobs::max_encoding_length(MAX_PAYLOAD_LEN + CRC_LEN) + 1;
+/// Largest frame on the wire, in bytes: COBS of body and CRC between two `0x00` delimiters.
+pub const MAX_FRAME_LEN: usize = cobs::max_encoding_length(MAX_PAYLOAD_LEN + CRC_LEN) + 2;
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn frame_bound_is_body_crc_cobs_overhead_and_delimiter() {
+    fn frame_bound_is_body_crc_cobs_overhead_and_delimiters() {
         // 1028 bytes need ceil(1028 / 254) = 5 COBS code bytes.
-        assert_eq!(MAX_FRAME_LEN, 1024 + 4 + 5 + 1);
+        assert_eq!(MAX_FRAME_LEN, 1024 + 4 + 5 + 2);
     }
 }

@@ -180,6 +180,120 @@ mod tests {
         assert!(!psd3(&[1.0, 0.9, 0.9, 1.0, -0.9, 1.0]));
     }
 
+    use crate::messages::*;
+    use crate::samples;
+
+    #[test]
+    fn every_sample_message_is_valid() {
+        for (name, msg) in samples::host_messages() {
+            assert_eq!(msg.validate(), Ok(()), "{name}");
+        }
+    }
+
+    #[test]
+    fn bad_fields_are_named() {
+        let imu = |gyro: [f32; 3]| {
+            HostToCore::Imu(ImuSample {
+                t_us: 1,
+                gyro,
+                accel: [0.0; 3],
+                trigger: false,
+            })
+        };
+        assert_eq!(
+            imu([f32::NAN, 0.0, 0.0]).validate(),
+            Err(InvalidField::ImuNotFinite)
+        );
+        assert_eq!(
+            imu([0.0, f32::INFINITY, 0.0]).validate(),
+            Err(InvalidField::ImuNotFinite)
+        );
+
+        let configure = |edit: fn(&mut Config)| {
+            let mut c = samples::config();
+            edit(&mut c);
+            HostToCore::Configure(c).validate()
+        };
+        assert_eq!(
+            configure(|c| c.noise.motion = -1.0),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            configure(|c| c.noise.gyro_meas = 0.0),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            configure(|c| c.init_sigma.yaw = 0.0),
+            Err(InvalidField::InitSigma)
+        );
+        assert_eq!(
+            configure(|c| c.hand_eye.q_cs = [1.0, 1.0, 0.0, 0.0]),
+            Err(InvalidField::HandEye)
+        );
+        assert_eq!(
+            configure(|c| c.hand_eye.c_s[1] = f32::NAN),
+            Err(InvalidField::HandEye)
+        );
+        assert_eq!(configure(|c| c.gate = 0.0), Err(InvalidField::Gate));
+        assert_eq!(
+            configure(|c| c.divergence.residual_lowpass = 1.0),
+            Err(InvalidField::Divergence)
+        );
+        assert_eq!(
+            configure(|c| c.imu_rate_hz = f32::NAN),
+            Err(InvalidField::Rate)
+        );
+        assert_eq!(
+            configure(|c| c.still_samples = 0),
+            Err(InvalidField::StillSamples)
+        );
+
+        let init = |position, attitude| HostToCore::Init(Init { position, attitude }).validate();
+        assert_eq!(
+            init([f32::NAN, 0.0, 0.0], InitAttitude::Gravity),
+            Err(InvalidField::InitPosition)
+        );
+        assert_eq!(
+            init([0.0; 3], InitAttitude::Full([0.0; 4])),
+            Err(InvalidField::InitAttitude)
+        );
+        assert_eq!(
+            init([0.0; 3], InitAttitude::GravityAndYaw(f32::INFINITY)),
+            Err(InvalidField::InitAttitude)
+        );
+
+        let corr = |part, parts, c: Correspondence| {
+            let mut items = heapless::Vec::new();
+            let _ = items.push(samples::correspondence([0.0; 2], [0.0; 3]));
+            let _ = items.push(c);
+            HostToCore::Correspondences(Correspondences {
+                frame_id: 1,
+                trigger_us: 1,
+                part,
+                parts,
+                items,
+            })
+            .validate()
+        };
+        let ok = samples::correspondence([0.1, 0.2], [1.0, 2.0, 3.0]);
+        assert_eq!(corr(0, 1, ok), Ok(()));
+        assert_eq!(corr(1, 1, ok), Err(InvalidField::CorrespondencePart));
+        assert_eq!(corr(0, 0, ok), Err(InvalidField::CorrespondencePart));
+        assert_eq!(corr(0, 9, ok), Err(InvalidField::CorrespondencePart));
+        let mut bad = ok;
+        bad.m_w[2] = f32::NAN;
+        assert_eq!(
+            corr(0, 1, bad),
+            Err(InvalidField::CorrespondenceNotFinite { index: 1 })
+        );
+        let mut bad = ok;
+        bad.cov_n = [1.0, 2.0, 1.0];
+        assert_eq!(
+            corr(0, 1, bad),
+            Err(InvalidField::CorrespondenceCovariance { index: 1 })
+        );
+    }
+
     #[test]
     fn unit_quaternions() {
         assert!(is_unit_quaternion(&[1.0, 0.0, 0.0, 0.0]));
