@@ -1,30 +1,30 @@
 //! The fusion core: the EKF of Bleser & Stricker (2008) with its three system models, run at
-//! IMU rate on a Cortex-M4F or on the PC. `no_std`, no allocation, fixed sizes.
+//! IMU rate on a Cortex-M4F or on the PC. `no_std`, no allocation, fixed sizes, generic over
+//! the scalar (`f32` on the MCU, `f64` on the PC).
 //!
-//! Its filter arrives with its own issue; today the crate fixes the contract it will be built
-//! against: the protocol version it speaks and the model sizes it supports.
+//! Where the equations of DESIGN.md §4 live:
+//!
+//! | equation | module |
+//! |---|---|
+//! | camera pose from the state (5-6) | [`state::camera_pose`] |
+//! | time update (7, 12, 15) | [`models::motion`] |
+//! | gyro measurement (9) | [`models::gyro`] |
+//! | correspondence measurement (10), gate (17) | [`models::correspondence`] |
+//! | accelerometer measurement (13, 16) | [`models::accel`] |
+//! | Joseph-form update | [`ekf`] |
 #![no_std]
 
-pub use protocol::{ModelKind, PROTOCOL_VERSION};
-
-/// Largest state dimension of any model (the acc model, DESIGN.md §4).
-pub const MAX_STATE_DIM: usize = {
-    let mut max = 0;
-    let mut i = 0;
-    while i < ModelKind::ALL.len() {
-        let n = ModelKind::ALL[i].state_dim();
-        if n > max {
-            max = n;
-        }
-        i += 1;
-    }
-    max
-};
-
 #[cfg(test)]
-mod tests {
-    #[test]
-    fn acc_model_is_the_largest() {
-        assert_eq!(super::MAX_STATE_DIM, 22);
-    }
-}
+extern crate std;
+
+pub mod ekf;
+pub mod models;
+pub mod params;
+pub mod quat;
+pub mod scalar;
+pub mod state;
+#[cfg(test)]
+mod testutil;
+
+pub use protocol::{ModelKind, PROTOCOL_VERSION};
+pub use scalar::Scalar;

@@ -1,0 +1,2 @@
+//! Filter benchmarks (filled in with the filter).
+fn main() {}

@@ -1,0 +1,120 @@
+//! Accelerometer measurement.
+//!
+//! - gravity model (eq. 13): `y_a = R(q_sw)(−g_w) + b_a + v_ya` (free acceleration is noise);
+//! - acc model (eq. 16): `y_a = R(q_sw)(s̈_w − g_w) + b_a + v_ya`.
+//!
+//! The gyro model does not use the accelerometer.
+
+use nalgebra::{SMatrix, SVector, Vector3};
+use protocol::ModelKind;
+
+use crate::ekf::{SparseRow, UpdateError, innovation, joseph_update};
+use crate::params::Params;
+use crate::quat;
+use crate::scalar::Scalar;
+use crate::state::{ACC, ACC_BIAS, QUAT, State};
+
+/// Magnitude of gravity [m/s²]; `g_w = [0, 0, −GRAVITY]` (DESIGN.md §3).
+pub const GRAVITY: f64 = 9.81;
+
+/// `s̈_w − g_w` (the free acceleration is zero in the gravity model's state).
+fn specific_force_world<T: Scalar>(st: &State<T>) -> Vector3<T> {
+    st.v3(ACC) + Vector3::new(T::zero(), T::zero(), T::c(GRAVITY))
+}
+
+/// Predicted accelerometer reading.
+pub fn predict<T: Scalar>(st: &State<T>) -> Vector3<T> {
+    quat::rot(&st.q().normalize()) * specific_force_world(st) + st.v3(ACC_BIAS)
+}
+
+/// Jacobian row of axis `k`.
+pub fn row<T: Scalar>(st: &State<T>, model: ModelKind, k: usize) -> SparseRow<T> {
+    let q = st.q().normalize();
+    let d_q = quat::d_rotate_dq(&q, &specific_force_world(st));
+    let mut h = SparseRow::default();
+    for c in 0..4 {
+        h.push(QUAT + c, d_q[(k, c)]);
+    }
+    if model == ModelKind::Acc {
+        let r = quat::rot(&q);
+        for c in 0..3 {
+            h.push(ACC + c, r[(k, c)]);
+        }
+    }
+    h.push(ACC_BIAS + k, T::one());
+    h
+}
+
+/// Applies one accelerometer sample, one axis at a time, re-linearising after each.
+pub fn update<T: Scalar>(
+    st: &mut State<T>,
+    prm: &Params<T>,
+    y: &Vector3<T>,
+) -> Result<(), UpdateError> {
+    if prm.model == ModelKind::Gyro {
+        return Ok(());
+    }
+    let r = SMatrix::<T, 1, 1>::new(prm.r_accel);
+    for k in 0..3 {
+        let h = [row(st, prm.model, k)];
+        let z = SVector::<T, 1>::new(y[k] - predict(st)[k]);
+        let (u, s) = innovation(st, prm.n, &h, &r);
+        joseph_update(st, prm.n, &u, &s, &z)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::{params, random_state};
+    use approx::assert_relative_eq;
+
+    #[test]
+    fn jacobians_match_central_differences() {
+        for model in [ModelKind::Gravity, ModelKind::Acc] {
+            let prm = params::<f64>(model);
+            let st = random_state(prm.n, 11);
+            for k in 0..3 {
+                let h = row(&st, model, k).dense();
+                for j in 0..prm.n {
+                    let mut plus = st.clone();
+                    let mut minus = st.clone();
+                    plus.x[j] += 1e-6;
+                    minus.x[j] -= 1e-6;
+                    let fd = (predict(&plus)[k] - predict(&minus)[k]) / 2e-6;
+                    assert_relative_eq!(h[j], fd, epsilon = 1e-7);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn gyro_jacobian_matches_central_differences() {
+        let prm = params::<f64>(ModelKind::Gyro);
+        let st = random_state(prm.n, 12);
+        for k in 0..3 {
+            let h = crate::models::gyro::row::<f64>(k).dense();
+            for j in 0..prm.n {
+                let mut plus = st.clone();
+                let mut minus = st.clone();
+                plus.x[j] += 1e-6;
+                minus.x[j] -= 1e-6;
+                let fd = (crate::models::gyro::predict(&plus)[k]
+                    - crate::models::gyro::predict(&minus)[k])
+                    / 2e-6;
+                assert_relative_eq!(h[j], fd, epsilon = 1e-8);
+            }
+        }
+    }
+
+    #[test]
+    fn level_and_still_reads_plus_g_on_the_up_axis() {
+        let st = State::<f64>::default();
+        assert_relative_eq!(
+            predict(&st),
+            Vector3::new(0.0, 0.0, GRAVITY),
+            epsilon = 1e-12
+        );
+    }
+}

@@ -1,0 +1,12 @@
+//! The paper's system and measurement models (DESIGN.md §4):
+//!
+//! - [`motion`]: time update, eq. 7 (gyro), 12 (gravity), 15 (acc);
+//! - [`gyro`]: gyroscope measurement, eq. 9;
+//! - [`accel`]: accelerometer measurement, eq. 13 (gravity) and 16 (acc);
+//! - [`correspondence`]: the implicit 2D/3D correspondence measurement, eq. 10, with the
+//!   outlier gate of eq. 17.
+
+pub mod accel;
+pub mod correspondence;
+pub mod gyro;
+pub mod motion;

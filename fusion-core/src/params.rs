@@ -1,0 +1,71 @@
+//! Filter parameters, converted once from the wire `Config` into the filter's scalar.
+
+use protocol::{Config, ModelKind};
+
+use crate::scalar::Scalar;
+use crate::state::HandEye;
+
+/// Everything the filter needs from `Configure`, in the filter's scalar.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Params<T: Scalar> {
+    /// System model.
+    pub model: ModelKind,
+    /// Active state dimension.
+    pub n: usize,
+    /// Motion noise density (acceleration, or jerk in the acc model).
+    pub q_motion: T,
+    /// Angular-acceleration noise density.
+    pub q_angular: T,
+    /// Gyro bias random-walk density.
+    pub q_gyro_bias: T,
+    /// Accelerometer bias random-walk density.
+    pub q_accel_bias: T,
+    /// Gyro measurement variance.
+    pub r_gyro: T,
+    /// Accelerometer measurement variance.
+    pub r_accel: T,
+    /// Initial standard deviations.
+    pub init_sigma: protocol::InitSigma,
+    /// Hand-eye calibration.
+    pub hand_eye: HandEye<T>,
+    /// Outlier gate on `s_i` (eq. 17).
+    pub gate: T,
+    /// Low-pass factor λ of the residual monitor.
+    pub lowpass: T,
+    /// Threshold on the low-passed residual.
+    pub residual_threshold: T,
+    /// Threshold on ‖P‖_F.
+    pub cov_threshold: T,
+    /// Threshold on |‖q‖ − 1|.
+    pub quat_norm_threshold: T,
+    /// Nominal IMU period [µs].
+    pub imu_period_us: u64,
+    /// Samples averaged for roll and pitch.
+    pub still_samples: u16,
+}
+
+impl<T: Scalar> Params<T> {
+    /// From a validated `Config`.
+    pub fn from_config(c: &Config) -> Self {
+        let sq = |s: f32| T::from_wire(s) * T::from_wire(s);
+        Params {
+            model: c.model,
+            n: c.model.state_dim(),
+            q_motion: T::from_wire(c.noise.motion),
+            q_angular: T::from_wire(c.noise.angular),
+            q_gyro_bias: T::from_wire(c.noise.gyro_bias_walk),
+            q_accel_bias: T::from_wire(c.noise.accel_bias_walk),
+            r_gyro: sq(c.noise.gyro_meas),
+            r_accel: sq(c.noise.accel_meas),
+            init_sigma: c.init_sigma,
+            hand_eye: HandEye::from_wire(&c.hand_eye),
+            gate: T::from_wire(c.gate),
+            lowpass: T::from_wire(c.divergence.residual_lowpass),
+            residual_threshold: T::from_wire(c.divergence.residual_threshold),
+            cov_threshold: T::from_wire(c.divergence.covariance_frobenius),
+            quat_norm_threshold: T::from_wire(c.divergence.quaternion_norm),
+            imu_period_us: (1e6 / c.imu_rate_hz as f64) as u64,
+            still_samples: c.still_samples,
+        }
+    }
+}

@@ -1,0 +1,48 @@
+//! The filter's scalar: `f32` on the MCU, `f64` on the PC.
+
+use nalgebra::RealField;
+
+/// A floating-point scalar the filter runs on.
+pub trait Scalar: RealField + Copy + Default {
+    /// Bits of the type (reported to the host in `HelloAck`).
+    const BITS: u8;
+    /// Smallest variance a covariance diagonal entry of an active state may reach.
+    const VARIANCE_FLOOR: f64;
+
+    /// Conversion from an `f64` constant.
+    fn c(x: f64) -> Self;
+    /// Conversion from a wire `f32`.
+    fn from_wire(x: f32) -> Self;
+    /// Conversion to a wire `f32`.
+    fn to_wire(self) -> f32;
+}
+
+impl Scalar for f32 {
+    const BITS: u8 = 32;
+    const VARIANCE_FLOOR: f64 = 1e-12;
+
+    fn c(x: f64) -> Self {
+        x as f32
+    }
+    fn from_wire(x: f32) -> Self {
+        x
+    }
+    fn to_wire(self) -> f32 {
+        self
+    }
+}
+
+impl Scalar for f64 {
+    const BITS: u8 = 64;
+    const VARIANCE_FLOOR: f64 = 1e-20;
+
+    fn c(x: f64) -> Self {
+        x
+    }
+    fn from_wire(x: f32) -> Self {
+        x as f64
+    }
+    fn to_wire(self) -> f32 {
+        self as f32
+    }
+}
