@@ -12,12 +12,22 @@
 //! | correspondence measurement (10), gate (17) | [`models::correspondence`] |
 //! | accelerometer measurement (13, 16) | [`models::accel`] |
 //! | Joseph-form update | [`ekf`] |
+//! | outlier gate (17) | [`models::correspondence::update`] |
+//! | divergence monitor (§4.6) | [`divergence`] |
+//! | (re)initialisation | [`init`] |
+//! | delayed correspondences | [`delay`] |
+//! | device loop (protocol messages in and out) | [`device`] |
 #![no_std]
 
 #[cfg(test)]
 extern crate std;
 
+pub mod delay;
+pub mod device;
+pub mod divergence;
 pub mod ekf;
+pub mod filter;
+pub mod init;
 pub mod models;
 pub mod params;
 pub mod quat;
@@ -26,5 +36,6 @@ pub mod state;
 #[cfg(test)]
 mod testutil;
 
+pub use device::{Device, DeviceIo};
 pub use protocol::{ModelKind, PROTOCOL_VERSION};
 pub use scalar::Scalar;

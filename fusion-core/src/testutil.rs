@@ -5,7 +5,7 @@ use protocol::ModelKind;
 
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::{Cov, N, QUAT, State};
+use crate::state::{Cov, N, State};
 
 /// Parameters of the sample configuration with the given model.
 pub fn params<T: Scalar>(model: ModelKind) -> Params<T> {
@@ -35,6 +35,15 @@ pub fn random_state(n: usize, seed: u64) -> State<f64> {
     for i in 0..n {
         st.p[(i, i)] += 1e-3;
     }
-    let _ = (N, QUAT);
     st
+}
+
+/// Whether the active `n × n` block is symmetric positive definite (the inactive diagonal is
+/// set to 1 so that a fixed-size Cholesky decides).
+pub fn active_block_is_pd(p: &Cov<f64>, n: usize) -> bool {
+    let mut m = *p;
+    for i in n..N {
+        m[(i, i)] = 1.0;
+    }
+    (m - m.transpose()).abs().max() < 1e-12 && m.cholesky().is_some()
 }

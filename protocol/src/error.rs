@@ -84,6 +84,9 @@ pub enum InvalidField {
     InitAttitude,
     /// An IMU sample holds a non-finite value.
     ImuNotFinite,
+    /// An IMU sample is beyond any real sensor's range ([`crate::validate::MAX_GYRO_RAD_S`],
+    /// [`crate::validate::MAX_ACCEL_M_S2`]).
+    ImuOutOfRange,
     /// A correspondence part index or count is out of range.
     CorrespondencePart,
     /// Correspondence `index` (within its message) holds a non-finite point.
@@ -111,6 +114,7 @@ impl fmt::Display for InvalidField {
             InvalidField::InitPosition => f.write_str("init position not finite"),
             InvalidField::InitAttitude => f.write_str("init yaw/orientation invalid"),
             InvalidField::ImuNotFinite => f.write_str("IMU sample not finite"),
+            InvalidField::ImuOutOfRange => f.write_str("IMU sample beyond any sensor's range"),
             InvalidField::CorrespondencePart => f.write_str("correspondence part out of range"),
             InvalidField::CorrespondenceNotFinite { index } => {
                 write!(f, "correspondence {index} not finite")

@@ -179,6 +179,8 @@ pub struct Config {
     pub camera_rate_hz: f32,
     /// IMU samples averaged for roll and pitch at (re)initialisation (device held still).
     pub still_samples: u16,
+    /// Send a [`CoreToHost::State`] after every `state_every`-th IMU sample (0: never).
+    pub state_every: u16,
 }
 
 /// Orientation given at initialisation.
@@ -408,6 +410,8 @@ pub enum StatusReason {
     QuaternionNorm,
     /// A state or covariance entry became non-finite.
     NonFiniteState,
+    /// The IMU clock jumped; the filter restarts from the last good position.
+    TimeJump,
 }
 
 /// Filter health figures.

@@ -44,6 +44,7 @@ pub const fn config() -> Config {
         imu_rate_hz: 100.0,
         camera_rate_hz: 25.0,
         still_samples: 50,
+        state_every: 1,
     }
 }
 

@@ -11,6 +11,13 @@ use crate::messages::{
 /// enough for f32 round trips of any normalised quaternion.
 pub const UNIT_QUATERNION_TOLERANCE: f32 = 1e-3;
 
+/// Largest angular rate an IMU sample may report [rad/s] (about 5700 °/s, far beyond MEMS
+/// gyroscope ranges): larger is a corrupted sample.
+pub const MAX_GYRO_RAD_S: f32 = 100.0;
+
+/// Largest specific force an IMU sample may report [m/s²] (about 200 g).
+pub const MAX_ACCEL_M_S2: f32 = 2000.0;
+
 /// Relative tolerance of the semi-definiteness checks of covariances (f32 rounding).
 const PSD_TOLERANCE: f32 = 1e-5;
 
@@ -20,14 +27,22 @@ pub(crate) fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
         HostToCore::Configure(c) => config(c),
         HostToCore::Init(i) => init(i),
         HostToCore::Imu(s) => {
-            if all_finite(&s.gyro) && all_finite(&s.accel) {
-                Ok(())
-            } else {
+            if !all_finite(&s.gyro) || !all_finite(&s.accel) {
                 Err(InvalidField::ImuNotFinite)
+            } else if norm2(&s.gyro) > MAX_GYRO_RAD_S * MAX_GYRO_RAD_S
+                || norm2(&s.accel) > MAX_ACCEL_M_S2 * MAX_ACCEL_M_S2
+            {
+                Err(InvalidField::ImuOutOfRange)
+            } else {
+                Ok(())
             }
         }
         HostToCore::Correspondences(c) => correspondences(c),
     }
+}
+
+fn norm2(v: &[f32; 3]) -> f32 {
+    v.iter().map(|x| x * x).sum()
 }
 
 fn all_finite(v: &[f32]) -> bool {

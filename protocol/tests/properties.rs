@@ -40,40 +40,43 @@ fn config() -> impl Strategy<Value = Config> {
         a::<3>(),
         a::<5>(),
         a::<2>(),
-        any::<u16>(),
+        any::<[u16; 2]>(),
     )
-        .prop_map(|(model, n, s, q_cs, c_s, d, r, still_samples)| Config {
-            model,
-            noise: NoiseParams {
-                motion: n[0],
-                angular: n[1],
-                gyro_bias_walk: n[2],
-                accel_bias_walk: n[3],
-                gyro_meas: n[4],
-                accel_meas: n[5],
+        .prop_map(
+            |(model, n, s, q_cs, c_s, d, r, [still_samples, state_every])| Config {
+                model,
+                noise: NoiseParams {
+                    motion: n[0],
+                    angular: n[1],
+                    gyro_bias_walk: n[2],
+                    accel_bias_walk: n[3],
+                    gyro_meas: n[4],
+                    accel_meas: n[5],
+                },
+                init_sigma: InitSigma {
+                    position: s[0],
+                    velocity: s[1],
+                    acceleration: s[2],
+                    tilt: s[3],
+                    yaw: s[4],
+                    angular_velocity: s[5],
+                    gyro_bias: s[6],
+                    accel_bias: s[7],
+                },
+                hand_eye: HandEye { q_cs, c_s },
+                gate: d[0],
+                divergence: DivergenceParams {
+                    residual_lowpass: d[1],
+                    residual_threshold: d[2],
+                    covariance_frobenius: d[3],
+                    quaternion_norm: d[4],
+                },
+                imu_rate_hz: r[0],
+                camera_rate_hz: r[1],
+                still_samples,
+                state_every,
             },
-            init_sigma: InitSigma {
-                position: s[0],
-                velocity: s[1],
-                acceleration: s[2],
-                tilt: s[3],
-                yaw: s[4],
-                angular_velocity: s[5],
-                gyro_bias: s[6],
-                accel_bias: s[7],
-            },
-            hand_eye: HandEye { q_cs, c_s },
-            gate: d[0],
-            divergence: DivergenceParams {
-                residual_lowpass: d[1],
-                residual_threshold: d[2],
-                covariance_frobenius: d[3],
-                quaternion_norm: d[4],
-            },
-            imu_rate_hz: r[0],
-            camera_rate_hz: r[1],
-            still_samples,
-        })
+        )
 }
 
 fn correspondence() -> impl Strategy<Value = Correspondence> {
@@ -151,6 +154,7 @@ fn reason() -> impl Strategy<Value = StatusReason> {
         Just(StatusReason::CovarianceNorm),
         Just(StatusReason::QuaternionNorm),
         Just(StatusReason::NonFiniteState),
+        Just(StatusReason::TimeJump),
     ]
 }
 
@@ -177,6 +181,7 @@ fn invalid_field() -> impl Strategy<Value = InvalidField> {
         Just(InvalidField::InitPosition),
         Just(InvalidField::InitAttitude),
         Just(InvalidField::ImuNotFinite),
+        Just(InvalidField::ImuOutOfRange),
         Just(InvalidField::CorrespondencePart),
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceNotFinite { index }),
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceCovariance { index }),

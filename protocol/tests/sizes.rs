@@ -20,6 +20,7 @@ fn worst_host() -> Vec<(&'static str, HostToCore)> {
     };
     let mut cfg = samples::config();
     cfg.still_samples = u16::MAX;
+    cfg.state_every = u16::MAX;
     vec![
         ("Hello", HostToCore::Hello(Hello { version: v })),
         ("Configure", HostToCore::Configure(cfg)),

@@ -9,7 +9,7 @@ use crate::ekf::{SparseRow, innovation, joseph_update};
 use crate::params::Params;
 use crate::quat;
 use crate::scalar::Scalar;
-use crate::state::{HandEye, POS, QUAT, State};
+use crate::state::{HandEye, POS, QUAT, State, StateVec};
 
 /// Nearest depth in front of the camera a model point may have [m].
 pub const MIN_DEPTH: f64 = 1e-3;
@@ -63,21 +63,26 @@ pub enum Rejection {
     Singular,
 }
 
-/// The model point in the camera frame, `R(q_cs)(R(q_sw)(m_w − s_w) − c_s)`.
-pub fn camera_point<T: Scalar>(st: &State<T>, he: &HandEye<T>, m_w: &Vector3<T>) -> Vector3<T> {
-    let q = st.q().normalize();
-    he.r_cs * (quat::rot(&q) * (m_w - st.v3(POS)) - he.c_s)
+/// The model point in the camera frame, `R(q_cs)(R(q_sw)(m_w − s_w) − c_s)`, at mean `x`.
+pub fn camera_point<T: Scalar>(x: &StateVec<T>, he: &HandEye<T>, m_w: &Vector3<T>) -> Vector3<T> {
+    let q = x.fixed_rows::<4>(QUAT).normalize();
+    let s = x.fixed_rows::<3>(POS);
+    he.r_cs * (quat::rot(&q) * (m_w - s) - he.c_s)
 }
 
-/// Projection of `m_w` to normalised image coordinates at the state, if in front.
-pub fn project<T: Scalar>(st: &State<T>, he: &HandEye<T>, m_w: &Vector3<T>) -> Option<Vector2<T>> {
-    let p = camera_point(st, he, m_w);
+/// Projection of `m_w` to normalised image coordinates at mean `x`, if in front.
+pub fn project<T: Scalar>(
+    x: &StateVec<T>,
+    he: &HandEye<T>,
+    m_w: &Vector3<T>,
+) -> Option<Vector2<T>> {
+    let p = camera_point(x, he, m_w);
     (p[2] > T::c(MIN_DEPTH)).then(|| Vector2::new(p[0] / p[2], p[1] / p[2]))
 }
 
 /// The implicit measurement function `h = [I₂ | −m_n] p_c`.
 pub fn residual<T: Scalar>(st: &State<T>, he: &HandEye<T>, obs: &Observation<T>) -> Vector2<T> {
-    let p = camera_point(st, he, &obs.m_w);
+    let p = camera_point(&st.x, he, &obs.m_w);
     Vector2::new(p[0] - obs.m_n[0] * p[2], p[1] - obs.m_n[1] * p[2])
 }
 
@@ -89,7 +94,7 @@ pub fn linearise<T: Scalar>(
 ) -> ([SparseRow<T>; 2], Matrix2<T>, T) {
     let q = st.q().normalize();
     let rot = quat::rot(&q);
-    let p_c = camera_point(st, he, &obs.m_w);
+    let p_c = camera_point(&st.x, he, &obs.m_w);
     let a = Matrix2x3::new(
         T::one(),
         T::zero(),

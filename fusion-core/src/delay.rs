@@ -1,0 +1,212 @@
+//! Delayed correspondences: snapshots at camera triggers and the IMU samples since, so that a
+//! frame's correspondences, arriving after the core has integrated later samples, update the
+//! state at the trigger time and are re-propagated to the present (DESIGN.md §1, step 4).
+
+use heapless::Deque;
+
+use crate::filter::{Filter, ImuSample};
+use crate::params::Params;
+use crate::scalar::Scalar;
+use crate::state::StateVec;
+use protocol::StatusReason;
+
+/// IMU samples kept: 64 at 200 Hz is 320 ms, at 100 Hz 640 ms of correspondence latency.
+pub const IMU_BUFFER: usize = 64;
+
+/// Camera frames awaiting correspondences at once: 4 at 25 Hz is 160 ms, at 20 Hz 200 ms.
+pub const MAX_PENDING_FRAMES: usize = 4;
+
+const _: () = assert!(IMU_BUFFER >= 20, "at least 100 ms at 200 Hz");
+
+/// Whether sequence number `a` comes before `b` (wrapping).
+fn before(a: u32, b: u32) -> bool {
+    let d = b.wrapping_sub(a);
+    d != 0 && d < u32::MAX / 2
+}
+
+/// One buffered IMU sample with its sequence number.
+#[derive(Clone, Copy, Debug)]
+struct Record<T: Scalar> {
+    seq: u32,
+    sample: ImuSample<T>,
+}
+
+/// The filter at a camera trigger.
+#[derive(Clone, Debug)]
+pub struct Snapshot<T: Scalar> {
+    /// Frame id given in the pose prediction.
+    pub frame_id: u32,
+    /// Trigger time stamp [µs].
+    pub t_us: u64,
+    /// Sequence number of the trigger's IMU sample.
+    seq: u32,
+    /// The filter right after the trigger sample (updated by the frame's correspondences, and
+    /// refreshed when an older frame's update is re-propagated through it).
+    pub filter: Filter<T>,
+    /// The mean as predicted for the host (for the prediction error: before any update).
+    pub predicted: StateVec<T>,
+    /// Parts applied so far (bit per part).
+    pub parts_done: u8,
+    /// Applied parts whose effect has not yet been propagated to the present.
+    pub dirty: bool,
+}
+
+/// Why a frame's snapshot is not available.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Missing {
+    /// It was dropped: its samples left the buffer, or newer frames replaced it.
+    TooOld,
+    /// No such frame was predicted.
+    Unknown,
+}
+
+/// IMU ring buffer and snapshots.
+#[derive(Clone, Debug)]
+pub struct DelayLine<T: Scalar> {
+    records: Deque<Record<T>, IMU_BUFFER>,
+    snapshots: Deque<Snapshot<T>, MAX_PENDING_FRAMES>,
+    next_seq: u32,
+    next_frame_id: u32,
+}
+
+impl<T: Scalar> Default for DelayLine<T> {
+    fn default() -> Self {
+        DelayLine {
+            records: Deque::new(),
+            snapshots: Deque::new(),
+            next_seq: 0,
+            next_frame_id: 0,
+        }
+    }
+}
+
+impl<T: Scalar> DelayLine<T> {
+    /// Drops all samples and snapshots (frame ids keep counting, so late answers to old frames
+    /// are still recognised as too old).
+    pub fn clear(&mut self) {
+        self.records.clear();
+        self.snapshots.clear();
+    }
+
+    /// The dirty snapshot that the next [`Self::push`] or [`Self::snapshot`] would drop, if any:
+    /// the caller re-propagates it first so that no applied update is lost.
+    pub fn expiring_dirty(&self, taking_snapshot: bool) -> Option<u32> {
+        let oldest = self.snapshots.front()?;
+        let drops_record = self.records.is_full()
+            && self
+                .records
+                .front()
+                .is_some_and(|r| before(oldest.seq, r.seq));
+        let drops_snapshot = taking_snapshot && self.snapshots.is_full();
+        ((drops_record || drops_snapshot) && oldest.dirty).then_some(oldest.frame_id)
+    }
+
+    /// Buffers a sample that the live filter has just applied.
+    pub fn push(&mut self, sample: ImuSample<T>) {
+        if self.records.is_full()
+            && let Some(gone) = self.records.pop_front()
+        {
+            // A snapshot at seq k needs samples k+1.. to re-propagate.
+            while self
+                .snapshots
+                .front()
+                .is_some_and(|s| before(s.seq, gone.seq))
+            {
+                self.snapshots.pop_front();
+            }
+        }
+        let seq = self.next_seq;
+        self.next_seq = self.next_seq.wrapping_add(1);
+        // Cannot fail: a slot was freed above.
+        let _ = self.records.push_back(Record { seq, sample });
+    }
+
+    /// Takes a snapshot of the live filter at the last pushed sample; returns its frame id.
+    pub fn snapshot(&mut self, filter: &Filter<T>) -> u32 {
+        if self.snapshots.is_full() {
+            self.snapshots.pop_front();
+        }
+        let frame_id = self.next_frame_id;
+        self.next_frame_id = self.next_frame_id.wrapping_add(1);
+        let snap = Snapshot {
+            frame_id,
+            t_us: filter.t_us,
+            seq: self.next_seq.wrapping_sub(1),
+            filter: filter.clone(),
+            predicted: filter.st.x,
+            parts_done: 0,
+            dirty: false,
+        };
+        // Cannot fail: a slot was freed above.
+        let _ = self.snapshots.push_back(snap);
+        frame_id
+    }
+
+    /// The snapshot of `frame_id` taken at `t_us`.
+    pub fn find(&mut self, frame_id: u32, t_us: u64) -> Result<&mut Snapshot<T>, Missing> {
+        let next = self.next_frame_id;
+        match self.snapshots.iter_mut().find(|s| s.frame_id == frame_id) {
+            Some(s) if s.t_us == t_us => Ok(s),
+            Some(_) => Err(Missing::Unknown),
+            // Frame ids count up from 0 (wrapping): an id already handed out is too old.
+            None if before(frame_id, next) => Err(Missing::TooOld),
+            None => Err(Missing::Unknown),
+        }
+    }
+
+    /// Whether a frame newer than `frame_id` already had correspondences applied: updating
+    /// `frame_id` now would overwrite them when re-propagating, so it is refused as too old.
+    pub fn newer_frame_applied(&self, frame_id: u32) -> bool {
+        self.snapshots
+            .iter()
+            .any(|s| before(frame_id, s.frame_id) && s.parts_done != 0)
+    }
+
+    /// Frame ids of dirty snapshots, oldest first.
+    pub fn dirty_frames(&self) -> impl Iterator<Item = u32> + '_ {
+        self.snapshots
+            .iter()
+            .filter(|s| s.dirty)
+            .map(|s| s.frame_id)
+    }
+
+    /// Re-propagates `frame_id`'s snapshot through the buffered samples after it and returns
+    /// the filter at the present; later snapshots on the way are refreshed (their predicted
+    /// means, already sent to the host, stay).
+    pub fn repropagate(
+        &mut self,
+        frame_id: u32,
+        prm: &Params<T>,
+    ) -> Option<Result<Filter<T>, StatusReason>> {
+        let start = self.snapshots.iter().position(|s| s.frame_id == frame_id)?;
+        let (mut filter, seq) = {
+            let s = self.snapshots.iter_mut().nth(start)?;
+            s.dirty = false;
+            (s.filter.clone(), s.seq)
+        };
+        for rec in self.records.iter().filter(|r| before(seq, r.seq)) {
+            if let Err(reason) = filter.imu_step(prm, &rec.sample) {
+                return Some(Err(reason));
+            }
+            if let Some(later) = self
+                .snapshots
+                .iter_mut()
+                .skip(start + 1)
+                .find(|s| s.seq == rec.seq)
+            {
+                later.filter = filter.clone();
+            }
+        }
+        Some(Ok(filter))
+    }
+
+    /// Samples buffered.
+    pub fn len(&self) -> usize {
+        self.records.len()
+    }
+
+    /// Whether no sample is buffered.
+    pub fn is_empty(&self) -> bool {
+        self.records.is_empty()
+    }
+}

@@ -1,0 +1,604 @@
+//! The device loop: a `no_std` state machine that turns host messages into filter calls and
+//! answers with core messages. The PC simulator and the firmware image both wrap exactly this
+//! ([`DeviceIo`] adds the byte framing).
+
+use nalgebra::Vector3;
+use protocol::{
+    Capacities, Config, CoreToHost, Correspondences, DecodeError, Decoder, ErrorCode, Health,
+    HostToCore, Init, InitAttitude, MAX_CORRESPONDENCES_PER_FRAME, MAX_CORRESPONDENCES_PER_MESSAGE,
+    MAX_FRAME_LEN, Mode, PosePrediction, StateReport, Status, StatusReason, UpdateOutcome,
+    UpdateReport, encode_frame, handshake, sym_index,
+};
+
+use crate::delay::{DelayLine, IMU_BUFFER, Missing};
+use crate::divergence::Monitor;
+use crate::filter::{Filter, ImuSample};
+use crate::init::{StillWindow, initial_state};
+use crate::models::correspondence::{self, Observation, Rejection};
+use crate::params::Params;
+use crate::quat::{self, Quat};
+use crate::scalar::Scalar;
+use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, State, VEL};
+
+/// Largest IMU interval integrated as dead reckoning [µs]; a longer jump, or a time stamp
+/// going backwards, is refused until the new clock is confirmed.
+pub const MAX_GAP_US: u64 = 1_000_000;
+
+/// Consecutive consistent samples on a new clock after which the core accepts a clock jump
+/// and re-initialises.
+pub const CLOCK_JUMP_CONFIRM: u8 = 3;
+
+/// Camera triggers without accepted correspondences after which the mode is dead reckoning.
+pub const NO_VISION_FRAMES: u16 = 3;
+
+/// Inputs refused or dropped, by reason.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counters {
+    /// Frames the decoder rejected.
+    pub decode_errors: u32,
+    /// Messages failing field validation.
+    pub invalid_messages: u32,
+    /// Messages refused for order (before `Hello` or `Configure`).
+    pub out_of_order: u32,
+    /// IMU samples refused for their time stamp.
+    pub imu_time_rejected: u32,
+    /// IMU samples applied.
+    pub imu_applied: u32,
+    /// Pose predictions sent.
+    pub predictions: u32,
+    /// Correspondence parts applied.
+    pub parts_applied: u32,
+    /// Parts refused (too old, duplicate, unknown, not running).
+    pub parts_refused: u32,
+    /// Correspondences applied.
+    pub accepted: u32,
+    /// Correspondences gated out (eq. 17).
+    pub gated: u32,
+    /// Correspondences with the model point behind the camera.
+    pub behind_camera: u32,
+    /// Correspondences with a singular innovation covariance.
+    pub singular: u32,
+    /// Divergences detected.
+    pub divergences: u32,
+    /// Clock jumps accepted.
+    pub clock_jumps: u32,
+}
+
+/// Where the device is in its life cycle.
+#[derive(Clone, Debug)]
+enum Phase<T: Scalar> {
+    Unconfigured,
+    AwaitingInit,
+    Initialising {
+        position: Vector3<T>,
+        attitude: InitAttitude,
+        window: StillWindow<T>,
+    },
+    Running,
+}
+
+/// A candidate new IMU clock: a time stamp refused as a jump, and how many consistent samples
+/// followed it.
+#[derive(Clone, Copy, Debug)]
+struct ClockCandidate {
+    last_us: u64,
+    count: u8,
+}
+
+/// The fusion core's device loop.
+#[derive(Clone, Debug)]
+pub struct Device<T: Scalar> {
+    greeted: bool,
+    config: Option<Config>,
+    prm: Option<Params<T>>,
+    phase: Phase<T>,
+    mode: Mode,
+    filter: Filter<T>,
+    delay: DelayLine<T>,
+    monitor: Monitor<T>,
+    last_t_us: Option<u64>,
+    clock_candidate: Option<ClockCandidate>,
+    frames_without_vision: u16,
+    /// Position and orientation at the last frame with accepted correspondences.
+    last_good: Option<(Vector3<T>, Quat<T>)>,
+    /// Position given by the last `Init` (fallback for re-initialisation).
+    init_position: Vector3<T>,
+    since_state: u16,
+    counters: Counters,
+}
+
+impl<T: Scalar> Default for Device<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Output sink: every message the device sends goes through it.
+pub type Out<'a> = &'a mut dyn FnMut(CoreToHost);
+
+impl<T: Scalar> Device<T> {
+    /// A device waiting for `Hello`.
+    pub fn new() -> Self {
+        Device {
+            greeted: false,
+            config: None,
+            prm: None,
+            phase: Phase::Unconfigured,
+            mode: Mode::Unconfigured,
+            filter: Filter::new(State::default(), 0),
+            delay: DelayLine::default(),
+            monitor: Monitor::default(),
+            last_t_us: None,
+            clock_candidate: None,
+            frames_without_vision: 0,
+            last_good: None,
+            init_position: Vector3::zeros(),
+            since_state: 0,
+            counters: Counters::default(),
+        }
+    }
+
+    /// What the device holds.
+    pub fn capacities() -> Capacities {
+        Capacities {
+            max_frame_len: MAX_FRAME_LEN as u16,
+            max_correspondences_per_message: MAX_CORRESPONDENCES_PER_MESSAGE as u16,
+            max_correspondences_per_frame: MAX_CORRESPONDENCES_PER_FRAME as u16,
+            delay_buffer_samples: IMU_BUFFER as u16,
+            scalar_bits: T::BITS,
+        }
+    }
+
+    /// Current mode.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Counters of refused and applied inputs.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The live filter (tests, benchmarks).
+    pub fn filter(&self) -> &Filter<T> {
+        &self.filter
+    }
+
+    /// The active parameters, once configured.
+    pub fn params(&self) -> Option<&Params<T>> {
+        self.prm.as_ref()
+    }
+
+    /// Reports a frame the decoder rejected.
+    pub fn decode_error(&mut self, e: DecodeError, out: Out) {
+        self.counters.decode_errors += 1;
+        out(CoreToHost::error(ErrorCode::Decode(e)));
+    }
+
+    /// Handles one message.
+    pub fn handle(&mut self, msg: &HostToCore, out: Out) {
+        if let Err(field) = msg.validate() {
+            self.counters.invalid_messages += 1;
+            out(CoreToHost::error(ErrorCode::Invalid(field)));
+            return;
+        }
+        match msg {
+            HostToCore::Hello(h) => {
+                let answer = handshake::answer_hello(
+                    h.version,
+                    self.config.map(|c| c.model),
+                    Self::capacities(),
+                );
+                self.greeted = matches!(answer, CoreToHost::HelloAck(_));
+                out(answer);
+            }
+            _ if !self.greeted => {
+                self.counters.out_of_order += 1;
+                out(CoreToHost::error(ErrorCode::NoHandshake));
+            }
+            HostToCore::Configure(c) => self.configure(c, out),
+            HostToCore::Init(i) => self.init(i, out),
+            HostToCore::Imu(s) => self.imu(s, out),
+            HostToCore::Correspondences(c) => self.correspondences(c, out),
+            HostToCore::Reset => {
+                if self.prm.is_some() {
+                    self.restart_phase(Phase::AwaitingInit);
+                    self.set_mode(Mode::AwaitingInit, StatusReason::HostRequest, out);
+                } else {
+                    self.set_mode(Mode::Unconfigured, StatusReason::HostRequest, out);
+                }
+            }
+        }
+    }
+
+    fn restart_phase(&mut self, phase: Phase<T>) {
+        self.phase = phase;
+        self.delay.clear();
+        self.monitor = Monitor::default();
+        self.frames_without_vision = 0;
+        self.since_state = 0;
+    }
+
+    fn set_mode(&mut self, mode: Mode, reason: StatusReason, out: Out) {
+        self.mode = mode;
+        out(CoreToHost::Status(Status {
+            t_us: self.last_t_us.unwrap_or(0),
+            mode,
+            reason,
+        }));
+    }
+
+    fn configure(&mut self, c: &Config, out: Out) {
+        self.config = Some(*c);
+        self.prm = Some(Params::from_config(c));
+        self.last_good = None;
+        self.restart_phase(Phase::AwaitingInit);
+        self.set_mode(Mode::AwaitingInit, StatusReason::Configured, out);
+    }
+
+    fn init(&mut self, i: &Init, out: Out) {
+        if self.prm.is_none() {
+            self.counters.out_of_order += 1;
+            out(CoreToHost::error(ErrorCode::NotConfigured));
+            return;
+        }
+        let p = Vector3::new(
+            T::from_wire(i.position[0]),
+            T::from_wire(i.position[1]),
+            T::from_wire(i.position[2]),
+        );
+        self.init_position = p;
+        self.last_good = None;
+        self.restart_phase(Phase::Initialising {
+            position: p,
+            attitude: i.attitude,
+            window: StillWindow::default(),
+        });
+        self.set_mode(Mode::Initialising, StatusReason::HostRequest, out);
+    }
+
+    /// Checks an IMU time stamp; `Ok(true)` when a confirmed clock jump re-anchored the time.
+    fn check_time(&mut self, t_us: u64, out: Out) -> Result<bool, ()> {
+        let Some(last) = self.last_t_us else {
+            return Ok(false);
+        };
+        if t_us > last && t_us - last <= MAX_GAP_US {
+            self.clock_candidate = None;
+            return Ok(false);
+        }
+        // Refused: report, and see whether a new clock is being confirmed.
+        self.counters.imu_time_rejected += 1;
+        let code = if t_us <= last {
+            ErrorCode::TimestampNotIncreasing {
+                last_us: last,
+                got_us: t_us,
+            }
+        } else {
+            ErrorCode::TimestampGap {
+                last_us: last,
+                got_us: t_us,
+            }
+        };
+        out(CoreToHost::error(code));
+        let count = match self.clock_candidate {
+            Some(c) if t_us > c.last_us && t_us - c.last_us <= MAX_GAP_US => c.count + 1,
+            _ => 1,
+        };
+        self.clock_candidate = Some(ClockCandidate {
+            last_us: t_us,
+            count,
+        });
+        if count >= CLOCK_JUMP_CONFIRM {
+            self.clock_candidate = None;
+            self.counters.clock_jumps += 1;
+            Ok(true)
+        } else {
+            Err(())
+        }
+    }
+
+    fn imu(&mut self, wire: &protocol::ImuSample, out: Out) {
+        let Some(prm) = self.prm else {
+            self.counters.out_of_order += 1;
+            out(CoreToHost::error(ErrorCode::NotConfigured));
+            return;
+        };
+        let jumped = match self.check_time(wire.t_us, out) {
+            Ok(j) => j,
+            Err(()) => return,
+        };
+        self.last_t_us = Some(wire.t_us);
+        if jumped && matches!(self.phase, Phase::Running) {
+            self.reinitialise(StatusReason::TimeJump, &prm, out);
+        }
+        let sample = ImuSample::<T>::from_wire(wire);
+        match &mut self.phase {
+            Phase::Unconfigured | Phase::AwaitingInit => {}
+            Phase::Initialising {
+                position,
+                attitude,
+                window,
+            } => {
+                if window.add(&sample.gyro, &sample.accel, prm.still_samples) {
+                    let st = initial_state(&prm, position, attitude, window);
+                    self.filter = Filter::new(st, sample.t_us);
+                    self.restart_phase(Phase::Running);
+                    self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
+                }
+            }
+            Phase::Running => self.step(&prm, &sample, wire.trigger, out),
+        }
+    }
+
+    fn step(&mut self, prm: &Params<T>, sample: &ImuSample<T>, trigger: bool, out: Out) {
+        if let Some(frame) = self.delay.expiring_dirty(trigger)
+            && !self.flush(frame, prm, out)
+        {
+            return;
+        }
+        if let Err(reason) = self.filter.imu_step(prm, sample) {
+            self.diverged(reason, prm, out);
+            return;
+        }
+        self.counters.imu_applied += 1;
+        self.delay.push(*sample);
+        if trigger {
+            let frame_id = self.delay.snapshot(&self.filter);
+            self.counters.predictions += 1;
+            out(CoreToHost::PosePrediction(self.prediction(frame_id)));
+            self.frames_without_vision = self.frames_without_vision.saturating_add(1);
+            if self.frames_without_vision >= NO_VISION_FRAMES && self.mode == Mode::Tracking {
+                self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
+            }
+        }
+        let every = self.config.map_or(0, |c| c.state_every);
+        if every > 0 {
+            self.since_state += 1;
+            if self.since_state >= every {
+                self.since_state = 0;
+                out(CoreToHost::State(self.state_report()));
+            }
+        }
+    }
+
+    /// Propagates a dirty frame's update to the present; false if that diverged.
+    fn flush(&mut self, frame_id: u32, prm: &Params<T>, out: Out) -> bool {
+        match self.delay.repropagate(frame_id, prm) {
+            Some(Ok(f)) => {
+                self.filter = f;
+                true
+            }
+            Some(Err(reason)) => {
+                self.diverged(reason, prm, out);
+                false
+            }
+            None => true,
+        }
+    }
+
+    fn prediction(&self, frame_id: u32) -> PosePrediction {
+        let prm = self.prm.as_ref();
+        let he = prm.map(|p| p.hand_eye).unwrap_or(state::HandEye {
+            q_cs: quat::identity(),
+            r_cs: nalgebra::Matrix3::identity(),
+            c_s: Vector3::zeros(),
+        });
+        let pose = state::camera_pose(&self.filter.st, &he);
+        let mut cov = [0.0f32; 21];
+        for r in 0..6 {
+            for c in r..6 {
+                cov[sym_index(6, r, c)] = pose.cov[(r, c)].to_wire();
+            }
+        }
+        PosePrediction {
+            frame_id,
+            t_us: self.filter.t_us,
+            c_w: v3(&pose.c_w),
+            q_cw: [
+                pose.q_cw[0].to_wire(),
+                pose.q_cw[1].to_wire(),
+                pose.q_cw[2].to_wire(),
+                pose.q_cw[3].to_wire(),
+            ],
+            cov,
+        }
+    }
+
+    fn state_report(&self) -> StateReport {
+        let st = &self.filter.st;
+        let q = st.q();
+        StateReport {
+            t_us: self.filter.t_us,
+            s_w: v3(&st.v3(POS)),
+            q_sw: [
+                q[0].to_wire(),
+                q[1].to_wire(),
+                q[2].to_wire(),
+                q[3].to_wire(),
+            ],
+            v_w: v3(&st.v3(VEL)),
+            a_w: v3(&st.v3(ACC)),
+            omega_s: v3(&st.v3(OMEGA)),
+            gyro_bias: v3(&st.v3(GYRO_BIAS)),
+            accel_bias: v3(&st.v3(ACC_BIAS)),
+            health: Health {
+                mode: self.mode,
+                covariance_frobenius: st.cov_frobenius().to_wire(),
+                residual_lowpass: self.monitor.g.to_wire(),
+                quaternion_norm_error: self.filter.quat_norm_error.to_wire(),
+            },
+        }
+    }
+
+    fn correspondences(&mut self, c: &Correspondences, out: Out) {
+        let mut report = UpdateReport {
+            frame_id: c.frame_id,
+            part: c.part,
+            outcome: UpdateOutcome::Applied,
+            accepted: 0,
+            rejected: 0,
+            residuals: heapless::Vec::new(),
+            prediction_error: 0.0,
+        };
+        let (Some(prm), Phase::Running) = (self.prm, &self.phase) else {
+            self.counters.parts_refused += 1;
+            report.outcome = UpdateOutcome::NotRunning;
+            out(CoreToHost::UpdateReport(report));
+            return;
+        };
+        // Older frames' pending updates go first, so this frame's snapshot is current.
+        loop {
+            let older = self.delay.dirty_frames().find(|&f| f != c.frame_id);
+            let Some(older) = older else { break };
+            if !self.flush(older, &prm, out) {
+                report.outcome = UpdateOutcome::NotRunning;
+                out(CoreToHost::UpdateReport(report));
+                return;
+            }
+        }
+        let newer_applied = self.delay.newer_frame_applied(c.frame_id);
+        let snap = match self.delay.find(c.frame_id, c.trigger_us) {
+            Ok(_) if newer_applied => Err(UpdateOutcome::TooOld),
+            Ok(s) if s.parts_done & (1 << c.part) != 0 => Err(UpdateOutcome::Duplicate),
+            Ok(s) => Ok(s),
+            Err(Missing::TooOld) => Err(UpdateOutcome::TooOld),
+            Err(Missing::Unknown) => Err(UpdateOutcome::UnknownFrame),
+        };
+        let snap = match snap {
+            Ok(s) => s,
+            Err(outcome) => {
+                self.counters.parts_refused += 1;
+                report.outcome = outcome;
+                out(CoreToHost::UpdateReport(report));
+                return;
+            }
+        };
+        let mut diverged = None;
+        let mut error_sum = T::zero();
+        let mut error_count = 0u32;
+        for item in &c.items {
+            let obs = Observation::<T>::from_wire(item);
+            if let Some(proj) = correspondence::project(&snap.predicted, &prm.hand_eye, &obs.m_w) {
+                error_sum += (proj - obs.m_n).norm();
+                error_count += 1;
+            }
+            let (s_i, result) = correspondence::update(&mut snap.filter.st, &prm, &obs);
+            // Capacity equals the message's, so this cannot fail.
+            let _ = report.residuals.push(s_i.to_wire());
+            match result {
+                Ok(()) => {
+                    report.accepted += 1;
+                    self.counters.accepted += 1;
+                }
+                Err(why) => {
+                    report.rejected += 1;
+                    match why {
+                        Rejection::Gated => self.counters.gated += 1,
+                        Rejection::BehindCamera => self.counters.behind_camera += 1,
+                        Rejection::Singular => self.counters.singular += 1,
+                    }
+                }
+            }
+            if let Some(reason) = self.monitor.residual(s_i, &prm) {
+                diverged.get_or_insert(reason);
+            }
+        }
+        crate::ekf::condition(&mut snap.filter.st.p, prm.n);
+        snap.parts_done |= 1 << c.part;
+        snap.dirty |= report.accepted > 0;
+        let complete = snap.parts_done.count_ones() as u8 >= c.parts;
+        let needs_flush = complete && snap.dirty;
+        let good = (snap.filter.st.v3(POS), snap.filter.st.q());
+        if error_count > 0 {
+            report.prediction_error = (error_sum / T::c(error_count as f64)).to_wire();
+        }
+        self.counters.parts_applied += 1;
+        let frame_id = c.frame_id;
+        out(CoreToHost::UpdateReport(report.clone()));
+
+        if let Some(reason) = diverged {
+            self.diverged(reason, &prm, out);
+            return;
+        }
+        if needs_flush && !self.flush(frame_id, &prm, out) {
+            return;
+        }
+        if report.accepted > 0 {
+            self.frames_without_vision = 0;
+            self.last_good = Some(good);
+            if self.mode != Mode::Tracking {
+                self.set_mode(Mode::Tracking, StatusReason::VisionAccepted, out);
+            }
+        }
+    }
+
+    fn diverged(&mut self, reason: StatusReason, prm: &Params<T>, out: Out) {
+        self.counters.divergences += 1;
+        self.set_mode(Mode::Diverged, reason, out);
+        self.reinitialise(reason, prm, out);
+    }
+
+    /// Restarts from the last good position (or the `Init` position), keeping the last good
+    /// yaw, with roll and pitch from a new still window.
+    fn reinitialise(&mut self, reason: StatusReason, _prm: &Params<T>, out: Out) {
+        let (position, yaw) = match self.last_good {
+            Some((p, q)) => (p, quat::yaw_of(&quat::conj(&q))),
+            None => (self.init_position, T::zero()),
+        };
+        let attitude = if self.last_good.is_some() {
+            InitAttitude::GravityAndYaw(yaw.to_wire())
+        } else {
+            InitAttitude::Gravity
+        };
+        self.restart_phase(Phase::Initialising {
+            position,
+            attitude,
+            window: StillWindow::default(),
+        });
+        self.set_mode(Mode::Reinitialising, reason, out);
+    }
+}
+
+fn v3<T: Scalar>(v: &Vector3<T>) -> [f32; 3] {
+    [v[0].to_wire(), v[1].to_wire(), v[2].to_wire()]
+}
+
+/// The device behind a byte stream: decodes frames, handles them, encodes the answers.
+#[derive(Clone, Debug, Default)]
+pub struct DeviceIo<T: Scalar> {
+    /// The device loop.
+    pub device: Device<T>,
+    decoder: Decoder,
+}
+
+impl<T: Scalar> DeviceIo<T> {
+    /// A new device with an empty decoder.
+    pub fn new() -> Self {
+        DeviceIo {
+            device: Device::new(),
+            decoder: Decoder::new(),
+        }
+    }
+
+    /// Consumes received bytes; every answer is passed to `send` as one encoded frame.
+    pub fn receive(&mut self, bytes: &[u8], send: &mut dyn FnMut(&[u8])) {
+        let mut buf = [0u8; MAX_FRAME_LEN];
+        let device = &mut self.device;
+        let mut emit = |msg: CoreToHost| {
+            // The core's own messages always fit a frame.
+            if let Ok(frame) = encode_frame(&msg, &mut buf) {
+                send(frame);
+            }
+        };
+        let mut rest = bytes;
+        while !rest.is_empty() {
+            let (used, result) = self.decoder.advance::<HostToCore>(rest);
+            rest = &rest[used..];
+            match result {
+                Some(Ok(msg)) => device.handle(&msg, &mut emit),
+                Some(Err(e)) => device.decode_error(e, &mut emit),
+                None => {}
+            }
+        }
+    }
+}
