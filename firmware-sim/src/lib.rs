@@ -1,8 +1,10 @@
 //! The simulated board: runs the fusion core on the PC behind a real byte transport, so that
 //! the host talks to it exactly as to hardware; and the sensor simulation.
 //!
-//! Today it holds the transports ([`transport`]) and the loop-back peer of the protocol
-//! self-test ([`loopback`]).
+//! - [`transport`]: pty pair, serial device, TCP, stdio;
+//! - [`loopback`]: the board end of the protocol self-test;
+//! - [`sim`]: trajectories, IMU and camera simulation with exact ground truth.
 
 pub mod loopback;
+pub mod sim;
 pub mod transport;

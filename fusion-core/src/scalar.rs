@@ -15,6 +15,8 @@ pub trait Scalar: RealField + Copy + Default {
     fn from_wire(x: f32) -> Self;
     /// Conversion to a wire `f32`.
     fn to_wire(self) -> f32;
+    /// Conversion to `f64` (host-side analysis).
+    fn to_f64(self) -> f64;
 }
 
 impl Scalar for f32 {
@@ -30,6 +32,9 @@ impl Scalar for f32 {
     fn to_wire(self) -> f32 {
         self
     }
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
 }
 
 impl Scalar for f64 {
@@ -44,5 +49,8 @@ impl Scalar for f64 {
     }
     fn to_wire(self) -> f32 {
         self as f32
+    }
+    fn to_f64(self) -> f64 {
+        self
     }
 }

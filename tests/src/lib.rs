@@ -1,1 +1,5 @@
-//! End-to-end tests across crates live in `tests/`; this library holds no code.
+//! The in-process scenario harness shared by the end-to-end tests: drives a fusion-core
+//! [`fusion_core::Device`] with simulated IMU samples and delayed correspondences exactly as the
+//! host would over the wire, and records what it answers next to the ground truth.
+
+pub mod harness;

@@ -1,0 +1,10 @@
+//! Sensor simulation with exact ground truth: smooth trajectories with analytic derivatives
+//! ([`trajectory`]), an IMU with white noise and bias random walks ([`imu`]), and 2D/3D
+//! correspondences of a pinhole camera ([`camera`]).
+
+pub mod camera;
+pub mod imu;
+pub mod trajectory;
+
+/// Gravity in the world frame [m/s²] (z up, DESIGN.md §3).
+pub const GRAVITY_W: [f64; 3] = [0.0, 0.0, -9.81];

@@ -1,0 +1,428 @@
+//! Runs a simulated scenario through a [`Device`] in lock-step: IMU samples in time order,
+//! each camera frame's correspondences delivered a configurable number of IMU samples after its
+//! trigger (so the delayed-update path is always exercised).
+
+use std::collections::VecDeque;
+
+use firmware_sim::sim::camera::{self, Mount, Pinhole};
+use firmware_sim::sim::imu::{ImuNoise, ImuReading, ImuSim};
+use firmware_sim::sim::trajectory::{Kinematics, Trajectory};
+use fusion_core::{Device, Scalar};
+use nalgebra::{UnitQuaternion, Vector2, Vector3};
+use protocol::{
+    Config, CoreToHost, Correspondence, Correspondences, ErrorCode, Hello, HostToCore, ImuSample,
+    Init, Mode, PROTOCOL_VERSION, Status, UpdateOutcome, UpdateReport,
+};
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+
+/// Everything that defines one simulated run.
+pub struct Scenario {
+    /// Ground-truth motion of the IMU.
+    pub trajectory: Box<dyn Trajectory>,
+    /// IMU rate [Hz].
+    pub imu_rate_hz: f64,
+    /// IMU samples per camera frame (the camera is triggered by the IMU).
+    pub camera_every: usize,
+    /// IMU samples between a trigger and the arrival of its correspondences.
+    pub latency_samples: usize,
+    /// IMU noise.
+    pub noise: ImuNoise,
+    /// Initial gyro bias [rad/s].
+    pub gyro_bias: Vector3<f64>,
+    /// Initial accelerometer bias [m/s²].
+    pub accel_bias: Vector3<f64>,
+    /// Camera mount.
+    pub mount: Mount,
+    /// Camera intrinsics.
+    pub camera: Pinhole,
+    /// Model points.
+    pub points: Vec<Vector3<f64>>,
+    /// Registration noise [px].
+    pub pixel_sigma: f64,
+    /// Most correspondences per frame.
+    pub max_correspondences: usize,
+    /// Time spans [s] without any correspondence (the model out of view).
+    pub blind: Vec<(f64, f64)>,
+    /// Filter configuration.
+    pub config: Config,
+    /// Initialisation request (it may be deliberately wrong).
+    pub init: Init,
+    /// Seed of all noise.
+    pub seed: u64,
+}
+
+/// One correspondence's prediction error, measured by the harness.
+#[derive(Clone, Copy, Debug)]
+pub struct PredictionError {
+    /// Trigger time [s].
+    pub t: f64,
+    /// Distance between the projection at the predicted pose and the registered point [px].
+    pub px: f64,
+}
+
+/// What the device answered over a run.
+#[derive(Debug, Default)]
+pub struct Outcome {
+    /// Per correspondence sent, at the pose the core predicted before the update.
+    pub prediction_errors: Vec<PredictionError>,
+    /// Every update report.
+    pub reports: Vec<UpdateReport>,
+    /// Every status change.
+    pub statuses: Vec<Status>,
+    /// Every error message.
+    pub errors: Vec<ErrorCode>,
+    /// Pose predictions received.
+    pub predictions: usize,
+    /// Correspondences sent.
+    pub sent: usize,
+}
+
+impl Outcome {
+    /// Mean prediction error [px] of the correspondences sent after `t0`.
+    pub fn mean_prediction_error(&self, t0: f64) -> f64 {
+        let v: Vec<f64> = self
+            .prediction_errors
+            .iter()
+            .filter(|e| e.t >= t0)
+            .map(|e| e.px)
+            .collect();
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    }
+
+    /// Correspondences accepted and rejected over all reports.
+    pub fn accepted_rejected(&self) -> (usize, usize) {
+        self.reports.iter().fold((0, 0), |(a, r), rep| {
+            (a + rep.accepted as usize, r + rep.rejected as usize)
+        })
+    }
+}
+
+/// A pending camera frame: its prediction and its true pose.
+struct Pending {
+    deliver_at: usize,
+    frame_id: u32,
+    t_us: u64,
+    truth: Kinematics,
+    c_w: Vector3<f64>,
+    q_cw: UnitQuaternion<f64>,
+}
+
+/// `q_ws` of the truth as the core's `q_sw` `[w, x, y, z]`.
+pub fn q_sw_of(k: &Kinematics) -> [f64; 4] {
+    let q = k.q_ws.inverse().into_inner();
+    [q.w, q.i, q.j, q.k]
+}
+
+/// The sample's time stamp [µs].
+pub fn t_us(k: usize, rate_hz: f64) -> u64 {
+    (k as f64 * 1e6 / rate_hz).round() as u64
+}
+
+fn collect(msg: CoreToHost, out: &mut Outcome, preds: &mut Vec<protocol::PosePrediction>) {
+    match msg {
+        CoreToHost::PosePrediction(p) => {
+            out.predictions += 1;
+            preds.push(p);
+        }
+        CoreToHost::UpdateReport(r) => out.reports.push(r),
+        CoreToHost::Status(s) => out.statuses.push(s),
+        CoreToHost::Error(e) => out.errors.push(e.code),
+        CoreToHost::HelloAck(_) | CoreToHost::State(_) => {}
+    }
+}
+
+/// Runs the scenario; `each` sees the device after every IMU sample with the truth.
+pub fn run<T: Scalar>(
+    sc: &Scenario,
+    mut each: impl FnMut(&Device<T>, &Kinematics, &ImuReading),
+) -> Outcome {
+    let mut device = Device::<T>::new();
+    let mut out = Outcome::default();
+    let mut preds = Vec::new();
+    let send = |device: &mut Device<T>, msg: &HostToCore, out: &mut Outcome, preds: &mut Vec<_>| {
+        device.handle(msg, &mut |m| collect(m, out, preds));
+    };
+    send(
+        &mut device,
+        &HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }),
+        &mut out,
+        &mut preds,
+    );
+    send(
+        &mut device,
+        &HostToCore::Configure(sc.config),
+        &mut out,
+        &mut preds,
+    );
+    send(
+        &mut device,
+        &HostToCore::Init(sc.init),
+        &mut out,
+        &mut preds,
+    );
+
+    let mut imu = ImuSim::new(
+        sc.noise,
+        sc.imu_rate_hz,
+        sc.gyro_bias,
+        sc.accel_bias,
+        sc.seed,
+    );
+    let mut rng = StdRng::seed_from_u64(sc.seed ^ 0xC0FFEE);
+    let samples = (sc.trajectory.duration() * sc.imu_rate_hz) as usize;
+    let mut pending: VecDeque<Pending> = VecDeque::new();
+    for k in 0..samples {
+        let t = k as f64 / sc.imu_rate_hz;
+        let truth = sc.trajectory.at(t);
+        let reading = imu.read(&truth);
+        let trigger = k % sc.camera_every == 0;
+        let f = |v: Vector3<f64>| [v[0] as f32, v[1] as f32, v[2] as f32];
+        let msg = HostToCore::Imu(ImuSample {
+            t_us: t_us(k, sc.imu_rate_hz),
+            gyro: f(reading.gyro),
+            accel: f(reading.accel),
+            trigger,
+        });
+        send(&mut device, &msg, &mut out, &mut preds);
+        for p in preds.drain(..) {
+            let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                p.q_cw[0] as f64,
+                p.q_cw[1] as f64,
+                p.q_cw[2] as f64,
+                p.q_cw[3] as f64,
+            ));
+            pending.push_back(Pending {
+                deliver_at: k + sc.latency_samples,
+                frame_id: p.frame_id,
+                t_us: p.t_us,
+                truth,
+                c_w: Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64),
+                q_cw: q,
+            });
+        }
+        while pending.front().is_some_and(|p| p.deliver_at <= k) {
+            let Some(p) = pending.pop_front() else { break };
+            let tt = p.truth.t;
+            let corrs: Vec<Correspondence> = if sc.blind.iter().any(|&(a, b)| tt >= a && tt < b) {
+                Vec::new()
+            } else {
+                camera::observe(
+                    &sc.points,
+                    &p.truth,
+                    &sc.mount,
+                    &sc.camera,
+                    sc.pixel_sigma,
+                    sc.max_correspondences,
+                    &mut rng,
+                )
+            };
+            for c in &corrs {
+                let m_w = Vector3::new(c.m_w[0] as f64, c.m_w[1] as f64, c.m_w[2] as f64);
+                let pc = p.q_cw * (m_w - p.c_w);
+                if pc[2] > 1e-3 {
+                    let proj = Vector2::new(pc[0] / pc[2], pc[1] / pc[2]);
+                    let reg = Vector2::new(c.m_n[0] as f64, c.m_n[1] as f64);
+                    out.prediction_errors.push(PredictionError {
+                        t: tt,
+                        px: (proj - reg).norm() * sc.camera.fx,
+                    });
+                }
+            }
+            out.sent += corrs.len();
+            let parts: Vec<Correspondences> = Correspondences::split(p.frame_id, p.t_us, &corrs)
+                .expect("within the protocol's per-frame bound")
+                .collect();
+            for part in parts {
+                send(
+                    &mut device,
+                    &HostToCore::Correspondences(part),
+                    &mut out,
+                    &mut preds,
+                );
+            }
+        }
+        each(&device, &truth, &reading);
+    }
+    out
+}
+
+/// Whether the run ended tracking (not diverged, not re-initialising).
+pub fn tracking_at_end<T: Scalar>(device: &Device<T>) -> bool {
+    matches!(device.mode(), Mode::Tracking | Mode::DeadReckoning)
+}
+
+/// Counts reports with the given outcome.
+pub fn count_outcome(out: &Outcome, outcome: UpdateOutcome) -> usize {
+    out.reports.iter().filter(|r| r.outcome == outcome).count()
+}
+
+/// Building blocks of the standard test scenes.
+pub mod scenes {
+    use super::*;
+    use firmware_sim::sim::trajectory::{Harmonic, Ramp, Sines};
+    use nalgebra::{Matrix3, Rotation3};
+    use protocol::{InitAttitude, ModelKind, NoiseParams};
+
+    /// Camera looking along the sensor's x axis (sensor: x forward, y left, z up; camera: z
+    /// forward, x right, y down), 5 cm in front of the IMU.
+    pub fn forward_mount() -> Mount {
+        let r_cs = Matrix3::new(0.0, -1.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, 0.0);
+        Mount {
+            q_cs: UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r_cs)),
+            c_s: Vector3::new(0.05, 0.0, 0.02),
+        }
+    }
+
+    /// A textured wall 2 m in front of the rest pose (plane x = 2), 4 × 3 m.
+    pub fn wall() -> Vec<Vector3<f64>> {
+        camera::wall_points(2.0, (-2.0, 2.0), (-0.5, 2.5), (16, 12))
+    }
+
+    /// Hand-held motion in front of the wall: rests `rest` seconds, then moves with peak
+    /// accelerations of about `accel` m/s².
+    pub fn handheld(length: f64, rest: f64, accel: f64) -> Harmonic {
+        // a = A (2πf)²: amplitudes that give the requested peak at these frequencies.
+        let amp = |f: f64, share: f64| share * accel / (2.0 * std::f64::consts::PI * f).powi(2);
+        let s = |terms: Vec<(f64, f64, f64)>| Sines { terms };
+        Harmonic {
+            centre: Vector3::new(0.0, 0.0, 1.0),
+            position: [
+                s(vec![(amp(0.7, 0.4), 0.7, 0.0), (amp(1.9, 0.3), 1.9, 1.0)]),
+                s(vec![(amp(0.5, 0.5), 0.5, 0.3), (amp(1.3, 0.3), 1.3, 2.0)]),
+                s(vec![(amp(0.6, 0.4), 0.6, 1.2), (amp(2.3, 0.2), 2.3, 0.5)]),
+            ],
+            attitude0: [0.0, 0.0, 0.0],
+            attitude: [
+                s(vec![(0.25, 0.3, 0.0), (0.05, 1.1, 1.0)]),
+                s(vec![(0.12, 0.45, 0.7), (0.04, 1.4, 0.2)]),
+                s(vec![(0.15, 0.35, 2.0), (0.05, 1.7, 1.3)]),
+            ],
+            ramp: Ramp {
+                start: rest,
+                length: 1.0,
+            },
+            length,
+        }
+    }
+
+    /// Noise settings for a model on the hand-held motion (the paper tuned them per model:
+    /// the constant-velocity models need a much larger motion noise).
+    pub fn config(model: ModelKind, imu_rate_hz: f64, accel: f64) -> Config {
+        let mut c = protocol::samples::config();
+        c.model = model;
+        c.imu_rate_hz = imu_rate_hz as f32;
+        c.camera_rate_hz = 25.0;
+        c.hand_eye = forward_mount().to_wire();
+        let (gs, as_) = ImuNoise::MT9.sample_sigmas(imu_rate_hz);
+        c.noise = NoiseParams {
+            motion: match model {
+                // White jerk of the harmonic motion: peak jerk ≈ a · 2πf.
+                ModelKind::Acc => (accel * 8.0).max(1.0) as f32,
+                _ => (accel * 1.5).max(0.5) as f32,
+            },
+            angular: 3.0,
+            gyro_bias_walk: (ImuNoise::MT9.gyro_walk * 5.0) as f32,
+            accel_bias_walk: (ImuNoise::MT9.accel_walk * 5.0) as f32,
+            gyro_meas: (gs * 1.5) as f32,
+            accel_meas: match model {
+                // The gravity model's accelerometer noise absorbs the free acceleration.
+                ModelKind::Gravity => (accel * 0.7).max(0.3) as f32,
+                _ => (as_ * 1.5) as f32,
+            },
+        };
+        c.gate = 30.0;
+        // Dead reckoning with a large motion noise grows the covariance fast: the divergence
+        // threshold must leave room for a few frames without vision.
+        c.divergence.covariance_frobenius = (2.0 * c.noise.motion * c.noise.motion).max(10.0);
+        c.still_samples = (imu_rate_hz * 0.5) as u16;
+        c.state_every = 0;
+        c
+    }
+
+    /// The standard scenario for `model`: hand-held motion in front of the wall, 200 Hz IMU,
+    /// 25 Hz camera (every 8th sample), 60 ms latency, true initial pose given.
+    pub fn standard(model: ModelKind, length: f64, accel: f64, seed: u64) -> Scenario {
+        let trajectory = handheld(length, 1.0, accel);
+        let k0 = trajectory.at(0.0);
+        let yaw = k0.q_ws.euler_angles().2;
+        Scenario {
+            trajectory: Box::new(trajectory),
+            imu_rate_hz: 200.0,
+            camera_every: 8,
+            latency_samples: 12,
+            noise: ImuNoise::MT9,
+            gyro_bias: Vector3::zeros(),
+            accel_bias: Vector3::zeros(),
+            mount: forward_mount(),
+            camera: Pinhole::PAPER,
+            points: wall(),
+            pixel_sigma: 0.5,
+            max_correspondences: 30,
+            blind: Vec::new(),
+            config: config(model, 200.0, accel),
+            init: Init {
+                position: [k0.p_w[0] as f32, k0.p_w[1] as f32, k0.p_w[2] as f32],
+                attitude: InitAttitude::GravityAndYaw(yaw as f32),
+            },
+            seed,
+        }
+    }
+}
+
+/// Errors of the live filter against the truth.
+pub mod errors {
+    use super::*;
+    use fusion_core::state::{ACC_BIAS, GYRO_BIAS, POS};
+
+    /// Position error [m].
+    pub fn position<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
+        let p = d.filter().st.v3(POS);
+        let p = Vector3::new(to64(p[0]), to64(p[1]), to64(p[2]));
+        (p - k.p_w).norm()
+    }
+
+    /// Attitude error [rad] (angle of `q_est⁻¹ q_true`).
+    pub fn attitude<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
+        let q = d.filter().st.q();
+        let est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            to64(q[0]),
+            to64(q[1]),
+            to64(q[2]),
+            to64(q[3]),
+        ));
+        // The filter holds q_sw; the truth q_ws.
+        (est * k.q_ws).angle()
+    }
+
+    /// Tilt error [rad]: angle between estimated and true gravity directions in the sensor.
+    pub fn tilt<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
+        let q = d.filter().st.q();
+        let est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            to64(q[0]),
+            to64(q[1]),
+            to64(q[2]),
+            to64(q[3]),
+        ));
+        let up_est = est * Vector3::z();
+        let up_true = k.q_ws.inverse() * Vector3::z();
+        up_est.angle(&up_true)
+    }
+
+    /// Gyro and accelerometer bias errors [rad/s, m/s²].
+    pub fn biases<T: Scalar>(d: &Device<T>, r: &ImuReading) -> (f64, f64) {
+        let st = &d.filter().st;
+        let g = st.v3(GYRO_BIAS);
+        let a = st.v3(ACC_BIAS);
+        let g = Vector3::new(to64(g[0]), to64(g[1]), to64(g[2]));
+        let a = Vector3::new(to64(a[0]), to64(a[1]), to64(a[2]));
+        ((g - r.gyro_bias).norm(), (a - r.accel_bias).norm())
+    }
+
+    /// Scalar to f64.
+    pub fn to64<T: Scalar>(x: T) -> f64 {
+        x.to_f64()
+    }
+}
