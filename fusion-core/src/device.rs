@@ -266,7 +266,20 @@ impl<T: Scalar> Device<T> {
             self.clock_candidate = None;
             return Ok(false);
         }
-        // Refused: report, and see whether a new clock is being confirmed.
+        // Refused unless it confirms a new clock: see whether one is being confirmed.
+        let count = match self.clock_candidate {
+            Some(c) if t_us > c.last_us && t_us - c.last_us <= MAX_GAP_US => c.count + 1,
+            _ => 1,
+        };
+        if count >= CLOCK_JUMP_CONFIRM {
+            self.clock_candidate = None;
+            self.counters.clock_jumps += 1;
+            return Ok(true);
+        }
+        self.clock_candidate = Some(ClockCandidate {
+            last_us: t_us,
+            count,
+        });
         self.counters.imu_time_rejected += 1;
         let code = if t_us <= last {
             ErrorCode::TimestampNotIncreasing {
@@ -280,21 +293,7 @@ impl<T: Scalar> Device<T> {
             }
         };
         out(CoreToHost::error(code));
-        let count = match self.clock_candidate {
-            Some(c) if t_us > c.last_us && t_us - c.last_us <= MAX_GAP_US => c.count + 1,
-            _ => 1,
-        };
-        self.clock_candidate = Some(ClockCandidate {
-            last_us: t_us,
-            count,
-        });
-        if count >= CLOCK_JUMP_CONFIRM {
-            self.clock_candidate = None;
-            self.counters.clock_jumps += 1;
-            Ok(true)
-        } else {
-            Err(())
-        }
+        Err(())
     }
 
     fn imu(&mut self, wire: &protocol::ImuSample, out: Out) {

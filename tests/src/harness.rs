@@ -44,6 +44,9 @@ pub struct Scenario {
     pub max_correspondences: usize,
     /// Time spans [s] without any correspondence (the model out of view).
     pub blind: Vec<(f64, f64)>,
+    /// Error of the 3D model against the real scene [m]: registrations come from the scene,
+    /// 3D points from the model.
+    pub model_offset: Vector3<f64>,
     /// Filter configuration.
     pub config: Config,
     /// Initialisation request (it may be deliberately wrong).
@@ -119,16 +122,186 @@ pub fn t_us(k: usize, rate_hz: f64) -> u64 {
     (k as f64 * 1e6 / rate_hz).round() as u64
 }
 
-fn collect(msg: CoreToHost, out: &mut Outcome, preds: &mut Vec<protocol::PosePrediction>) {
-    match msg {
-        CoreToHost::PosePrediction(p) => {
-            out.predictions += 1;
-            preds.push(p);
+/// Drives a device through a scenario one step at a time; [`run`] is this in a loop, and the
+/// fault tests use it to interleave bad input.
+pub struct Driver<'s, T: Scalar> {
+    /// The scenario.
+    pub sc: &'s Scenario,
+    /// The device under test.
+    pub device: Device<T>,
+    /// Everything the device answered.
+    pub out: Outcome,
+    imu: ImuSim,
+    rng: StdRng,
+    pending: VecDeque<Pending>,
+    /// Next IMU sample index.
+    pub k: usize,
+    /// Truth and reading of the last sample sent.
+    pub last: Option<(Kinematics, ImuReading)>,
+    /// Whether predicted frames get their correspondences.
+    pub answer_frames: bool,
+}
+
+impl<'s, T: Scalar> Driver<'s, T> {
+    /// Opens the session: `Hello`, `Configure`, `Init`.
+    pub fn new(sc: &'s Scenario) -> Self {
+        let mut d = Driver {
+            sc,
+            device: Device::new(),
+            out: Outcome::default(),
+            imu: ImuSim::new(
+                sc.noise,
+                sc.imu_rate_hz,
+                sc.gyro_bias,
+                sc.accel_bias,
+                sc.seed,
+            ),
+            rng: StdRng::seed_from_u64(sc.seed ^ 0xC0FFEE),
+            pending: VecDeque::new(),
+            k: 0,
+            last: None,
+            answer_frames: true,
+        };
+        d.send(&HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }));
+        d.send(&HostToCore::Configure(sc.config));
+        d.send(&HostToCore::Init(sc.init));
+        d
+    }
+
+    /// Sends one message; returns what the device answered (also recorded in `out`).
+    pub fn send(&mut self, msg: &HostToCore) -> Vec<CoreToHost> {
+        let mut answers = Vec::new();
+        self.device.handle(msg, &mut |m| answers.push(m));
+        for m in &answers {
+            match m {
+                CoreToHost::PosePrediction(_) => self.out.predictions += 1,
+                CoreToHost::UpdateReport(r) => self.out.reports.push(r.clone()),
+                CoreToHost::Status(s) => self.out.statuses.push(*s),
+                CoreToHost::Error(e) => self.out.errors.push(e.code),
+                CoreToHost::HelloAck(_) | CoreToHost::State(_) => {}
+            }
         }
-        CoreToHost::UpdateReport(r) => out.reports.push(r),
-        CoreToHost::Status(s) => out.statuses.push(s),
-        CoreToHost::Error(e) => out.errors.push(e.code),
-        CoreToHost::HelloAck(_) | CoreToHost::State(_) => {}
+        answers
+    }
+
+    /// The next IMU sample of the scenario as a message (not sent).
+    pub fn next_imu(&mut self) -> HostToCore {
+        let sc = self.sc;
+        let t = self.k as f64 / sc.imu_rate_hz;
+        let truth = sc.trajectory.at(t);
+        let reading = self.imu.read(&truth);
+        self.last = Some((truth, reading));
+        let f = |v: Vector3<f64>| [v[0] as f32, v[1] as f32, v[2] as f32];
+        let msg = HostToCore::Imu(ImuSample {
+            t_us: t_us(self.k, sc.imu_rate_hz),
+            gyro: f(reading.gyro),
+            accel: f(reading.accel),
+            trigger: self.k.is_multiple_of(sc.camera_every),
+        });
+        self.k += 1;
+        msg
+    }
+
+    /// Sends the next IMU sample, then the correspondences of every frame now due.
+    pub fn step(&mut self) {
+        let msg = self.next_imu();
+        let k = self.k - 1;
+        let Some((truth, _)) = self.last else { return };
+        for answer in self.send(&msg) {
+            if let CoreToHost::PosePrediction(p) = answer {
+                let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                    p.q_cw[0] as f64,
+                    p.q_cw[1] as f64,
+                    p.q_cw[2] as f64,
+                    p.q_cw[3] as f64,
+                ));
+                self.pending.push_back(Pending {
+                    deliver_at: k + self.sc.latency_samples,
+                    frame_id: p.frame_id,
+                    t_us: p.t_us,
+                    truth,
+                    c_w: Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64),
+                    q_cw: q,
+                });
+            }
+        }
+        while self.pending.front().is_some_and(|p| p.deliver_at <= k) {
+            let Some(p) = self.pending.pop_front() else {
+                break;
+            };
+            if self.answer_frames {
+                self.deliver(&p);
+            }
+        }
+    }
+
+    /// The correspondences of a true pose, as the host would register them.
+    pub fn observe(&mut self, truth: &Kinematics) -> Vec<Correspondence> {
+        let sc = self.sc;
+        if sc.blind.iter().any(|&(a, b)| truth.t >= a && truth.t < b) {
+            return Vec::new();
+        }
+        let mut corrs = camera::observe(
+            &sc.points,
+            truth,
+            &sc.mount,
+            &sc.camera,
+            sc.pixel_sigma,
+            sc.max_correspondences,
+            &mut self.rng,
+        );
+        for c in &mut corrs {
+            for k in 0..3 {
+                c.m_w[k] += sc.model_offset[k] as f32;
+            }
+        }
+        corrs
+    }
+
+    fn deliver(&mut self, p: &Pending) {
+        let corrs = self.observe(&p.truth);
+        for c in &corrs {
+            let m_w = Vector3::new(c.m_w[0] as f64, c.m_w[1] as f64, c.m_w[2] as f64);
+            let pc = p.q_cw * (m_w - p.c_w);
+            if pc[2] > 1e-3 {
+                let proj = Vector2::new(pc[0] / pc[2], pc[1] / pc[2]);
+                let reg = Vector2::new(c.m_n[0] as f64, c.m_n[1] as f64);
+                self.out.prediction_errors.push(PredictionError {
+                    t: p.truth.t,
+                    px: (proj - reg).norm() * self.sc.camera.fx,
+                });
+            }
+        }
+        self.out.sent += corrs.len();
+        let parts: Vec<Correspondences> = Correspondences::split(p.frame_id, p.t_us, &corrs)
+            .expect("within the protocol's per-frame bound")
+            .collect();
+        for part in parts {
+            self.send(&HostToCore::Correspondences(part));
+        }
+    }
+
+    /// Continues the same run against another scenario (for example a changed scene); the
+    /// IMU, noise and pending frames carry over.
+    pub fn switch_scenario<'t>(self, sc: &'t Scenario) -> Driver<'t, T> {
+        Driver {
+            sc,
+            device: self.device,
+            out: self.out,
+            imu: self.imu,
+            rng: self.rng,
+            pending: self.pending,
+            k: self.k,
+            last: self.last,
+            answer_frames: self.answer_frames,
+        }
+    }
+
+    /// Samples in the scenario.
+    pub fn samples(&self) -> usize {
+        (self.sc.trajectory.duration() * self.sc.imu_rate_hz) as usize
     }
 }
 
@@ -137,116 +310,14 @@ pub fn run<T: Scalar>(
     sc: &Scenario,
     mut each: impl FnMut(&Device<T>, &Kinematics, &ImuReading),
 ) -> Outcome {
-    let mut device = Device::<T>::new();
-    let mut out = Outcome::default();
-    let mut preds = Vec::new();
-    let send = |device: &mut Device<T>, msg: &HostToCore, out: &mut Outcome, preds: &mut Vec<_>| {
-        device.handle(msg, &mut |m| collect(m, out, preds));
-    };
-    send(
-        &mut device,
-        &HostToCore::Hello(Hello {
-            version: PROTOCOL_VERSION,
-        }),
-        &mut out,
-        &mut preds,
-    );
-    send(
-        &mut device,
-        &HostToCore::Configure(sc.config),
-        &mut out,
-        &mut preds,
-    );
-    send(
-        &mut device,
-        &HostToCore::Init(sc.init),
-        &mut out,
-        &mut preds,
-    );
-
-    let mut imu = ImuSim::new(
-        sc.noise,
-        sc.imu_rate_hz,
-        sc.gyro_bias,
-        sc.accel_bias,
-        sc.seed,
-    );
-    let mut rng = StdRng::seed_from_u64(sc.seed ^ 0xC0FFEE);
-    let samples = (sc.trajectory.duration() * sc.imu_rate_hz) as usize;
-    let mut pending: VecDeque<Pending> = VecDeque::new();
-    for k in 0..samples {
-        let t = k as f64 / sc.imu_rate_hz;
-        let truth = sc.trajectory.at(t);
-        let reading = imu.read(&truth);
-        let trigger = k % sc.camera_every == 0;
-        let f = |v: Vector3<f64>| [v[0] as f32, v[1] as f32, v[2] as f32];
-        let msg = HostToCore::Imu(ImuSample {
-            t_us: t_us(k, sc.imu_rate_hz),
-            gyro: f(reading.gyro),
-            accel: f(reading.accel),
-            trigger,
-        });
-        send(&mut device, &msg, &mut out, &mut preds);
-        for p in preds.drain(..) {
-            let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                p.q_cw[0] as f64,
-                p.q_cw[1] as f64,
-                p.q_cw[2] as f64,
-                p.q_cw[3] as f64,
-            ));
-            pending.push_back(Pending {
-                deliver_at: k + sc.latency_samples,
-                frame_id: p.frame_id,
-                t_us: p.t_us,
-                truth,
-                c_w: Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64),
-                q_cw: q,
-            });
+    let mut d = Driver::<T>::new(sc);
+    for _ in 0..d.samples() {
+        d.step();
+        if let Some((truth, reading)) = d.last {
+            each(&d.device, &truth, &reading);
         }
-        while pending.front().is_some_and(|p| p.deliver_at <= k) {
-            let Some(p) = pending.pop_front() else { break };
-            let tt = p.truth.t;
-            let corrs: Vec<Correspondence> = if sc.blind.iter().any(|&(a, b)| tt >= a && tt < b) {
-                Vec::new()
-            } else {
-                camera::observe(
-                    &sc.points,
-                    &p.truth,
-                    &sc.mount,
-                    &sc.camera,
-                    sc.pixel_sigma,
-                    sc.max_correspondences,
-                    &mut rng,
-                )
-            };
-            for c in &corrs {
-                let m_w = Vector3::new(c.m_w[0] as f64, c.m_w[1] as f64, c.m_w[2] as f64);
-                let pc = p.q_cw * (m_w - p.c_w);
-                if pc[2] > 1e-3 {
-                    let proj = Vector2::new(pc[0] / pc[2], pc[1] / pc[2]);
-                    let reg = Vector2::new(c.m_n[0] as f64, c.m_n[1] as f64);
-                    out.prediction_errors.push(PredictionError {
-                        t: tt,
-                        px: (proj - reg).norm() * sc.camera.fx,
-                    });
-                }
-            }
-            out.sent += corrs.len();
-            let parts: Vec<Correspondences> = Correspondences::split(p.frame_id, p.t_us, &corrs)
-                .expect("within the protocol's per-frame bound")
-                .collect();
-            for part in parts {
-                send(
-                    &mut device,
-                    &HostToCore::Correspondences(part),
-                    &mut out,
-                    &mut preds,
-                );
-            }
-        }
-        each(&device, &truth, &reading);
     }
-    out
+    d.out
 }
 
 /// Whether the run ended tracking (not diverged, not re-initialising).
@@ -362,6 +433,7 @@ pub mod scenes {
             pixel_sigma: 0.5,
             max_correspondences: 30,
             blind: Vec::new(),
+            model_offset: Vector3::zeros(),
             config: config(model, 200.0, accel),
             init: Init {
                 position: [k0.p_w[0] as f32, k0.p_w[1] as f32, k0.p_w[2] as f32],
