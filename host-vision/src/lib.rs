@@ -1,8 +1,14 @@
 //! The vision coprocessor beside the camera.
 //!
-//! Today it holds the host's end of the link to the fusion core ([`link`]) and the protocol's
-//! loop-back self-test ([`selftest`]). Rendering, feature registration and the tracking
-//! pipeline follow in their own issues.
+//! It holds the host's end of the link to the fusion core ([`link`]), the protocol's loop-back
+//! self-test ([`selftest`]), the camera model ([`camera`]), textured model loading ([`model`]),
+//! the offscreen renderer ([`render`]) and back-projection of rendered depth
+//! ([`backproject`]). Feature registration and the tracking pipeline follow in their own
+//! issues.
 
+pub mod backproject;
+pub mod camera;
 pub mod link;
+pub mod model;
+pub mod render;
 pub mod selftest;

@@ -20,10 +20,15 @@ const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
 /// Crates that must build for [`THUMB_TARGET`] (one by one: see TOOLCHAIN.md).
 const NO_STD_CRATES: &[&str] = &["protocol", "fusion-core"];
 
-/// Debian packages each command needs at run time (none yet: the renderer and the QEMU
-/// firmware tests add theirs).
-const DEMO_PACKAGES: &[&str] = &[];
-const TEST_PACKAGES: &[&str] = &[];
+/// Debian packages each command needs at run time: the renderer's software Vulkan driver
+/// (lavapipe) for both, and GL (llvmpipe) for the tests, which run the GPU tests on both.
+const DEMO_PACKAGES: &[&str] = &["libvulkan1", "mesa-vulkan-drivers"];
+const TEST_PACKAGES: &[&str] = &[
+    "libvulkan1",
+    "mesa-vulkan-drivers",
+    "libegl1",
+    "libgl1-mesa-dri",
+];
 
 fn main() -> ExitCode {
     let args: Vec<String> = env::args().skip(1).collect();
@@ -59,7 +64,9 @@ fn workspace_root() -> PathBuf {
 
 fn cargo() -> Command {
     let mut cmd = Command::new(env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
-    cmd.current_dir(workspace_root());
+    // Mesa's Vulkan device-select layer warns about XDG_RUNTIME_DIR on headless machines.
+    cmd.current_dir(workspace_root())
+        .env("NODEVICE_SELECT", "1");
     cmd
 }
 
@@ -221,9 +228,18 @@ fn test() -> Result<(), String> {
     ]);
     run(clippy)?;
 
+    // The renderer's GPU tests run on Vulkan here and again on GL below.
     let mut tests = cargo();
-    tests.args(["test", "--workspace"]);
+    tests
+        .args(["test", "--workspace"])
+        .env("WGPU_BACKEND", "vulkan");
     run(tests)?;
+
+    let mut gl_tests = cargo();
+    gl_tests
+        .args(["test", "-p", "host-vision"])
+        .env("WGPU_BACKEND", "gl");
+    run(gl_tests)?;
 
     for krate in NO_STD_CRATES {
         let mut build = cargo();

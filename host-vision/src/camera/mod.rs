@@ -1,0 +1,121 @@
+//! Camera geometry: pinhole intrinsics with skew, lens distortion, undistortion maps,
+//! calibration files and the camera pose.
+//!
+//! Pixel convention (as OpenCV and EuRoC/Kalibr): integer pixel coordinates `(u, v)` are pixel
+//! **centres**; pixel `(0, 0)` covers `[-0.5, 0.5]²`, `u` grows to the right and `v` downwards.
+//! Camera frame (DESIGN.md §3, as OpenCV): x right, y down, z forward along the optical axis.
+
+mod calib;
+mod distortion;
+mod pinhole;
+mod pose;
+mod undistort_map;
+
+pub use calib::{CalibError, CameraCalib, read_euroc_sensor_yaml, read_kalibr_camchain};
+pub use distortion::Distortion;
+pub use pinhole::Pinhole;
+pub use pose::CameraPose;
+pub use undistort_map::{Gray32FImage, UndistortMap};
+
+use nalgebra::{Vector2, Vector3};
+
+/// Invalid camera parameters.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CameraError {
+    /// Non-positive focal length or non-finite value.
+    #[error("invalid intrinsics: {0}")]
+    BadIntrinsics(String),
+    /// Non-finite distortion coefficient.
+    #[error("invalid distortion coefficients: {0:?}")]
+    BadDistortion(Distortion),
+    /// Zero or absurd image size.
+    #[error("invalid image size {width}x{height}")]
+    BadSize {
+        /// Width, px.
+        width: u32,
+        /// Height, px.
+        height: u32,
+    },
+    /// Two poses or directions that cannot define a camera orientation.
+    #[error("degenerate camera orientation: {0}")]
+    DegeneratePose(&'static str),
+}
+
+/// Largest image side accepted (guards allocations driven by file contents).
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// A calibrated camera: image size, intrinsics and distortion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Image width, px.
+    pub width: u32,
+    /// Image height, px.
+    pub height: u32,
+    /// Intrinsics.
+    pub pinhole: Pinhole,
+    /// Lens distortion.
+    pub distortion: Distortion,
+}
+
+impl Camera {
+    /// A checked camera.
+    pub fn new(
+        width: u32,
+        height: u32,
+        pinhole: Pinhole,
+        distortion: Distortion,
+    ) -> Result<Self, CameraError> {
+        if width == 0 || height == 0 || width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+            return Err(CameraError::BadSize { width, height });
+        }
+        pinhole.validate()?;
+        if !distortion.is_finite() {
+            return Err(CameraError::BadDistortion(distortion));
+        }
+        Ok(Self {
+            width,
+            height,
+            pinhole,
+            distortion,
+        })
+    }
+
+    /// The same camera without distortion (what the renderer and undistorted images show).
+    pub fn ideal(&self) -> Self {
+        Self {
+            distortion: Distortion::None,
+            ..*self
+        }
+    }
+
+    /// Projects a point in the camera frame to a (distorted) pixel; `None` behind the camera.
+    pub fn project(&self, p_c: Vector3<f64>) -> Option<Vector2<f64>> {
+        if p_c.z <= 0.0 {
+            return None;
+        }
+        let n = Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z);
+        Some(self.normalised_to_pixel(n))
+    }
+
+    /// Undistorted normalised point → distorted pixel.
+    pub fn normalised_to_pixel(&self, n: Vector2<f64>) -> Vector2<f64> {
+        self.pinhole.to_pixel(self.distortion.distort(n))
+    }
+
+    /// Distorted pixel → undistorted normalised point (`m_n` of DESIGN.md §3).
+    pub fn pixel_to_normalised(&self, p: Vector2<f64>) -> Option<Vector2<f64>> {
+        self.distortion.undistort(self.pinhole.to_normalised(p))
+    }
+
+    /// Ideal (undistorted) pixel → distorted pixel, both with this camera's `K`.
+    pub fn distort_pixel(&self, ideal: Vector2<f64>) -> Vector2<f64> {
+        self.normalised_to_pixel(self.pinhole.to_normalised(ideal))
+    }
+
+    /// Distorted pixel → ideal (undistorted) pixel, both with this camera's `K`; converged
+    /// far below 1e-6 px, `None` where the distortion cannot be inverted.
+    pub fn undistort_pixel(&self, distorted: Vector2<f64>) -> Option<Vector2<f64>> {
+        self.pixel_to_normalised(distorted)
+            .map(|n| self.pinhole.to_pixel(n))
+    }
+}

@@ -1,0 +1,230 @@
+//! Textured triangle models in metres: Wavefront OBJ + MTL ([`load_obj`]), glTF 2.0
+//! ([`load_gltf`]) and procedural test scenes ([`procedural`]).
+//!
+//! Conventions: positions are in the world frame `w` in metres (OBJ files are taken as
+//! metres as they are; use [`Model::scale`] otherwise). Texture coordinates have their
+//! origin at the image's top-left corner (`u` right, `v` down: texel row = `v · height`), as
+//! glTF; OBJ's bottom-left `v` is flipped on load.
+
+mod gltf;
+mod obj;
+pub mod procedural;
+
+pub use gltf::load_gltf;
+pub use obj::load_obj;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use image::RgbaImage;
+
+/// Why a model could not be loaded or is unusable.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// A model or material file does not exist or cannot be opened.
+    #[error("{path}: file not found or unreadable")]
+    MissingFile {
+        /// File.
+        path: PathBuf,
+    },
+    /// A material's texture file does not exist.
+    #[error("material `{material}`: texture {path} not found")]
+    MissingTexture {
+        /// Material name.
+        material: String,
+        /// Texture file looked for.
+        path: PathBuf,
+    },
+    /// A texture exists but cannot be decoded.
+    #[error("texture {path}: {source}")]
+    Texture {
+        /// Texture file.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: image::ImageError,
+    },
+    /// A texture in a pixel format we do not convert.
+    #[error("texture {what}: unsupported pixel format {format}")]
+    TextureFormat {
+        /// Which texture.
+        what: String,
+        /// The format.
+        format: String,
+    },
+    /// The OBJ/MTL parser failed.
+    #[error("{path}: OBJ/MTL: {source}")]
+    Obj {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: tobj::LoadError,
+    },
+    /// The glTF reader failed.
+    #[error("{path}: glTF: {source}")]
+    Gltf {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: ::gltf::Error,
+    },
+    /// A face or accessor refers outside the data.
+    #[error("mesh `{mesh}`: bad index: {detail}")]
+    BadIndex {
+        /// Mesh name.
+        mesh: String,
+        /// What is out of range.
+        detail: String,
+    },
+    /// Geometry that is not a triangle list.
+    #[error("mesh `{mesh}`: unsupported primitive: {detail}")]
+    UnsupportedPrimitive {
+        /// Mesh name.
+        mesh: String,
+        /// What was found.
+        detail: String,
+    },
+    /// A vertex with a NaN or infinite coordinate.
+    #[error("mesh `{mesh}`: non-finite vertex data")]
+    NonFinite {
+        /// Mesh name.
+        mesh: String,
+    },
+    /// No triangle at all.
+    #[error("{what}: the model has no triangles")]
+    Empty {
+        /// File or model name.
+        what: String,
+    },
+}
+
+/// A material: a base colour multiplied by an optional texture.
+#[derive(Debug, Clone)]
+pub struct Material {
+    /// Name.
+    pub name: String,
+    /// Linear RGBA multiplier in `[0, 1]` (white when a texture is given in OBJ).
+    pub base_colour: [f32; 4],
+    /// RGBA8 texture, top row first; shared between materials that use the same file.
+    pub texture: Option<Arc<RgbaImage>>,
+}
+
+/// An indexed triangle list with one material.
+#[derive(Debug, Clone)]
+pub struct Mesh {
+    /// Name (for errors and debugging).
+    pub name: String,
+    /// Vertex positions in the world frame, metres.
+    pub positions: Vec<[f32; 3]>,
+    /// Texture coordinates per vertex (top-left origin); same length as `positions`.
+    pub uvs: Vec<[f32; 2]>,
+    /// Three indices per triangle into `positions`.
+    pub indices: Vec<u32>,
+    /// Index into [`Model::materials`].
+    pub material: usize,
+}
+
+impl Mesh {
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len() / 3
+    }
+}
+
+/// A textured triangle model.
+#[derive(Debug, Clone, Default)]
+pub struct Model {
+    /// Meshes, each with one material.
+    pub meshes: Vec<Mesh>,
+    /// Materials referred to by the meshes.
+    pub materials: Vec<Material>,
+}
+
+impl Model {
+    /// Total number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.meshes.iter().map(Mesh::triangle_count).sum()
+    }
+
+    /// Multiplies all positions by `factor` (e.g. 0.001 for a model in millimetres).
+    pub fn scale(&mut self, factor: f32) {
+        for p in self.meshes.iter_mut().flat_map(|m| m.positions.iter_mut()) {
+            *p = p.map(|c| c * factor);
+        }
+    }
+
+    /// Drops meshes without triangles, then checks indices, materials and finiteness, and
+    /// that some triangle is left. Every loader calls it; call it after editing a model.
+    pub fn validate(mut self, what: &str) -> Result<Self, ModelError> {
+        self.meshes.retain(|m| !m.indices.is_empty());
+        self.check(what)?;
+        Ok(self)
+    }
+
+    /// Checks indices, materials and finiteness, and that there is a triangle.
+    pub fn check(&self, what: &str) -> Result<(), ModelError> {
+        for m in &self.meshes {
+            let bad = |detail: String| ModelError::BadIndex {
+                mesh: m.name.clone(),
+                detail,
+            };
+            if m.indices.len() % 3 != 0 {
+                return Err(ModelError::UnsupportedPrimitive {
+                    mesh: m.name.clone(),
+                    detail: format!(
+                        "{} indices is not a whole number of triangles",
+                        m.indices.len()
+                    ),
+                });
+            }
+            if m.uvs.len() != m.positions.len() {
+                return Err(bad(format!(
+                    "{} texture coordinates for {} vertices",
+                    m.uvs.len(),
+                    m.positions.len()
+                )));
+            }
+            if let Some(&i) = m.indices.iter().find(|&&i| i as usize >= m.positions.len()) {
+                return Err(bad(format!(
+                    "vertex index {i} but only {} vertices",
+                    m.positions.len()
+                )));
+            }
+            if m.material >= self.materials.len() {
+                return Err(bad(format!(
+                    "material {} but only {} materials",
+                    m.material,
+                    self.materials.len()
+                )));
+            }
+            let finite = m.positions.iter().flatten().chain(m.uvs.iter().flatten());
+            if !finite.clone().all(|c| c.is_finite()) {
+                return Err(ModelError::NonFinite {
+                    mesh: m.name.clone(),
+                });
+            }
+        }
+        if self.triangle_count() == 0 {
+            return Err(ModelError::Empty { what: what.into() });
+        }
+        Ok(())
+    }
+}
+
+/// Loads a texture file as RGBA8, with typed errors for a missing or broken file.
+fn load_texture(material: &str, path: &Path) -> Result<RgbaImage, ModelError> {
+    if !path.is_file() {
+        return Err(ModelError::MissingTexture {
+            material: material.into(),
+            path: path.to_owned(),
+        });
+    }
+    image::open(path)
+        .map(|i| i.to_rgba8())
+        .map_err(|source| ModelError::Texture {
+            path: path.to_owned(),
+            source,
+        })
+}

@@ -1,0 +1,209 @@
+//! The model uploaded to the GPU: one vertex and one index buffer, one texture per image
+//! (with mipmaps), one bind group per material.
+
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+use std::sync::Arc;
+
+use image::RgbaImage;
+use image::imageops::{FilterType, resize};
+use wgpu::util::DeviceExt;
+
+use super::RenderError;
+use crate::model::Model;
+
+/// Interleaved vertex: position (m) then texture coordinates.
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(crate) struct Vertex {
+    pub position: [f32; 3],
+    pub uv: [f32; 2],
+}
+
+impl Vertex {
+    pub const LAYOUT: wgpu::VertexBufferLayout<'static> = wgpu::VertexBufferLayout {
+        array_stride: std::mem::size_of::<Vertex>() as u64,
+        step_mode: wgpu::VertexStepMode::Vertex,
+        attributes: &wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2],
+    };
+}
+
+/// One indexed draw.
+pub(crate) struct Draw {
+    pub material: usize,
+    pub indices: std::ops::Range<u32>,
+    pub base_vertex: i32,
+}
+
+pub(crate) struct GpuScene {
+    pub vertices: wgpu::Buffer,
+    pub indices: wgpu::Buffer,
+    pub materials: Vec<wgpu::BindGroup>,
+    pub draws: Vec<Draw>,
+    pub triangles: usize,
+}
+
+impl GpuScene {
+    pub fn upload(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        layout: &wgpu::BindGroupLayout,
+        sampler: &wgpu::Sampler,
+        model: &Model,
+    ) -> Result<Self, RenderError> {
+        let limits = device.limits();
+        let mut vertices = Vec::new();
+        let mut indices = Vec::new();
+        let mut draws = Vec::new();
+        for mesh in &model.meshes {
+            let base_vertex =
+                i32::try_from(vertices.len()).map_err(|_| RenderError::TooLarge("vertex count"))?;
+            let start =
+                u32::try_from(indices.len()).map_err(|_| RenderError::TooLarge("index count"))?;
+            vertices.extend(
+                mesh.positions
+                    .iter()
+                    .zip(&mesh.uvs)
+                    .map(|(&position, &uv)| Vertex { position, uv }),
+            );
+            indices.extend_from_slice(&mesh.indices);
+            let end =
+                u32::try_from(indices.len()).map_err(|_| RenderError::TooLarge("index count"))?;
+            draws.push(Draw {
+                material: mesh.material,
+                indices: start..end,
+                base_vertex,
+            });
+        }
+        if draws.is_empty() {
+            return Err(RenderError::EmptyModel);
+        }
+        let vertex_bytes: &[u8] = bytemuck::cast_slice(&vertices);
+        let index_bytes: &[u8] = bytemuck::cast_slice(&indices);
+        if vertex_bytes.len().max(index_bytes.len()) as u64 > limits.max_buffer_size {
+            return Err(RenderError::TooLarge("vertex or index buffer"));
+        }
+        // Draw in material order: fewer bind-group switches.
+        draws.sort_by_key(|d| d.material);
+
+        let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("model vertices"),
+            contents: vertex_bytes,
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let indices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("model indices"),
+            contents: index_bytes,
+            usage: wgpu::BufferUsages::INDEX,
+        });
+
+        let white = Arc::new(RgbaImage::from_pixel(1, 1, image::Rgba([255; 4])));
+        let mut views: HashMap<*const RgbaImage, wgpu::TextureView> = HashMap::new();
+        let mut materials = Vec::with_capacity(model.materials.len());
+        for m in &model.materials {
+            let image = m.texture.clone().unwrap_or_else(|| white.clone());
+            let key = Arc::as_ptr(&image);
+            let view = match views.entry(key) {
+                Entry::Occupied(e) => e.into_mut(),
+                Entry::Vacant(e) => {
+                    let max = limits.max_texture_dimension_2d;
+                    let (w, h) = image.dimensions();
+                    if w == 0 || h == 0 || w > max || h > max {
+                        return Err(RenderError::TextureSize {
+                            material: m.name.clone(),
+                            width: w,
+                            height: h,
+                            max,
+                        });
+                    }
+                    e.insert(upload_texture(device, queue, &image))
+                }
+            };
+            let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("material"),
+                contents: bytemuck::cast_slice(&m.base_colour),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+            materials.push(device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("material"),
+                layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::TextureView(view),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: wgpu::BindingResource::Sampler(sampler),
+                    },
+                ],
+            }));
+        }
+        Ok(Self {
+            vertices,
+            indices,
+            materials,
+            draws,
+            triangles: model.triangle_count(),
+        })
+    }
+}
+
+/// Uploads an RGBA8 texture with a full mip chain (box-filtered on the CPU), so minified
+/// textures do not alias.
+fn upload_texture(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    image: &RgbaImage,
+) -> wgpu::TextureView {
+    let levels = 32 - image.width().max(image.height()).leading_zeros();
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("material texture"),
+        size: wgpu::Extent3d {
+            width: image.width(),
+            height: image.height(),
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: levels,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        // Unorm, not sRGB: the rendered values are the texture's values.
+        format: wgpu::TextureFormat::Rgba8Unorm,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    let mut level_image = image.clone();
+    for level in 0..levels {
+        if level > 0 {
+            let (w, h) = (
+                (level_image.width() / 2).max(1),
+                (level_image.height() / 2).max(1),
+            );
+            level_image = resize(&level_image, w, h, FilterType::Triangle);
+        }
+        queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: level,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            level_image.as_raw(),
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * level_image.width()),
+                rows_per_image: Some(level_image.height()),
+            },
+            wgpu::Extent3d {
+                width: level_image.width(),
+                height: level_image.height(),
+                depth_or_array_layers: 1,
+            },
+        );
+    }
+    texture.create_view(&wgpu::TextureViewDescriptor::default())
+}
