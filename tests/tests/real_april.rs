@@ -18,6 +18,9 @@ fn data_dir() -> Option<PathBuf> {
     d.join("imu0.csv").exists().then_some(d)
 }
 
+/// Undistorted normalised points with their grid points.
+type Observations = Vec<(Vector2<f64>, Vector3<f64>)>;
+
 struct Imu {
     t_ns: i64,
     gyro: Vector3<f64>,
@@ -151,7 +154,7 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     let fx = cam.pinhole.fx;
 
     // Undistorted normalised observations per frame.
-    let frames: Vec<(i64, Vec<(Vector2<f64>, Vector3<f64>)>)> = frames
+    let frames: Vec<(i64, Observations)> = frames
         .iter()
         .map(|f| {
             let obs = f
@@ -223,7 +226,7 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
 
     let mut dev = Device::<f32>::new();
     let mut answers: Vec<CoreToHost> = Vec::new();
-    let mut handle = |dev: &mut Device<f32>, m: &HostToCore, answers: &mut Vec<CoreToHost>| {
+    let handle = |dev: &mut Device<f32>, m: &HostToCore, answers: &mut Vec<CoreToHost>| {
         dev.handle(m, &mut |a| answers.push(a));
     };
     handle(
