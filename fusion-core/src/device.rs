@@ -601,3 +601,33 @@ impl<T: Scalar> DeviceIo<T> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use core::mem::size_of;
+
+    /// The whole device, and its parts, in bytes (the firmware keeps it in a `static`).
+    #[test]
+    fn memory_footprint() {
+        let sizes = [
+            ("State<f32> (mean + covariance)", size_of::<State<f32>>()),
+            (
+                "DelayLine<f32> (IMU ring + snapshots)",
+                size_of::<DelayLine<f32>>(),
+            ),
+            ("Device<f32>", size_of::<Device<f32>>()),
+            (
+                "DeviceIo<f32> (device + frame decoder)",
+                size_of::<DeviceIo<f32>>(),
+            ),
+            ("Device<f64>", size_of::<Device<f64>>()),
+        ];
+        for (name, bytes) in sizes {
+            std::println!("{name}: {bytes} bytes");
+        }
+        // Fits the 32 KiB RAM budget of the smallest Cortex-M4F parts with room for the stack.
+        assert!(size_of::<DeviceIo<f32>>() < 20 * 1024);
+    }
+}
