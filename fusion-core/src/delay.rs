@@ -71,6 +71,13 @@ pub struct DelayLine<T: Scalar> {
 
 impl<T: Scalar> Default for DelayLine<T> {
     fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<T: Scalar> DelayLine<T> {
+    /// Empty.
+    pub const fn new() -> Self {
         DelayLine {
             records: Deque::new(),
             snapshots: Deque::new(),
@@ -78,9 +85,7 @@ impl<T: Scalar> Default for DelayLine<T> {
             next_frame_id: 0,
         }
     }
-}
 
-impl<T: Scalar> DelayLine<T> {
     /// Drops all samples and snapshots (frame ids keep counting, so late answers to old frames
     /// are still recognised as too old).
     pub fn clear(&mut self) {

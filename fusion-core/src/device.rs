@@ -18,7 +18,7 @@ use crate::models::correspondence::{self, Observation, Rejection};
 use crate::params::Params;
 use crate::quat::{self, Quat};
 use crate::scalar::Scalar;
-use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, State, VEL};
+use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, VEL};
 
 /// Largest IMU interval integrated as dead reckoning [µs]; a longer jump, or a time stamp
 /// going backwards, is refused until the new clock is confirmed.
@@ -62,6 +62,25 @@ pub struct Counters {
     pub divergences: u32,
     /// Clock jumps accepted.
     pub clock_jumps: u32,
+}
+
+impl Counters {
+    const ZERO: Counters = Counters {
+        decode_errors: 0,
+        invalid_messages: 0,
+        out_of_order: 0,
+        imu_time_rejected: 0,
+        imu_applied: 0,
+        predictions: 0,
+        parts_applied: 0,
+        parts_refused: 0,
+        accepted: 0,
+        gated: 0,
+        behind_camera: 0,
+        singular: 0,
+        divergences: 0,
+        clock_jumps: 0,
+    };
 }
 
 /// Where the device is in its life cycle.
@@ -117,24 +136,25 @@ impl<T: Scalar> Default for Device<T> {
 pub type Out<'a> = &'a mut dyn FnMut(CoreToHost);
 
 impl<T: Scalar> Device<T> {
-    /// A device waiting for `Hello`.
-    pub fn new() -> Self {
+    /// A device waiting for `Hello`; `const`, so that firmware can keep it in a `static`
+    /// (built at compile time, all zeros, in `.bss`) rather than on the stack.
+    pub const fn new() -> Self {
         Device {
             greeted: false,
             config: None,
             prm: None,
             phase: Phase::Unconfigured,
             mode: Mode::Unconfigured,
-            filter: Filter::new(State::default(), 0),
-            delay: DelayLine::default(),
-            monitor: Monitor::default(),
+            filter: Filter::idle(),
+            delay: DelayLine::new(),
+            monitor: Monitor::new(),
             last_t_us: None,
             clock_candidate: None,
             frames_without_vision: 0,
             last_good: None,
-            init_position: Vector3::zeros(),
+            init_position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
             since_state: 0,
-            counters: Counters::default(),
+            counters: Counters::ZERO,
         }
     }
 
@@ -571,8 +591,8 @@ pub struct DeviceIo<T: Scalar> {
 }
 
 impl<T: Scalar> DeviceIo<T> {
-    /// A new device with an empty decoder.
-    pub fn new() -> Self {
+    /// A new device with an empty decoder (`const`: see [`Device::new`]).
+    pub const fn new() -> Self {
         DeviceIo {
             device: Device::new(),
             decoder: Decoder::new(),
@@ -606,6 +626,7 @@ impl<T: Scalar> DeviceIo<T> {
 mod tests {
     extern crate std;
     use super::*;
+    use crate::state::State;
     use core::mem::size_of;
 
     /// The whole device, and its parts, in bytes (the firmware keeps it in a `static`).

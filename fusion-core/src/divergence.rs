@@ -20,6 +20,11 @@ pub struct Monitor<T: Scalar> {
 }
 
 impl<T: Scalar> Monitor<T> {
+    /// A fresh monitor.
+    pub const fn new() -> Self {
+        Monitor { g: T::ZERO }
+    }
+
     /// Feeds one normalised residual; a gated outlier counts too (a diverged filter sees only
     /// "outliers"), clamped to twice the threshold so a single wild one cannot fire the test.
     pub fn residual(&mut self, s: T, prm: &Params<T>) -> Option<StatusReason> {

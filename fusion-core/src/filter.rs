@@ -49,6 +49,15 @@ pub struct Filter<T: Scalar> {
 }
 
 impl<T: Scalar> Filter<T> {
+    /// A filter that has not started (zero state).
+    pub const fn idle() -> Self {
+        Filter {
+            st: State::zeroed(),
+            t_us: 0,
+            quat_norm_error: T::ZERO,
+        }
+    }
+
     /// A filter at `state` and time `t_us`.
     pub fn new(st: State<T>, t_us: u64) -> Self {
         Filter {

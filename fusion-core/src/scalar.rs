@@ -8,6 +8,8 @@ pub trait Scalar: RealField + Copy + Default {
     const BITS: u8;
     /// Smallest variance a covariance diagonal entry of an active state may reach.
     const VARIANCE_FLOOR: f64;
+    /// Zero, usable in `const` constructors (the firmware's state lives in a `static`).
+    const ZERO: Self;
 
     /// Conversion from an `f64` constant.
     fn c(x: f64) -> Self;
@@ -22,6 +24,7 @@ pub trait Scalar: RealField + Copy + Default {
 impl Scalar for f32 {
     const BITS: u8 = 32;
     const VARIANCE_FLOOR: f64 = 1e-12;
+    const ZERO: Self = 0.0;
 
     fn c(x: f64) -> Self {
         x as f32
@@ -40,6 +43,7 @@ impl Scalar for f32 {
 impl Scalar for f64 {
     const BITS: u8 = 64;
     const VARIANCE_FLOOR: f64 = 1e-20;
+    const ZERO: Self = 0.0;
 
     fn c(x: f64) -> Self {
         x

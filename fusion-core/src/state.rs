@@ -4,7 +4,7 @@
 //! model 19, the acc model all 22. Entries a model lacks stay zero with zero covariance, and
 //! every loop runs over the active prefix only.
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3, Vector4};
+use nalgebra::{ArrayStorage, Matrix3, SMatrix, SVector, Vector3, Vector4};
 
 use crate::quat::{self, Quat};
 use crate::scalar::Scalar;
@@ -49,6 +49,15 @@ impl<T: Scalar> Default for State<T> {
 }
 
 impl<T: Scalar> State<T> {
+    /// All zeros (not a valid state: the quaternion is zero too), built at compile time so
+    /// that a `static` holding it lands in `.bss`.
+    pub const fn zeroed() -> Self {
+        State {
+            x: SMatrix::from_array_storage(ArrayStorage([[T::ZERO; N]; 1])),
+            p: SMatrix::from_array_storage(ArrayStorage([[T::ZERO; N]; N])),
+        }
+    }
+
     /// Three entries from `at`.
     pub fn v3(&self, at: usize) -> Vector3<T> {
         self.x.fixed_rows::<3>(at).into_owned()
