@@ -137,13 +137,17 @@ impl<T: Scalar> DelayLine<T> {
             frame_id,
             t_us: filter.t_us,
             seq: self.next_seq.wrapping_sub(1),
-            filter: filter.clone(),
+            filter: Filter::idle(),
             predicted: filter.st.x,
             parts_done: 0,
             dirty: false,
         };
-        // Cannot fail: a slot was freed above.
-        let _ = self.snapshots.push_back(snap);
+        // Cannot fail: a slot was freed above. The covariance is copied in place afterwards.
+        if self.snapshots.push_back(snap).is_ok()
+            && let Some(s) = self.snapshots.back_mut()
+        {
+            s.filter.copy_from(filter);
+        }
         frame_id
     }
 
@@ -175,22 +179,26 @@ impl<T: Scalar> DelayLine<T> {
             .map(|s| s.frame_id)
     }
 
-    /// Re-propagates `frame_id`'s snapshot through the buffered samples after it and returns
-    /// the filter at the present; later snapshots on the way are refreshed (their predicted
-    /// means, already sent to the host, stay).
+    /// Re-propagates `frame_id`'s snapshot through the buffered samples after it into `live`
+    /// (the filter at the present); later snapshots on the way are refreshed (their predicted
+    /// means, already sent to the host, stay). Returns `None` if the frame has no snapshot
+    /// (then `live` is untouched). Copies go field by field, never through a stack temporary:
+    /// the firmware's stack is small.
     pub fn repropagate(
         &mut self,
         frame_id: u32,
         prm: &Params<T>,
-    ) -> Option<Result<Filter<T>, StatusReason>> {
+        live: &mut Filter<T>,
+    ) -> Option<Result<(), StatusReason>> {
         let start = self.snapshots.iter().position(|s| s.frame_id == frame_id)?;
-        let (mut filter, seq) = {
+        let seq = {
             let s = self.snapshots.iter_mut().nth(start)?;
             s.dirty = false;
-            (s.filter.clone(), s.seq)
+            live.copy_from(&s.filter);
+            s.seq
         };
         for rec in self.records.iter().filter(|r| before(seq, r.seq)) {
-            if let Err(reason) = filter.imu_step(prm, &rec.sample) {
+            if let Err(reason) = live.imu_step(prm, &rec.sample) {
                 return Some(Err(reason));
             }
             if let Some(later) = self
@@ -199,10 +207,10 @@ impl<T: Scalar> DelayLine<T> {
                 .skip(start + 1)
                 .find(|s| s.seq == rec.seq)
             {
-                later.filter = filter.clone();
+                later.filter.copy_from(live);
             }
         }
-        Some(Ok(filter))
+        Some(Ok(()))
     }
 
     /// Samples buffered.

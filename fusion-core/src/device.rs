@@ -13,7 +13,7 @@ use protocol::{
 use crate::delay::{DelayLine, IMU_BUFFER, Missing};
 use crate::divergence::Monitor;
 use crate::filter::{Filter, ImuSample};
-use crate::init::{StillWindow, initial_state};
+use crate::init::{StillWindow, initialise};
 use crate::models::correspondence::{self, Observation, Rejection};
 use crate::params::Params;
 use crate::quat::{self, Quat};
@@ -339,8 +339,9 @@ impl<T: Scalar> Device<T> {
                 window,
             } => {
                 if window.add(&sample.gyro, &sample.accel, prm.still_samples) {
-                    let st = initial_state(&prm, position, attitude, window);
-                    self.filter = Filter::new(st, sample.t_us);
+                    initialise(&mut self.filter.st, &prm, position, attitude, window);
+                    self.filter.t_us = sample.t_us;
+                    self.filter.quat_norm_error = T::zero();
                     self.restart_phase(Phase::Running);
                     self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
                 }
@@ -361,6 +362,10 @@ impl<T: Scalar> Device<T> {
         }
         self.counters.imu_applied += 1;
         self.delay.push(*sample);
+        if trigger && let Some(reason) = Monitor::frame(&self.filter.st, prm) {
+            self.diverged(reason, prm, out);
+            return;
+        }
         if trigger {
             let frame_id = self.delay.snapshot(&self.filter);
             self.counters.predictions += 1;
@@ -382,11 +387,8 @@ impl<T: Scalar> Device<T> {
 
     /// Propagates a dirty frame's update to the present; false if that diverged.
     fn flush(&mut self, frame_id: u32, prm: &Params<T>, out: Out) -> bool {
-        match self.delay.repropagate(frame_id, prm) {
-            Some(Ok(f)) => {
-                self.filter = f;
-                true
-            }
+        match self.delay.repropagate(frame_id, prm, &mut self.filter) {
+            Some(Ok(())) => true,
             Some(Err(reason)) => {
                 self.diverged(reason, prm, out);
                 false

@@ -34,12 +34,24 @@ impl<T: Scalar> Monitor<T> {
         (self.g > prm.residual_threshold).then_some(StatusReason::ResidualLowpass)
     }
 
-    /// Tests 2 and 3, and finiteness, after an IMU step.
-    pub fn state(st: &State<T>, quat_norm_error: T, prm: &Params<T>) -> Option<StatusReason> {
-        if !st.is_finite() {
+    /// Test 3 and finiteness, after every IMU step (cheap: a non-finite covariance shows on
+    /// its diagonal within a step).
+    pub fn step(st: &State<T>, quat_norm_error: T, prm: &Params<T>) -> Option<StatusReason> {
+        let diag_finite = (0..prm.n).all(|i| st.p[(i, i)].is_finite());
+        if !diag_finite || !st.x.iter().all(|v| v.is_finite()) {
             Some(StatusReason::NonFiniteState)
         } else if quat_norm_error > prm.quat_norm_threshold {
             Some(StatusReason::QuaternionNorm)
+        } else {
+            None
+        }
+    }
+
+    /// Test 2, and full finiteness, at each camera trigger: the covariance grows slowly, so
+    /// checking it at frame rate costs a fraction and misses nothing.
+    pub fn frame(st: &State<T>, prm: &Params<T>) -> Option<StatusReason> {
+        if !st.is_finite() {
+            Some(StatusReason::NonFiniteState)
         } else if st.cov_frobenius() > prm.cov_threshold {
             Some(StatusReason::CovarianceNorm)
         } else {

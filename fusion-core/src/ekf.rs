@@ -54,15 +54,25 @@ impl<T: Scalar> SparseRow<T> {
             .map(|(&i, &v)| (i as usize, v))
     }
 
-    /// `P hᵀ` over the active block.
+    /// `P hᵀ` over the active block, read from the upper triangle only (the lower one may be
+    /// stale between a step's updates; see [`condition`]).
     pub fn p_ht(&self, p: &Cov<T>, n: usize) -> SVector<T, N> {
-        let mut u = SVector::<T, N>::zeros();
+        let mut u = [T::zero(); N];
+        let ps = p.as_slice();
         for (j, h) in self.iter() {
-            for i in 0..n {
-                u[i] += p[(i, j)] * h;
+            // Column j holds P[0..=j, j] contiguously; P[i, j] for i > j is P[j, i], found in
+            // column i at row j: a stride of N from (j, j + 1).
+            for (ui, &v) in u[..=j].iter_mut().zip(&ps[j * N..=j * N + j]) {
+                *ui += v * h;
+            }
+            if j + 1 < n {
+                let strided = ps[(j + 1) * N + j..].iter().step_by(N);
+                for (ui, &v) in u[j + 1..n].iter_mut().zip(strided) {
+                    *ui += v * h;
+                }
             }
         }
-        u
+        SVector::from(u)
     }
 
     /// `h v`.
@@ -112,9 +122,10 @@ pub fn innovation<T: Scalar, const M: usize>(
 /// Joseph-form update with innovation `z`, `U = P Hᵀ`, `S = H P Hᵀ + R`:
 /// `x ← x + K z`, `P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ` with `K = U S⁻¹`.
 ///
-/// Expanded, `P ← P − K Uᵀ − U Kᵀ + K S Kᵀ`: valid for any gain, so rounding in `K` only enters
-/// to second order (the point of the Joseph form), symmetric by construction, and computed on
-/// the upper triangle of the active block only (`O(n² M)` instead of a dense `O(n³)`).
+/// Expanded, `P ← P − K Uᵀ − U Kᵀ + K S Kᵀ = P + K Wᵀ − U Kᵀ` with `W = K S − U`: valid for
+/// any gain, so rounding in `K` enters only to second order (the point of the Joseph form).
+/// Only the upper triangle of the active block is written (column by column, contiguous), in
+/// `O(n² M)`: callers finish a batch of updates with [`condition`], which mirrors it.
 pub fn joseph_update<T: Scalar, const M: usize>(
     st: &mut State<T>,
     n: usize,
@@ -122,41 +133,94 @@ pub fn joseph_update<T: Scalar, const M: usize>(
     s: &SMatrix<T, M, M>,
     z: &SVector<T, M>,
 ) -> Result<(), UpdateError> {
-    // Cholesky fails unless S is symmetric positive definite, as an innovation covariance is.
-    let s_inv = s.cholesky().ok_or(UpdateError::Singular)?.inverse();
-    if !s_inv.iter().all(|v| v.is_finite()) {
-        return Err(UpdateError::Singular);
-    }
-    let k = u * s_inv;
-    let ks = k * s;
-    for i in 0..n {
-        st.x[i] += (k.row(i) * z)[0];
-    }
-    for i in 0..n {
-        for j in i..n {
-            let mut d = T::zero();
-            for m in 0..M {
-                d += -k[(i, m)] * u[(j, m)] - u[(i, m)] * k[(j, m)] + ks[(i, m)] * k[(j, m)];
+    let s_inv = spd_inverse(s).ok_or(UpdateError::Singular)?;
+    let us = u.as_slice();
+    // K = U S⁻¹ and W = K S − U, column by column, on plain arrays (no bounds checks in the
+    // loops that run n² times below).
+    let mut k = [[T::zero(); N]; M];
+    let mut w = [[T::zero(); N]; M];
+    for m in 0..M {
+        for l in 0..M {
+            let f = s_inv[(l, m)];
+            for (ki, &ui) in k[m][..n].iter_mut().zip(&us[l * N..l * N + n]) {
+                *ki += ui * f;
             }
-            let v = st.p[(i, j)] + d;
-            st.p[(i, j)] = v;
-            st.p[(j, i)] = v;
+        }
+    }
+    for m in 0..M {
+        for l in 0..M {
+            let f = s[(l, m)];
+            let kl = k[l];
+            for (wi, &ki) in w[m][..n].iter_mut().zip(&kl[..n]) {
+                *wi += ki * f;
+            }
+        }
+        for (wi, &ui) in w[m][..n].iter_mut().zip(&us[m * N..m * N + n]) {
+            *wi -= ui;
+        }
+    }
+    for m in 0..M {
+        let zm = z[m];
+        for (x, &ki) in st.x.as_mut_slice()[..n].iter_mut().zip(&k[m][..n]) {
+            *x += ki * zm;
+        }
+    }
+    // One pass over the upper triangle for all M columns: each P_ij is loaded and stored once.
+    let p = st.p.as_mut_slice();
+    for (j, col) in p.chunks_exact_mut(N).take(n).enumerate() {
+        let wj: [T; M] = core::array::from_fn(|m| w[m][j]);
+        let kj: [T; M] = core::array::from_fn(|m| k[m][j]);
+        for (i, pij) in col[..=j].iter_mut().enumerate() {
+            let mut acc = *pij;
+            for m in 0..M {
+                acc += k[m][i] * wj[m] - us[m * N + i] * kj[m];
+            }
+            *pij = acc;
         }
     }
     Ok(())
 }
 
-/// Keeps the active block symmetric with variances no smaller than the scalar's floor.
+/// Inverse of a symmetric positive definite innovation covariance; `None` otherwise (closed
+/// form for the 1×1 and 2×2 cases the filter uses, Cholesky beyond).
+fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatrix<T, M, M>> {
+    let inv = match M {
+        1 => {
+            let a = s[(0, 0)];
+            (a > T::zero()).then(|| SMatrix::from_element(T::one() / a))?
+        }
+        2 => {
+            let (a, b, d) = (s[(0, 0)], s[(0, 1)], s[(1, 1)]);
+            let det = a * d - b * b;
+            // A NaN passes here but not the finiteness check below.
+            if a <= T::zero() || det <= T::zero() {
+                return None;
+            }
+            let mut inv = SMatrix::zeros();
+            inv[(0, 0)] = d / det;
+            inv[(0, 1)] = -b / det;
+            inv[(1, 0)] = -b / det;
+            inv[(1, 1)] = a / det;
+            inv
+        }
+        _ => s.cholesky()?.inverse(),
+    };
+    inv.iter().all(|v| v.is_finite()).then_some(inv)
+}
+
+/// Ends a batch of updates: mirrors the upper triangle of the active block into the lower one
+/// (so the covariance is exactly symmetric) and keeps variances at or above the scalar's
+/// floor.
 pub fn condition<T: Scalar>(p: &mut Cov<T>, n: usize) {
     let floor = T::c(T::VARIANCE_FLOOR);
-    for i in 0..n {
-        if p[(i, i)] < floor {
-            p[(i, i)] = floor;
+    let ps = p.as_mut_slice();
+    for j in 0..n {
+        if ps[j * N + j] < floor {
+            ps[j * N + j] = floor;
         }
-        for j in i + 1..n {
-            let v = (p[(i, j)] + p[(j, i)]) * T::c(0.5);
-            p[(i, j)] = v;
-            p[(j, i)] = v;
+        for i in j + 1..n {
+            // P[i, j] (column j, row i) ← P[j, i] (column i, row j).
+            ps[j * N + i] = ps[i * N + j];
         }
     }
 }
@@ -201,6 +265,7 @@ mod tests {
         let (u, s) = innovation(&st, N, &h, &r);
         assert_relative_eq!(s, s_ref, epsilon = 1e-10);
         joseph_update(&mut st, N, &u, &s, &z).unwrap();
+        condition(&mut st.p, N);
         assert_relative_eq!(st.p, p_ref, epsilon = 1e-10);
         assert_relative_eq!(st.x - x0, k_ref * z, epsilon = 1e-10);
     }

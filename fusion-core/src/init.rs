@@ -70,6 +70,19 @@ pub fn initial_state<T: Scalar>(
     attitude: &InitAttitude,
     window: &StillWindow<T>,
 ) -> State<T> {
+    let mut st = State::zeroed();
+    initialise(&mut st, prm, position, attitude, window);
+    st
+}
+
+/// [`initial_state`] written in place (the firmware's stack has no room for a second state).
+pub fn initialise<T: Scalar>(
+    st: &mut State<T>,
+    prm: &Params<T>,
+    position: &Vector3<T>,
+    attitude: &InitAttitude,
+    window: &StillWindow<T>,
+) {
     let sig = &prm.init_sigma;
     let f = T::from_wire;
     let (q, yaw_sigma) = match *attitude {
@@ -86,7 +99,8 @@ pub fn initial_state<T: Scalar>(
             f(sig.tilt),
         ),
     };
-    let mut st = State::default();
+    st.x.fill(T::zero());
+    st.p.fill(T::zero());
     st.set_v3(POS, position);
     st.set_q(&q);
     let mean_gyro = window.mean_gyro();
@@ -125,7 +139,6 @@ pub fn initial_state<T: Scalar>(
     let radial = T::c(QUAT_RADIAL_SIGMA * QUAT_RADIAL_SIGMA);
     let p_qq = g * sigma_theta * g.transpose() + q * q.transpose() * radial;
     st.p.fixed_view_mut::<4, 4>(QUAT, QUAT).copy_from(&p_qq);
-    st
 }
 
 #[cfg(test)]

@@ -5,11 +5,10 @@
 //!
 //! The gyro model does not use the accelerometer.
 
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::Vector3;
 use protocol::ModelKind;
 
-use crate::ekf::{SparseRow, UpdateError, innovation, joseph_update};
-use crate::params::Params;
+use crate::ekf::SparseRow;
 use crate::quat;
 use crate::scalar::Scalar;
 use crate::state::{ACC, ACC_BIAS, QUAT, State};
@@ -29,39 +28,27 @@ pub fn predict<T: Scalar>(st: &State<T>) -> Vector3<T> {
 
 /// Jacobian row of axis `k`.
 pub fn row<T: Scalar>(st: &State<T>, model: ModelKind, k: usize) -> SparseRow<T> {
-    let q = st.q().normalize();
-    let d_q = quat::d_rotate_dq(&q, &specific_force_world(st));
-    let mut h = SparseRow::default();
-    for c in 0..4 {
-        h.push(QUAT + c, d_q[(k, c)]);
-    }
-    if model == ModelKind::Acc {
-        let r = quat::rot(&q);
-        for c in 0..3 {
-            h.push(ACC + c, r[(k, c)]);
-        }
-    }
-    h.push(ACC_BIAS + k, T::one());
-    h
+    rows(st, model)[k]
 }
 
-/// Applies one accelerometer sample, one axis at a time, re-linearising after each.
-pub fn update<T: Scalar>(
-    st: &mut State<T>,
-    prm: &Params<T>,
-    y: &Vector3<T>,
-) -> Result<(), UpdateError> {
-    if prm.model == ModelKind::Gyro {
-        return Ok(());
-    }
-    let r = SMatrix::<T, 1, 1>::new(prm.r_accel);
-    for k in 0..3 {
-        let h = [row(st, prm.model, k)];
-        let z = SVector::<T, 1>::new(y[k] - predict(st)[k]);
-        let (u, s) = innovation(st, prm.n, &h, &r);
-        joseph_update(st, prm.n, &u, &s, &z)?;
-    }
-    Ok(())
+/// Jacobian rows of all three axes at the state.
+pub fn rows<T: Scalar>(st: &State<T>, model: ModelKind) -> [SparseRow<T>; 3] {
+    let q = st.q().normalize();
+    let d_q = quat::d_rotate_dq(&q, &specific_force_world(st));
+    let r = quat::rot(&q);
+    core::array::from_fn(|k| {
+        let mut h = SparseRow::default();
+        for c in 0..4 {
+            h.push(QUAT + c, d_q[(k, c)]);
+        }
+        if model == ModelKind::Acc {
+            for c in 0..3 {
+                h.push(ACC + c, r[(k, c)]);
+            }
+        }
+        h.push(ACC_BIAS + k, T::one());
+        h
+    })
 }
 
 #[cfg(test)]

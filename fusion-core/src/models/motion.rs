@@ -49,10 +49,10 @@ pub fn time_update<T: Scalar>(st: &mut State<T>, prm: &Params<T>, dt: T) {
 
     propagate_covariance(st, n, acc_model, dt, &f_qq, &f_qw);
     add_process_noise(st, prm, dt, &f_qw);
-    crate::ekf::condition(&mut st.p, n);
 }
 
-/// `P ← F P Fᵀ`, touching only the rows and columns where `F` differs from the identity.
+/// `P ← F P Fᵀ`, touching only the rows and columns where `F` differs from the identity, on
+/// contiguous columns of the column-major storage.
 fn propagate_covariance<T: Scalar>(
     st: &mut State<T>,
     n: usize,
@@ -62,64 +62,82 @@ fn propagate_covariance<T: Scalar>(
     f_qw: &Matrix4x3<T>,
 ) {
     let half_dt2 = dt * dt * T::c(0.5);
-    let p = &mut st.p;
-    // Rows: M = F P. Position first (it reads the old velocity rows).
-    for c in 0..n {
-        for k in 0..3 {
-            let mut pos = p[(POS + k, c)] + p[(VEL + k, c)] * dt;
-            if acc_model {
-                pos += p[(ACC + k, c)] * half_dt2;
-                let a = p[(ACC + k, c)];
-                p[(VEL + k, c)] += a * dt;
-            }
-            p[(POS + k, c)] = pos;
+    // Plain arrays: the loops below index them n times per entry.
+    let mut fq = [[T::zero(); 7]; 4];
+    for (r, row) in fq.iter_mut().enumerate() {
+        for c in 0..4 {
+            row[c] = f_qq[(r, c)];
         }
-        let old_q = [
-            p[(QUAT, c)],
-            p[(QUAT + 1, c)],
-            p[(QUAT + 2, c)],
-            p[(QUAT + 3, c)],
-        ];
-        let w = [p[(OMEGA, c)], p[(OMEGA + 1, c)], p[(OMEGA + 2, c)]];
-        for r in 0..4 {
-            let mut acc = T::zero();
-            for k in 0..4 {
-                acc += f_qq[(r, k)] * old_q[k];
-            }
-            for k in 0..3 {
-                acc += f_qw[(r, k)] * w[k];
-            }
-            p[(QUAT + r, c)] = acc;
+        for c in 0..3 {
+            row[4 + c] = f_qw[(r, c)];
         }
     }
-    // Columns: P' = M Fᵀ, the same transform applied to columns.
-    for r in 0..n {
+    let p = st.p.as_mut_slice();
+    // Rows: M = F P, applied within each column. Position first (it reads the old velocity).
+    for chunk in p.chunks_exact_mut(N).take(n) {
+        let Ok(col) = <&mut [T; N]>::try_from(chunk) else {
+            continue;
+        };
         for k in 0..3 {
-            let mut pos = p[(r, POS + k)] + p[(r, VEL + k)] * dt;
+            let mut pos = col[POS + k] + col[VEL + k] * dt;
             if acc_model {
-                pos += p[(r, ACC + k)] * half_dt2;
-                let a = p[(r, ACC + k)];
-                p[(r, VEL + k)] += a * dt;
+                pos += col[ACC + k] * half_dt2;
+                col[VEL + k] += col[ACC + k] * dt;
             }
-            p[(r, POS + k)] = pos;
+            col[POS + k] = pos;
         }
-        let old_q = [
-            p[(r, QUAT)],
-            p[(r, QUAT + 1)],
-            p[(r, QUAT + 2)],
-            p[(r, QUAT + 3)],
+        let old = [
+            col[QUAT],
+            col[QUAT + 1],
+            col[QUAT + 2],
+            col[QUAT + 3],
+            col[OMEGA],
+            col[OMEGA + 1],
+            col[OMEGA + 2],
         ];
-        let w = [p[(r, OMEGA)], p[(r, OMEGA + 1)], p[(r, OMEGA + 2)]];
-        for c in 0..4 {
-            let mut acc = T::zero();
-            for k in 0..4 {
-                acc += f_qq[(c, k)] * old_q[k];
-            }
-            for k in 0..3 {
-                acc += f_qw[(c, k)] * w[k];
-            }
-            p[(r, QUAT + c)] = acc;
+        for (r, f) in fq.iter().enumerate() {
+            col[QUAT + r] = f
+                .iter()
+                .zip(&old)
+                .fold(T::zero(), |acc, (&a, &b)| acc + a * b);
         }
+    }
+    // Columns: P' = M Fᵀ, the same transform applied to whole columns.
+    for k in 0..3 {
+        axpy_column(p, POS + k, VEL + k, dt, n);
+        if acc_model {
+            axpy_column(p, POS + k, ACC + k, half_dt2, n);
+            axpy_column(p, VEL + k, ACC + k, dt, n);
+        }
+    }
+    // The four quaternion columns mix the old quaternion and ω columns: work from copies.
+    let mut old = [[T::zero(); N]; 7];
+    for (c, o) in old.iter_mut().enumerate() {
+        let src = if c < 4 { QUAT + c } else { OMEGA + c - 4 };
+        o[..n].copy_from_slice(&p[src * N..src * N + n]);
+    }
+    for (r, f) in fq.iter().enumerate() {
+        let dst = &mut p[(QUAT + r) * N..(QUAT + r) * N + n];
+        dst.fill(T::zero());
+        for (&fc, o) in f.iter().zip(&old) {
+            for (d, &v) in dst.iter_mut().zip(&o[..n]) {
+                *d += fc * v;
+            }
+        }
+    }
+}
+
+/// Column `dst` += `a` · column `src` over the active rows.
+fn axpy_column<T: Scalar>(p: &mut [T], dst: usize, src: usize, a: T, n: usize) {
+    let (d, s) = if dst < src {
+        let (lo, hi) = p.split_at_mut(src * N);
+        (&mut lo[dst * N..dst * N + n], &hi[..n])
+    } else {
+        let (lo, hi) = p.split_at_mut(dst * N);
+        (&mut hi[..n], &lo[src * N..src * N + n])
+    };
+    for (x, &y) in d.iter_mut().zip(s) {
+        *x += a * y;
     }
 }
 

@@ -1,0 +1,224 @@
+//! Firmware benchmark under QEMU with `-icount shift=0`: instructions per IMU step of each
+//! model and per correspondence update, the cost of a whole IMU message through the device
+//! loop, and the stack high-water of a realistic session. Reports over semihosting as
+//! `BENCH key value` lines, then exits.
+#![no_std]
+#![no_main]
+
+use cortex_m_rt::entry;
+use cortex_m_semihosting::{debug, hprintln};
+use firmware::{stack, timer::Timer};
+use fusion_core::filter::{Filter, ImuSample};
+use fusion_core::init::{StillWindow, initial_state};
+use fusion_core::models::correspondence::{self, Observation};
+use fusion_core::params::Params;
+use fusion_core::{DeviceIo, quat};
+use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+use protocol::{
+    Correspondence, Correspondences, Hello, HostToCore, Init, InitAttitude, MAX_FRAME_LEN,
+    ModelKind, PROTOCOL_VERSION, encode_frame,
+};
+
+static mut DEVICE: DeviceIo<f32> = DeviceIo::new();
+
+const STEPS: u64 = 64;
+
+fn config(model: ModelKind) -> protocol::Config {
+    let mut c = protocol::samples::config();
+    c.model = model;
+    c.imu_rate_hz = 200.0;
+    // No vision in the filter benchmarks: dead reckoning is not divergence here.
+    c.divergence.covariance_frobenius = 1e9;
+    c
+}
+
+/// A filter that has run for a second (realistic covariance fill-in).
+#[inline(never)]
+fn warmed(model: ModelKind) -> (Params<f32>, Filter<f32>) {
+    let prm = Params::<f32>::from_config(&config(model));
+    let mut w = StillWindow::default();
+    w.add(
+        &Vector3::new(0.001, -0.002, 0.0),
+        &Vector3::new(0.05, 0.0, 9.81),
+        1,
+    );
+    let st = initial_state(
+        &prm,
+        &Vector3::new(0.0, 0.0, 1.0),
+        &InitAttitude::Gravity,
+        &w,
+    );
+    let mut f = Filter::new(st, 0);
+    for k in 1..200u64 {
+        let s = ImuSample {
+            t_us: k * 5000,
+            gyro: Vector3::new(0.001, -0.002, 0.0),
+            accel: Vector3::new(0.05, 0.0, 9.81),
+        };
+        let _ = f.imu_step(&prm, &s);
+    }
+    (prm, f)
+}
+
+#[inline(never)]
+fn bench_imu_steps(timer: &Timer) {
+    for model in ModelKind::ALL {
+        let (prm, mut f) = warmed(model);
+        let t0 = f.t_us;
+        let (ins, _) = timer.instructions(|| {
+            for k in 1..=STEPS {
+                let s = ImuSample {
+                    t_us: t0 + k * 5000,
+                    gyro: Vector3::new(0.01, -0.02, 0.3),
+                    accel: Vector3::new(0.1, 0.0, 9.8),
+                };
+                let _ = f.imu_step(&prm, &s);
+            }
+        });
+        hprintln!("BENCH imu_step_{} {}", model.name(), ins / STEPS);
+    }
+}
+
+#[inline(never)]
+fn calibrate(timer: &Timer) {
+    let a = core::hint::black_box([1.5f32; 484]);
+    let mut b = core::hint::black_box([0.5f32; 484]);
+    let (ins, _) = timer.instructions(|| {
+        for (x, y) in b.iter_mut().zip(&a) {
+            *x += y * 0.3;
+        }
+    });
+    core::hint::black_box(&b);
+    hprintln!("BENCH calib_axpy_484 {}", ins);
+}
+
+#[inline(never)]
+fn bench_correspondence(timer: &Timer) {
+    let (prm, f) = warmed(ModelKind::Acc);
+    let pose = fusion_core::state::camera_pose(&f.st, &prm.hand_eye);
+    let r_wc = quat::rot(&pose.q_cw).transpose();
+    let mut total = 0;
+    let n = 16;
+    for i in 0..n {
+        let p_c = Vector3::new(-0.3 + 0.04 * i as f32, 0.1 - 0.01 * i as f32, 2.0);
+        let obs = Observation {
+            m_n: Vector2::new(p_c.x / p_c.z + 0.001, p_c.y / p_c.z - 0.0005),
+            cov_n: Matrix2::identity() * 1e-5,
+            m_w: pose.c_w + r_wc * p_c,
+            cov_w: Matrix3::identity() * 1e-6,
+        };
+        let mut st = f.st.clone();
+        let (ins, _) = timer.instructions(|| correspondence::update(&mut st, &prm, &obs));
+        total += ins;
+    }
+    hprintln!("BENCH correspondence_update {}", total / n);
+}
+
+/// A session through the device loop, as the host would drive it: handshake, configure, init,
+/// a still second, then 25 Hz frames of 40 correspondences arriving 50 ms late.
+#[inline(never)]
+fn session(timer: &Timer) {
+    // SAFETY: the only reference to DEVICE.
+    let io = unsafe { &mut *(&raw mut DEVICE) };
+    let mut frame = [0u8; MAX_FRAME_LEN];
+    let mut sink = |_: &[u8]| {};
+    let mut feed = |io: &mut DeviceIo<f32>, msg: &HostToCore| {
+        if let Ok(bytes) = encode_frame(msg, &mut frame) {
+            io.receive(bytes, &mut sink);
+        }
+    };
+    let mut cfg = config(ModelKind::Acc);
+    cfg.still_samples = 100;
+    cfg.state_every = 1;
+    cfg.divergence.covariance_frobenius = 100.0;
+    feed(
+        io,
+        &HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }),
+    );
+    feed(io, &HostToCore::Configure(cfg));
+    let init = Init {
+        position: [0.0, 0.0, 1.0],
+        attitude: InitAttitude::Gravity,
+    };
+    feed(io, &HostToCore::Init(init));
+    // Camera pose of the resting device, for consistent correspondences.
+    let prm = Params::<f32>::from_config(&cfg);
+    let mut rest = fusion_core::state::State::<f32>::default();
+    rest.set_v3(fusion_core::state::POS, &Vector3::new(0.0, 0.0, 1.0));
+    let pose = fusion_core::state::camera_pose(&rest, &prm.hand_eye);
+    let r_wc = quat::rot(&pose.q_cw).transpose();
+    let mut imu_total = 0u64;
+    let mut imu_count = 0u64;
+    let mut pending: Option<(u32, u64, u64)> = None;
+    for k in 0..400u64 {
+        let msg = HostToCore::Imu(protocol::ImuSample {
+            t_us: k * 5000,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            trigger: k >= 100 && k % 8 == 0,
+        });
+        let (ins, _) = timer.instructions(|| feed(io, &msg));
+        if k >= 100 {
+            imu_total += ins;
+            imu_count += 1;
+        }
+        if k >= 100 && k % 8 == 0 {
+            pending = Some((((k - 100) / 8) as u32, k * 5000, k + 6));
+        }
+        if let Some((frame_id, t_us, due)) = pending
+            && due == k
+        {
+            let mut all = [protocol::samples::correspondence([0.0; 2], [0.0; 3]); 40];
+            for (i, c) in all.iter_mut().enumerate() {
+                let p_c = Vector3::new(-0.6 + 0.03 * i as f32, -0.3 + 0.015 * i as f32, 2.0);
+                let m_w = pose.c_w + r_wc * p_c;
+                *c = Correspondence {
+                    m_n: [p_c.x / p_c.z, p_c.y / p_c.z],
+                    cov_n: [1e-5, 0.0, 1e-5],
+                    m_w: [m_w.x, m_w.y, m_w.z],
+                    cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+                };
+            }
+            if let Ok(parts) = Correspondences::split(frame_id, t_us, &all) {
+                let mut frame_total = 0;
+                for part in parts {
+                    let (ins, _) =
+                        timer.instructions(|| feed(io, &HostToCore::Correspondences(part)));
+                    frame_total += ins;
+                }
+                hprintln!("BENCH frame_40_correspondences {}", frame_total);
+            }
+            pending = None;
+        }
+    }
+    let c = io.device.counters();
+    hprintln!(
+        "BENCH imu_message_through_device {}",
+        imu_total / imu_count.max(1)
+    );
+    hprintln!("BENCH session_accepted {}", c.accepted);
+    hprintln!("BENCH session_mode {:?}", io.device.mode());
+}
+
+#[entry]
+fn main() -> ! {
+    let timer = Timer::start();
+    bench_imu_steps(&timer);
+    bench_correspondence(&timer);
+    calibrate(&timer);
+    // Stack of the device loop alone: repaint, run the session, measure.
+    stack::paint();
+    session(&timer);
+    hprintln!("BENCH stack_high_water {}", stack::high_water());
+    hprintln!("BENCH static_ram {}", stack::static_ram());
+    hprintln!(
+        "BENCH device_static {}",
+        core::mem::size_of::<DeviceIo<f32>>()
+    );
+    debug::exit(debug::EXIT_SUCCESS);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
