@@ -3,8 +3,10 @@
 //!
 //! - [`transport`]: pty pair, serial device, TCP, stdio;
 //! - [`loopback`]: the board end of the protocol self-test;
+//! - [`qemu`]: the firmware image on QEMU's Cortex-M4F board, its UART over TCP;
 //! - [`sim`]: trajectories, IMU and camera simulation with exact ground truth.
 
 pub mod loopback;
+pub mod qemu;
 pub mod sim;
 pub mod transport;

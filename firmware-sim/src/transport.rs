@@ -146,8 +146,8 @@ fn tcp_duplex(
 }
 
 /// Connects to a TCP peer.
-pub fn tcp_connect(addr: impl ToSocketAddrs + std::fmt::Display) -> Result<Duplex, TransportError> {
-    let name = addr.to_string();
+pub fn tcp_connect(addr: impl ToSocketAddrs + std::fmt::Debug) -> Result<Duplex, TransportError> {
+    let name = format!("{addr:?}");
     let stream = TcpStream::connect(&addr).map_err(|source| TransportError::Tcp {
         what: "connect to",
         addr: name.clone(),

@@ -140,6 +140,8 @@ pub struct Driver<'s, T: Scalar> {
     pub last: Option<(Kinematics, ImuReading)>,
     /// Whether predicted frames get their correspondences.
     pub answer_frames: bool,
+    /// When set, every message sent and every answer, in order (for replay to another core).
+    pub transcript: Option<(Vec<HostToCore>, Vec<CoreToHost>)>,
 }
 
 impl<'s, T: Scalar> Driver<'s, T> {
@@ -161,6 +163,7 @@ impl<'s, T: Scalar> Driver<'s, T> {
             k: 0,
             last: None,
             answer_frames: true,
+            transcript: None,
         };
         d.send(&HostToCore::Hello(Hello {
             version: PROTOCOL_VERSION,
@@ -174,6 +177,10 @@ impl<'s, T: Scalar> Driver<'s, T> {
     pub fn send(&mut self, msg: &HostToCore) -> Vec<CoreToHost> {
         let mut answers = Vec::new();
         self.device.handle(msg, &mut |m| answers.push(m));
+        if let Some((sent, got)) = &mut self.transcript {
+            sent.push(msg.clone());
+            got.extend(answers.iter().cloned());
+        }
         for m in &answers {
             match m {
                 CoreToHost::PosePrediction(_) => self.out.predictions += 1,
@@ -296,6 +303,7 @@ impl<'s, T: Scalar> Driver<'s, T> {
             k: self.k,
             last: self.last,
             answer_frames: self.answer_frames,
+            transcript: self.transcript,
         }
     }
 

@@ -28,6 +28,7 @@ const TEST_PACKAGES: &[&str] = &[
     "mesa-vulkan-drivers",
     "libegl1",
     "libgl1-mesa-dri",
+    "qemu-system-arm",
 ];
 
 fn main() -> ExitCode {
@@ -35,12 +36,14 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("demo") => setup(DEMO_PACKAGES, false).and_then(|_| demo(&args[1..])),
         Some("test") => setup(TEST_PACKAGES, true).and_then(|_| test()),
+        Some("firmware") => setup(TEST_PACKAGES, true).and_then(|_| firmware_report()),
         Some("setup") => setup(TEST_PACKAGES, true),
         _ => {
             eprintln!(
                 "usage: cargo xtask <demo|test|setup>\n\n  \
                  demo   run the main job on the built-in default scenario\n  \
                  test   run every check CI runs (fmt, clippy, tests, thumbv7em builds)\n  \
+                 firmware  build the Cortex-M4F image, run its benchmark under QEMU, print the footprint\n  \
                  setup  install what the two commands need (Debian, as root)"
             );
             return ExitCode::from(2);
@@ -229,10 +232,22 @@ fn test() -> Result<(), String> {
     run(clippy)?;
 
     // The renderer's GPU tests run on Vulkan here and again on GL below.
+    // The firmware: format, lints and image first (the QEMU test drives the image).
+    let mut fw_fmt = cargo();
+    fw_fmt.current_dir(firmware_dir()).args(["fmt", "--check"]);
+    run(fw_fmt)?;
+    let mut fw_clippy = cargo();
+    fw_clippy
+        .current_dir(firmware_dir())
+        .args(["clippy", "--release", "--", "-D", "warnings"]);
+    run(fw_clippy)?;
+    build_firmware()?;
+
     let mut tests = cargo();
     tests
         .args(["test", "--workspace"])
-        .env("WGPU_BACKEND", "vulkan");
+        .env("WGPU_BACKEND", "vulkan")
+        .env("REQUIRE_FIRMWARE", "1");
     run(tests)?;
 
     let mut gl_tests = cargo();
@@ -246,9 +261,92 @@ fn test() -> Result<(), String> {
         build.args(["build", "--release", "-p", krate, "--target", THUMB_TARGET]);
         run(build)?;
     }
+    firmware_report()?;
     println!(
         "\nxtask: all checks passed in {:.0} s",
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+fn firmware_dir() -> PathBuf {
+    workspace_root().join("firmware")
+}
+
+/// Builds the firmware images (device loop and benchmark) for the Cortex-M4F.
+fn build_firmware() -> Result<(), String> {
+    let mut build = cargo();
+    // The firmware's own .cargo/config.toml selects the target: run from its folder.
+    build
+        .current_dir(firmware_dir())
+        .args(["build", "--release"]);
+    run(build)
+}
+
+/// Runs the benchmark image under QEMU with one instruction per virtual nanosecond, and
+/// prints it with the images' flash and RAM footprint.
+fn firmware_report() -> Result<(), String> {
+    build_firmware()?;
+    let dir = firmware_dir().join("target/thumbv7em-none-eabihf/release");
+    let bench = dir.join("bench");
+    let mut qemu = Command::new("timeout");
+    qemu.args([
+        "120",
+        "qemu-system-arm",
+        "-machine",
+        "mps2-an386",
+        "-cpu",
+        "cortex-m4",
+    ])
+    .args(["-nographic", "-monitor", "none", "-icount", "shift=0"])
+    .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
+    .arg(&bench);
+    run(qemu)?;
+    for image in ["device", "bench"] {
+        let path = dir.join(image);
+        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let sections =
+            elf32_sections(&bytes).ok_or(format!("{}: not an ELF32 file", path.display()))?;
+        let size = |name: &str| {
+            sections
+                .iter()
+                .filter(|(n, _)| n == name)
+                .map(|(_, s)| *s)
+                .sum::<u64>()
+        };
+        let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
+        let ram = size(".data") + size(".bss") + size(".uninit");
+        println!(
+            "firmware {image}: flash {flash} bytes (.vector_table + .text {} + .rodata {} + .data {}), \
+             static RAM {ram} bytes (.data + .bss); add the measured stack high-water above",
+            size(".text"),
+            size(".rodata"),
+            size(".data")
+        );
+    }
+    Ok(())
+}
+
+/// Section names and sizes of a little-endian ELF32 file.
+fn elf32_sections(d: &[u8]) -> Option<Vec<(String, u64)>> {
+    let u16_at = |o: usize| Some(u16::from_le_bytes(d.get(o..o + 2)?.try_into().ok()?));
+    let u32_at = |o: usize| Some(u32::from_le_bytes(d.get(o..o + 4)?.try_into().ok()?));
+    if d.get(..5)? != b"\x7fELF\x01" {
+        return None;
+    }
+    let shoff = u32_at(0x20)? as usize;
+    let shentsize = u16_at(0x2e)? as usize;
+    let shnum = u16_at(0x30)? as usize;
+    let shstrndx = u16_at(0x32)? as usize;
+    let header = |i: usize| shoff + i * shentsize;
+    let strtab = u32_at(header(shstrndx) + 16)? as usize;
+    (0..shnum)
+        .map(|i| {
+            let h = header(i);
+            let name_off = strtab + u32_at(h)? as usize;
+            let end = d.get(name_off..)?.iter().position(|&b| b == 0)?;
+            let name = String::from_utf8_lossy(&d[name_off..name_off + end]).into_owned();
+            Some((name, u32_at(h + 20)? as u64))
+        })
+        .collect()
 }

@@ -14,6 +14,9 @@ static mut DEVICE: DeviceIo<f32> = DeviceIo::new();
 fn main() -> ! {
     firmware::stack::paint();
     // SAFETY: the only reference to DEVICE, taken once before the loop; no interrupts use it.
+    // `&mut DEVICE` directly is refused for `static mut` in edition 2024; go through a raw
+    // pointer, once.
+    #[allow(clippy::deref_addrof)]
     let device = unsafe { &mut *(&raw mut DEVICE) };
     let mut uart = Uart::init();
     let mut buf = [0u8; 64];

@@ -1,0 +1,147 @@
+//! The fusion core as Cortex-M4F firmware under QEMU (`mps2-an386`), driven over its UART by
+//! the host exactly as hardware would be: a simulated session replayed into the firmware and
+//! into the PC build of the same core must give the same answers within f32 tolerance.
+//!
+//! Needs `qemu-system-arm` and the image from `cargo xtask firmware`; skips with a message when
+//! either is absent, unless `REQUIRE_FIRMWARE` is set (CI sets it through `cargo xtask test`).
+
+use std::path::Path;
+use std::thread;
+use std::time::{Duration, Instant};
+
+use firmware_sim::qemu::{QemuBoard, default_image};
+use protocol::io::{FrameReader, FrameWriter, RecvError};
+use protocol::{CoreToHost, Hello, HostToCore, ModelKind, PROTOCOL_VERSION};
+use tests::harness::{Driver, scenes};
+
+fn close(a: f32, b: f32, tol: f32) -> bool {
+    (a - b).abs() <= tol * (1.0 + a.abs().max(b.abs()))
+}
+
+fn all_close(a: &[f32], b: &[f32], tol: f32) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(&x, &y)| close(x, y, tol))
+}
+
+/// Whether two answers agree: same kind and ids, numbers within `tol` (relative).
+fn agree(pc: &CoreToHost, fw: &CoreToHost, tol: f32) -> bool {
+    match (pc, fw) {
+        (CoreToHost::State(a), CoreToHost::State(b)) => {
+            a.t_us == b.t_us
+                && a.health.mode == b.health.mode
+                && all_close(&a.s_w, &b.s_w, tol)
+                && all_close(&a.q_sw, &b.q_sw, tol)
+                && all_close(&a.v_w, &b.v_w, tol)
+                && all_close(&a.a_w, &b.a_w, tol)
+                && all_close(&a.gyro_bias, &b.gyro_bias, tol)
+                && all_close(&a.accel_bias, &b.accel_bias, tol)
+        }
+        (CoreToHost::PosePrediction(a), CoreToHost::PosePrediction(b)) => {
+            a.frame_id == b.frame_id
+                && a.t_us == b.t_us
+                && all_close(&a.c_w, &b.c_w, tol)
+                && all_close(&a.q_cw, &b.q_cw, tol)
+        }
+        (CoreToHost::UpdateReport(a), CoreToHost::UpdateReport(b)) => {
+            a.frame_id == b.frame_id
+                && a.part == b.part
+                && a.outcome == b.outcome
+                && a.accepted == b.accepted
+                && a.rejected == b.rejected
+        }
+        (a, b) => a == b,
+    }
+}
+
+#[test]
+fn firmware_under_qemu_agrees_with_the_pc_build() {
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let image = std::env::var_os("FIRMWARE_ELF")
+        .map(Into::into)
+        .unwrap_or_else(|| default_image(&workspace, "device"));
+    let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
+    let started = QemuBoard::start(&image, Duration::from_secs(20));
+    let (board, link) = match started {
+        Ok(b) => b,
+        Err(e) if !required => {
+            println!("SKIPPED: {e} (set REQUIRE_FIRMWARE to make this a failure)");
+            return;
+        }
+        Err(e) => panic!("{e}"),
+    };
+
+    // The PC build runs the session first; its transcript is replayed into the firmware.
+    let mut sc = scenes::standard(ModelKind::Acc, 6.0, 2.0, 21);
+    sc.config.state_every = 1;
+    let mut pc = Driver::<f32>::new(&sc);
+    pc.transcript = Some((Vec::new(), Vec::new()));
+    // The handshake and configuration were sent before recording: record them too.
+    let mut sent = vec![
+        HostToCore::Hello(Hello { version: PROTOCOL_VERSION }),
+        HostToCore::Configure(sc.config),
+        HostToCore::Init(sc.init),
+    ];
+    while pc.k < pc.samples() {
+        pc.step();
+    }
+    let (rest, mut pc_answers) = pc.transcript.take().unwrap();
+    sent.extend(rest);
+    // Answers to the first three messages, from a fresh PC device.
+    let mut head = Vec::new();
+    let mut fresh = fusion_core::Device::<f32>::new();
+    for m in &sent[..3] {
+        fresh.handle(m, &mut |a| head.push(a));
+    }
+    head.append(&mut pc_answers);
+    let pc_answers = head;
+    // A final Hello marks the end of the stream.
+    sent.push(HostToCore::Hello(Hello { version: PROTOCOL_VERSION }));
+
+    let reader = thread::spawn(move || {
+        let mut r = FrameReader::new(link.reader);
+        let mut got = Vec::new();
+        let mut decode_errors = 0;
+        let deadline = Instant::now() + Duration::from_secs(240);
+        while Instant::now() < deadline {
+            match r.recv::<CoreToHost>() {
+                Ok(CoreToHost::HelloAck(_)) if !got.is_empty() => break,
+                Ok(m) => got.push(m),
+                Err(RecvError::Frame(_)) => decode_errors += 1,
+                Err(RecvError::Io(e))
+                    if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock) => {}
+                Err(e) => panic!("firmware link: {e}"),
+            }
+        }
+        (got, decode_errors)
+    });
+    let mut w = FrameWriter::new(link.writer);
+    let start = Instant::now();
+    for m in &sent {
+        w.send(m).expect("send to firmware");
+    }
+    let (fw_answers, decode_errors) = reader.join().expect("reader");
+    let elapsed = start.elapsed();
+    drop(board);
+
+    // The first answer is the HelloAck of the opening Hello (kept by the reader).
+    println!(
+        "{} messages in, {} answers from the firmware ({} from the PC build) in {:.1} s",
+        sent.len(),
+        fw_answers.len(),
+        pc_answers.len(),
+        elapsed.as_secs_f64()
+    );
+    assert_eq!(decode_errors, 0, "every frame from the firmware must decode");
+    assert_eq!(fw_answers.len(), pc_answers.len());
+    let mut worst_state = 0.0f32;
+    for (i, (p, f)) in pc_answers.iter().zip(&fw_answers).enumerate() {
+        assert!(agree(p, f, 1e-3), "answer {i} differs:\n pc  {p:?}\n fw  {f:?}");
+        if let (CoreToHost::State(a), CoreToHost::State(b)) = (p, f) {
+            for (x, y) in a.s_w.iter().zip(&b.s_w) {
+                worst_state = worst_state.max((x - y).abs());
+            }
+        }
+    }
+    let states = pc_answers.iter().filter(|a| matches!(a, CoreToHost::State(_))).count();
+    println!("{states} states compared; worst position difference {:.2e} m", worst_state);
+    assert!(states > 900);
+}
