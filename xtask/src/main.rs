@@ -237,9 +237,15 @@ fn test() -> Result<(), String> {
     fw_fmt.current_dir(firmware_dir()).args(["fmt", "--check"]);
     run(fw_fmt)?;
     let mut fw_clippy = cargo();
-    fw_clippy
-        .current_dir(firmware_dir())
-        .args(["clippy", "--release", "--", "-D", "warnings"]);
+    fw_clippy.current_dir(firmware_dir()).args([
+        "clippy",
+        "--release",
+        "--target-dir",
+        "target",
+        "--",
+        "-D",
+        "warnings",
+    ]);
     run(fw_clippy)?;
     build_firmware()?;
 
