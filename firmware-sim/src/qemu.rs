@@ -52,7 +52,15 @@ impl QemuBoard {
             .port();
         let serial = format!("tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on");
         let child = Command::new("qemu-system-arm")
-            .args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-nographic", "-monitor", "none"])
+            .args([
+                "-machine",
+                "mps2-an386",
+                "-cpu",
+                "cortex-m4",
+                "-nographic",
+                "-monitor",
+                "none",
+            ])
             .args(["-semihosting-config", "enable=on,target=native"])
             .args(["-serial", &serial, "-kernel"])
             .arg(image)
@@ -91,5 +99,7 @@ impl Drop for QemuBoard {
 
 /// The default location of a firmware binary built by `cargo xtask firmware`.
 pub fn default_image(workspace: &Path, name: &str) -> PathBuf {
-    workspace.join("firmware/target/thumbv7em-none-eabihf/release").join(name)
+    workspace
+        .join("firmware/target/thumbv7em-none-eabihf/release")
+        .join(name)
 }

@@ -76,7 +76,9 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
     pc.transcript = Some((Vec::new(), Vec::new()));
     // The handshake and configuration were sent before recording: record them too.
     let mut sent = vec![
-        HostToCore::Hello(Hello { version: PROTOCOL_VERSION }),
+        HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }),
         HostToCore::Configure(sc.config),
         HostToCore::Init(sc.init),
     ];
@@ -94,7 +96,9 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
     head.append(&mut pc_answers);
     let pc_answers = head;
     // A final Hello marks the end of the stream.
-    sent.push(HostToCore::Hello(Hello { version: PROTOCOL_VERSION }));
+    sent.push(HostToCore::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    }));
 
     let reader = thread::spawn(move || {
         let mut r = FrameReader::new(link.reader);
@@ -107,7 +111,10 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
                 Ok(m) => got.push(m),
                 Err(RecvError::Frame(_)) => decode_errors += 1,
                 Err(RecvError::Io(e))
-                    if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock) => {}
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
+                    ) => {}
                 Err(e) => panic!("firmware link: {e}"),
             }
         }
@@ -130,18 +137,30 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
         pc_answers.len(),
         elapsed.as_secs_f64()
     );
-    assert_eq!(decode_errors, 0, "every frame from the firmware must decode");
+    assert_eq!(
+        decode_errors, 0,
+        "every frame from the firmware must decode"
+    );
     assert_eq!(fw_answers.len(), pc_answers.len());
     let mut worst_state = 0.0f32;
     for (i, (p, f)) in pc_answers.iter().zip(&fw_answers).enumerate() {
-        assert!(agree(p, f, 1e-3), "answer {i} differs:\n pc  {p:?}\n fw  {f:?}");
+        assert!(
+            agree(p, f, 1e-3),
+            "answer {i} differs:\n pc  {p:?}\n fw  {f:?}"
+        );
         if let (CoreToHost::State(a), CoreToHost::State(b)) = (p, f) {
             for (x, y) in a.s_w.iter().zip(&b.s_w) {
                 worst_state = worst_state.max((x - y).abs());
             }
         }
     }
-    let states = pc_answers.iter().filter(|a| matches!(a, CoreToHost::State(_))).count();
-    println!("{states} states compared; worst position difference {:.2e} m", worst_state);
+    let states = pc_answers
+        .iter()
+        .filter(|a| matches!(a, CoreToHost::State(_)))
+        .count();
+    println!(
+        "{states} states compared; worst position difference {:.2e} m",
+        worst_state
+    );
     assert!(states > 900);
 }
