@@ -282,10 +282,11 @@ fn firmware_dir() -> PathBuf {
 /// Builds the firmware images (device loop and benchmark) for the Cortex-M4F.
 fn build_firmware() -> Result<(), String> {
     let mut build = cargo();
-    // The firmware's own .cargo/config.toml selects the target: run from its folder.
+    // The firmware's own .cargo/config.toml selects the target: run from its folder. Its
+    // images go to firmware/target whatever CARGO_TARGET_DIR says (the QEMU test looks there).
     build
         .current_dir(firmware_dir())
-        .args(["build", "--release"]);
+        .args(["build", "--release", "--target-dir", "target"]);
     run(build)
 }
 
