@@ -3,11 +3,12 @@
 //! It holds the host's end of the link to the fusion core ([`link`]), the protocol's loop-back
 //! self-test ([`selftest`]), the camera model ([`camera`]), textured model loading ([`model`]),
 //! the offscreen renderer ([`render`]) and back-projection of rendered depth
-//! ([`backproject`]). Feature registration and the tracking pipeline follow in their own
-//! issues.
+//! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
+//! map and correspondences ([`features`]). The tracking pipeline follows in its own issue.
 
 pub mod backproject;
 pub mod camera;
+pub mod features;
 pub mod link;
 pub mod model;
 pub mod render;

@@ -1,0 +1,115 @@
+//! Feature costs on a 752×480 EuRoC frame (`../shared/data`; a synthetic texture when the
+//! folder is absent): FAST-9 + non-maximum suppression, pyramid build, rendering preparation
+//! (anti-aliasing blur + image and mask pyramids), and one photometric KLT registration with
+//! the default window (15×15) and levels (4), starting 7 px off with a contrast and
+//! brightness change.
+
+use std::hint::black_box;
+use std::path::Path;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use host_vision::features::fast;
+use host_vision::features::gray::{GrayF32, Mask};
+use host_vision::features::grid::{self, GridConfig};
+use host_vision::features::klt::{self, KltConfig};
+use host_vision::features::pyramid::{Pyramid, TemplatePyramid};
+use image::GrayImage;
+
+fn frame() -> GrayImage {
+    let path = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/euroc-v101-micro/mav0/cam0/data/1403715273262142976.png"
+    ));
+    match image::open(path) {
+        Ok(img) => img.to_luma8(),
+        Err(_) => {
+            eprintln!("note: {} absent, using a synthetic texture", path.display());
+            GrayImage::from_fn(752, 480, |x, y| {
+                let (fx, fy) = (x as f32, y as f32);
+                let v = 128.0
+                    + 60.0 * (fx * 0.13).sin() * (fy * 0.07).cos()
+                    + 40.0 * ((fx + 2.0 * fy) * 0.05).sin();
+                image::Luma([v as u8])
+            })
+        }
+    }
+}
+
+fn features(c: &mut Criterion) {
+    let img = frame();
+    println!(
+        "image {}x{}, {} FAST corners (threshold 20, NMS)",
+        img.width(),
+        img.height(),
+        fast::detect(&img, 20, true).len()
+    );
+    c.bench_function("fast9_nms_752x480", |b| {
+        b.iter(|| fast::detect(black_box(&img), 20, true))
+    });
+
+    let cfg = KltConfig::default();
+    let base = GrayF32::from_gray8(&img).unwrap();
+    c.bench_function("pyramid_build_752x480_4_levels", |b| {
+        b.iter(|| Pyramid::build(black_box(base.clone()), cfg.levels))
+    });
+    let mask = Mask::full(base.width(), base.height()).unwrap();
+    c.bench_function("template_prepare_752x480_blur1_4_levels", |b| {
+        b.iter(|| TemplatePyramid::build(black_box(&base), mask.clone(), cfg.levels, 1.0))
+    });
+
+    // Live image: the frame shifted by (7, −3) px (integer, cheap to make), contrast 0.7,
+    // brightness +25.
+    let (w, h) = (base.width(), base.height());
+    let live: Vec<f32> = (0..w * h)
+        .map(|i| {
+            let (x, y) = ((i % w) as isize - 7, (i / w) as isize + 3);
+            let v = base
+                .get(
+                    x.clamp(0, w as isize - 1) as usize,
+                    y.clamp(0, h as isize - 1) as usize,
+                )
+                .unwrap();
+            (v - 25.0) / 0.7
+        })
+        .collect();
+    let target = Pyramid::build(GrayF32::new(w, h, live).unwrap(), cfg.levels);
+    let tmpl = TemplatePyramid::build(&base, mask, cfg.levels, 1.0).unwrap();
+    let points: Vec<[f64; 2]> = grid::extract(
+        &img,
+        None,
+        &[],
+        &GridConfig {
+            cell_size: 48,
+            border: 40,
+            ..GridConfig::default()
+        },
+    )
+    .unwrap()
+    .iter()
+    .map(|c| [c.x as f64, c.y as f64])
+    .collect();
+    let ok = points
+        .iter()
+        .filter(|p| {
+            klt::register(&tmpl.image, Some(&tmpl.mask), &target, **p, [0.0; 2], &cfg).is_ok()
+        })
+        .count();
+    println!("KLT: {ok}/{} features registered", points.len());
+    let mut k = 0;
+    c.bench_function("klt_photometric_per_feature_15x15_4_levels", |b| {
+        b.iter(|| {
+            k = (k + 1) % points.len();
+            klt::register(
+                &tmpl.image,
+                Some(&tmpl.mask),
+                &target,
+                black_box(points[k]),
+                [0.0; 2],
+                &cfg,
+            )
+        })
+    });
+}
+
+criterion_group!(benches, features);
+criterion_main!(benches);
