@@ -4,7 +4,8 @@
 //! self-test ([`selftest`]), the camera model ([`camera`]), textured model loading ([`model`]),
 //! the offscreen renderer ([`render`]) and back-projection of rendered depth
 //! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
-//! map and correspondences ([`features`]). The tracking pipeline follows in its own issue.
+//! map and correspondences ([`features`]); synthetic EuRoC datasets of the paper's test cases
+//! ([`synth`]). The tracking pipeline follows in its own issue.
 
 pub mod backproject;
 pub mod camera;
@@ -13,3 +14,4 @@ pub mod link;
 pub mod model;
 pub mod render;
 pub mod selftest;
+pub mod synth;

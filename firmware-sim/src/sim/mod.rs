@@ -1,9 +1,11 @@
 //! Sensor simulation with exact ground truth: smooth trajectories with analytic derivatives
 //! ([`trajectory`]), an IMU with white noise and bias random walks ([`imu`]), and 2D/3D
-//! correspondences of a pinhole camera ([`camera`]).
+//! correspondences of a pinhole camera ([`camera`]); the paper's test cases as scenarios with
+//! EuRoC writers ([`scenario`]).
 
 pub mod camera;
 pub mod imu;
+pub mod scenario;
 pub mod trajectory;
 
 /// Gravity in the world frame [m/s²] (z up, DESIGN.md §3).
