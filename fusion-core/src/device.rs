@@ -83,8 +83,10 @@ impl Counters {
     };
 }
 
-/// Where the device is in its life cycle.
+/// Where the device is in its life cycle. An explicit tag (first variant 0) keeps the
+/// unconfigured device all zero bytes, so a firmware `static` holding it lands in `.bss`.
 #[derive(Clone, Debug)]
+#[repr(u8)]
 enum Phase<T: Scalar> {
     Unconfigured,
     AwaitingInit,

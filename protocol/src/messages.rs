@@ -61,14 +61,19 @@ pub struct Hello {
 }
 
 /// The three system models of the paper (DESIGN.md §4).
+///
+/// The in-memory discriminants start at 1 so that `Option<ModelKind>`'s `None` (and so an
+/// unconfigured core) is all zero bytes: a firmware's device `static` then lands in `.bss`
+/// instead of costing its size in flash. The wire encoding is the variant index (0, 1, 2).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
 pub enum ModelKind {
     /// Gyroscopes only: constant velocity, 16 states.
-    Gyro,
+    Gyro = 1,
     /// Gyroscopes + accelerometer as gravity sensor: 19 states.
-    Gravity,
+    Gravity = 2,
     /// Gyroscopes + accelerometer with free acceleration: 22 states.
-    Acc,
+    Acc = 3,
 }
 
 impl ModelKind {
@@ -184,14 +189,18 @@ pub struct Config {
 }
 
 /// Orientation given at initialisation.
+///
+/// In-memory discriminants start at 1 for the same reason as [`ModelKind`]'s; the wire
+/// encoding is the variant index.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+#[repr(u8)]
 pub enum InitAttitude {
     /// Roll and pitch from gravity; yaw unknown (zero with a large variance).
-    Gravity,
+    Gravity = 1,
     /// Roll and pitch from gravity; yaw of the sensor frame given [rad].
-    GravityAndYaw(f32),
+    GravityAndYaw(f32) = 2,
     /// Full orientation `q_sw` given (from an absolute orientation sensor or a pose).
-    Full([f32; 4]),
+    Full([f32; 4]) = 3,
 }
 
 /// (Re)initialisation request.
