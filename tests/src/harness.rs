@@ -464,29 +464,26 @@ pub mod errors {
         (p - k.p_w).norm()
     }
 
-    /// Attitude error [rad] (angle of `q_est⁻¹ q_true`).
-    pub fn attitude<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
+    /// The filter's orientation `q_sw` as an f64 unit quaternion.
+    fn estimated_q_sw<T: Scalar>(d: &Device<T>) -> UnitQuaternion<f64> {
         let q = d.filter().st.q();
-        let est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
             to64(q[0]),
             to64(q[1]),
             to64(q[2]),
             to64(q[3]),
-        ));
+        ))
+    }
+
+    /// Attitude error [rad] (angle of `q_est⁻¹ q_true`).
+    pub fn attitude<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
         // The filter holds q_sw; the truth q_ws.
-        (est * k.q_ws).angle()
+        (estimated_q_sw(d) * k.q_ws).angle()
     }
 
     /// Tilt error [rad]: angle between estimated and true gravity directions in the sensor.
     pub fn tilt<T: Scalar>(d: &Device<T>, k: &Kinematics) -> f64 {
-        let q = d.filter().st.q();
-        let est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-            to64(q[0]),
-            to64(q[1]),
-            to64(q[2]),
-            to64(q[3]),
-        ));
-        let up_est = est * Vector3::z();
+        let up_est = estimated_q_sw(d) * Vector3::z();
         let up_true = k.q_ws.inverse() * Vector3::z();
         up_est.angle(&up_true)
     }
