@@ -212,14 +212,4 @@ impl<T: Scalar> DelayLine<T> {
         }
         Some(Ok(()))
     }
-
-    /// Samples buffered.
-    pub fn len(&self) -> usize {
-        self.records.len()
-    }
-
-    /// Whether no sample is buffered.
-    pub fn is_empty(&self) -> bool {
-        self.records.is_empty()
-    }
 }

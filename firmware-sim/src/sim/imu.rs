@@ -112,16 +112,20 @@ mod tests {
     use super::*;
     use nalgebra::UnitQuaternion;
 
-    #[test]
-    fn a_level_still_imu_reads_plus_g_up_and_its_biases() {
-        let k = Kinematics {
+    fn level_and_still() -> Kinematics {
+        Kinematics {
             t: 0.0,
             p_w: Vector3::zeros(),
             v_w: Vector3::zeros(),
             a_w: Vector3::zeros(),
             q_ws: UnitQuaternion::identity(),
             omega_s: Vector3::zeros(),
-        };
+        }
+    }
+
+    #[test]
+    fn a_level_still_imu_reads_plus_g_up_and_its_biases() {
+        let k = level_and_still();
         let noise = ImuNoise {
             gyro_density: 0.0,
             accel_density: 0.0,
@@ -142,14 +146,7 @@ mod tests {
 
     #[test]
     fn same_seed_same_readings() {
-        let k = Kinematics {
-            t: 0.0,
-            p_w: Vector3::zeros(),
-            v_w: Vector3::zeros(),
-            a_w: Vector3::zeros(),
-            q_ws: UnitQuaternion::identity(),
-            omega_s: Vector3::zeros(),
-        };
+        let k = level_and_still();
         let mut a = ImuSim::new(ImuNoise::MT9, 100.0, Vector3::zeros(), Vector3::zeros(), 7);
         let mut b = ImuSim::new(ImuNoise::MT9, 100.0, Vector3::zeros(), Vector3::zeros(), 7);
         assert_eq!(a.read(&k), b.read(&k));
