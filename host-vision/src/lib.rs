@@ -5,13 +5,16 @@
 //! the offscreen renderer ([`render`]) and back-projection of rendered depth
 //! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
 //! map and correspondences ([`features`]); synthetic EuRoC datasets of the paper's test cases
-//! ([`synth`]). The tracking pipeline follows in its own issue.
+//! ([`synth`]); EuRoC datasets as the tracker reads them ([`dataset`]) and the tracking pipeline
+//! with its outputs ([`track`]).
 
 pub mod backproject;
 pub mod camera;
+pub mod dataset;
 pub mod features;
 pub mod link;
 pub mod model;
 pub mod render;
 pub mod selftest;
 pub mod synth;
+pub mod track;

@@ -23,6 +23,179 @@ enum Command {
     },
     /// Writes a synthetic EuRoC-format dataset of one of the paper's test cases.
     Synth(Box<SynthArgs>),
+    /// Tracks a EuRoC-layout dataset with the fusion core at the other end of a link.
+    Track(Box<TrackArgs>),
+}
+
+/// Options of `track`.
+#[derive(clap::Args, Debug)]
+struct TrackArgs {
+    /// Dataset folder (holding mav0/).
+    #[arg(long)]
+    dataset: PathBuf,
+    /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/).
+    #[arg(long)]
+    out: PathBuf,
+    /// Model file (.obj, .gltf, .glb); default: the dataset's model/scene.obj.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
+    #[arg(long, default_value = "sim")]
+    link: host_vision::track::LinkSpec,
+    /// Filter model.
+    #[arg(long, value_enum, default_value = "acc")]
+    filter: FilterArg,
+    /// IMU pacing.
+    #[arg(long, value_enum, default_value = "lock-step")]
+    pacing: host_vision::track::Pacing,
+    /// Trigger-to-correspondences latency in lock-step mode [s] (below one frame period, so
+    /// that each prediction has the previous frame's update).
+    #[arg(long, default_value_t = 0.03)]
+    latency: f64,
+    /// Features registered per frame.
+    #[arg(long, default_value_t = 40)]
+    features: usize,
+    /// Track only the first N seconds.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Start position of the IMU `x,y,z` [m] (default: from the ground truth).
+    #[arg(long, value_parser = parse_vec3)]
+    start_position: Option<[f64; 3]>,
+    /// Start yaw of the IMU [deg] (default: from the ground truth).
+    #[arg(long)]
+    start_yaw: Option<f64>,
+    /// Peak free acceleration expected [m/s²] (scales the motion noise).
+    #[arg(long, default_value_t = 10.0)]
+    expected_accel: f64,
+    /// Write an overlay image every N frames (0: none).
+    #[arg(long, default_value_t = 25)]
+    overlay_every: usize,
+    /// Replace this fraction of correspondences by outliers (robustness tests).
+    #[arg(long, default_value_t = 0.0)]
+    outliers: f64,
+    /// Corrupt all correspondences for 0.3 s from this time [s] (forces a divergence).
+    #[arg(long)]
+    corrupt_at: Option<f64>,
+}
+
+/// Filter model on the command line.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum FilterArg {
+    Gyro,
+    Gravity,
+    Acc,
+}
+
+impl From<FilterArg> for protocol::ModelKind {
+    fn from(f: FilterArg) -> Self {
+        match f {
+            FilterArg::Gyro => protocol::ModelKind::Gyro,
+            FilterArg::Gravity => protocol::ModelKind::Gravity,
+            FilterArg::Acc => protocol::ModelKind::Acc,
+        }
+    }
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("`{p}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!("expected three finite numbers x,y,z, got `{s}`")),
+    }
+}
+
+fn progress_bar(template: &str) -> anyhow::Result<indicatif::ProgressBar> {
+    use anyhow::Context as _;
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(template)
+            .context("progress bar template")?
+            .progress_chars("=> "),
+    );
+    Ok(bar)
+}
+
+fn track(a: &TrackArgs) -> anyhow::Result<()> {
+    use host_vision::track::{self, Faults, Start, TrackOptions};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    if !(0.0..=1.0).contains(&a.outliers) {
+        anyhow::bail!(
+            "--outliers must be a fraction in [0, 1], got {}",
+            a.outliers
+        );
+    }
+    let mut o = TrackOptions::new(a.dataset.clone(), a.out.clone());
+    o.model = a.model.clone();
+    o.link = a.link.clone();
+    o.filter = a.filter.into();
+    o.pacing = a.pacing;
+    o.latency = a.latency;
+    o.vision.map.subset_size = a.features;
+    o.vision.map.min_visible = a.features;
+    o.duration = a.duration;
+    o.start = Start {
+        position: a.start_position,
+        yaw: a.start_yaw.map(f64::to_radians),
+    };
+    o.tuning.expected_accel = a.expected_accel;
+    o.overlay_every = a.overlay_every;
+    o.faults = Faults {
+        outlier_fraction: a.outliers,
+        corrupt_from: a.corrupt_at,
+        corrupt_seconds: 0.3,
+        seed: 1,
+    };
+    let interrupt = Arc::new(AtomicBool::new(false));
+    {
+        let flag = interrupt.clone();
+        // A second Ctrl-C kills the process as usual.
+        let _ = ctrlc::set_handler(move || {
+            if flag.swap(true, Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+        });
+    }
+    let bar =
+        progress_bar("{msg} [{bar:40}] {pos}/{len} IMU samples, {elapsed} elapsed, ETA {eta}")?;
+    let name = format!("track {:?}", o.filter).to_lowercase();
+    let result = track::run(&o, interrupt.clone(), &mut |done, total, frames, mode| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        bar.set_message(format!(
+            "{name}: {frames} frames, {}",
+            mode.map(|m| format!("{m:?}")).unwrap_or_default()
+        ));
+    });
+    bar.finish();
+    let run = result?;
+    println!("{}", run.summary);
+    if interrupt.load(Ordering::Relaxed) {
+        println!("interrupted: wrote what was tracked");
+    }
+    println!("results in {}:", a.out.display());
+    for p in run
+        .written
+        .iter()
+        .filter(|p| !p.starts_with(a.out.join("overlays")))
+    {
+        println!("  {}", p.display());
+    }
+    let overlays = run
+        .written
+        .iter()
+        .filter(|p| p.starts_with(a.out.join("overlays")))
+        .count();
+    if overlays > 0 {
+        println!(
+            "  {} ({overlays} overlay images)",
+            a.out.join("overlays").display()
+        );
+    }
+    Ok(())
 }
 
 /// Options of `synth`.
@@ -146,6 +319,7 @@ fn main() -> anyhow::Result<()> {
             println!("self-test passed");
         }
         Command::Synth(args) => synth(&args)?,
+        Command::Track(args) => track(&args)?,
     }
     Ok(())
 }

@@ -18,6 +18,21 @@ use std::sync::Arc;
 
 use image::RgbaImage;
 
+/// Loads an OBJ (`.obj`) or glTF (`.gltf`, `.glb`) model, by the file's extension.
+pub fn load(path: &Path) -> Result<Model, ModelError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match ext.as_deref() {
+        Some("obj") => load_obj(path),
+        Some("gltf" | "glb") => load_gltf(path),
+        _ => Err(ModelError::UnknownFormat {
+            path: path.to_owned(),
+        }),
+    }
+}
+
 /// Why a model could not be loaded or is unusable.
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
@@ -91,6 +106,12 @@ pub enum ModelError {
     NonFinite {
         /// Mesh name.
         mesh: String,
+    },
+    /// A file that is neither OBJ nor glTF.
+    #[error("{path}: unknown model format (expected .obj, .gltf or .glb)")]
+    UnknownFormat {
+        /// File.
+        path: PathBuf,
     },
     /// No triangle at all.
     #[error("{what}: the model has no triangles")]

@@ -1,0 +1,86 @@
+//! `firmware-sim`: the simulated board as a program, for a host in another process.
+//!
+//! ```text
+//! firmware-sim --link pty                 # opens a pty, prints the path to give the host
+//! firmware-sim --link tcp:127.0.0.1:7000  # listens for one host
+//! firmware-sim --link serial:/dev/ttyUSB0 # a real serial line
+//! firmware-sim --link stdio               # as a child process
+//! ```
+
+use anyhow::Context as _;
+use clap::Parser;
+use firmware_sim::board::{self, Precision};
+use firmware_sim::transport;
+
+/// Runs the fusion core's device loop behind a byte transport, exactly as the firmware does
+/// behind its UART.
+#[derive(Parser, Debug)]
+#[command(version, about)]
+struct Cli {
+    /// Transport: `pty`, `tcp:ADDR` (listen), `serial:PATH[@BAUD]` or `stdio`.
+    #[arg(long, default_value = "pty")]
+    link: String,
+    /// Scalar type of the core.
+    #[arg(long, value_enum, default_value = "f32")]
+    precision: Precision,
+    /// Serve sessions until killed (default: one session).
+    #[arg(long)]
+    forever: bool,
+}
+
+fn open(link: &str) -> anyhow::Result<transport::Duplex> {
+    if link == "pty" {
+        let (board_end, host_end) = transport::pty_pair()?;
+        // The master stays here; the host opens the slave device by its path.
+        eprintln!("board: connect the host to serial:{}", host_end.name);
+        // Keep the slave open so that the pty survives until the host opens it.
+        std::mem::forget(host_end);
+        return Ok(board_end);
+    }
+    if link == "stdio" {
+        return Ok(transport::stdio());
+    }
+    if let Some(addr) = link.strip_prefix("tcp:") {
+        let listener =
+            std::net::TcpListener::bind(addr).with_context(|| format!("listening on {addr}"))?;
+        eprintln!(
+            "board: waiting for the host on tcp:{}",
+            listener.local_addr()?
+        );
+        return Ok(transport::tcp_accept(&listener)?);
+    }
+    if let Some(rest) = link.strip_prefix("serial:") {
+        let (path, baud) = match rest.rsplit_once('@') {
+            Some((p, b)) => (
+                p,
+                b.parse()
+                    .with_context(|| format!("baud rate `{b}` in --link {link}"))?,
+            ),
+            None => (rest, 921_600),
+        };
+        return Ok(transport::serial(path, baud)?);
+    }
+    anyhow::bail!("unknown --link `{link}`: expected pty, tcp:ADDR, serial:PATH[@BAUD] or stdio")
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    loop {
+        let link = open(&cli.link)?;
+        let name = link.name.clone();
+        let report = board::serve(link, cli.precision)
+            .with_context(|| format!("serving the host on {name}"))?;
+        eprintln!(
+            "board: session on {name} ended: {} bytes in, {} out, {} IMU samples applied, {} correspondences accepted, {} gated, {} divergences",
+            report.bytes_in,
+            report.bytes_out,
+            report.counters.imu_applied,
+            report.counters.accepted,
+            report.counters.gated,
+            report.counters.divergences
+        );
+        if !cli.forever || cli.link == "stdio" {
+            return Ok(());
+        }
+    }
+}

@@ -1,0 +1,355 @@
+//! A recorded or synthetic dataset in the EuRoC/ASL layout, as the tracker reads it.
+//!
+//! ```text
+//! DIR/mav0/imu0/data.csv, sensor.yaml            IMU (the body frame)
+//! DIR/mav0/cam0/data.csv, sensor.yaml, data/*.png camera (T_BS: camera → body)
+//! DIR/mav0/state_groundtruth_estimate0/data.csv  ground truth (optional)
+//! DIR/model/scene.obj                            the textured model (synthetic datasets)
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use firmware_sim::sim::scenario::euroc::{self, DatasetError as CsvError, GroundTruthRow, ImuRow};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use serde::Deserialize;
+
+use crate::camera::{CalibError, CameraCalib, read_euroc_sensor_yaml};
+
+/// Why a dataset cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// The folder or a required file is missing.
+    #[error("{path}: missing ({what})")]
+    Missing {
+        /// Expected path.
+        path: PathBuf,
+        /// What it should hold.
+        what: &'static str,
+    },
+    /// A CSV file could not be read.
+    #[error(transparent)]
+    Csv(#[from] CsvError),
+    /// The camera calibration could not be read.
+    #[error(transparent)]
+    Calib(#[from] CalibError),
+    /// A file's content is unusable.
+    #[error("{path}: {what}")]
+    Invalid {
+        /// File.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
+}
+
+/// One camera frame of the dataset.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FrameRecord {
+    /// Time stamp [ns].
+    pub stamp: u64,
+    /// Image file.
+    pub path: PathBuf,
+}
+
+/// Continuous-time IMU noise densities (EuRoC `sensor.yaml` units).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+pub struct ImuNoiseDensities {
+    /// rad/s/√Hz.
+    pub gyroscope_noise_density: f64,
+    /// rad/s²/√Hz.
+    pub gyroscope_random_walk: f64,
+    /// m/s²/√Hz.
+    pub accelerometer_noise_density: f64,
+    /// m/s³/√Hz.
+    pub accelerometer_random_walk: f64,
+}
+
+/// Camera mount on the IMU, in the core's convention (DESIGN.md §3).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HandEye {
+    /// Rotation sensor → camera.
+    pub q_cs: UnitQuaternion<f64>,
+    /// Camera origin in the sensor frame [m].
+    pub c_s: Vector3<f64>,
+}
+
+impl HandEye {
+    /// From EuRoC's `T_BS` of the camera (camera → body, the body being the IMU).
+    pub fn from_t_bs(t: &nalgebra::Matrix4<f64>) -> Option<Self> {
+        let r_sc: Matrix3<f64> = t.fixed_view::<3, 3>(0, 0).into_owned();
+        // A proper rotation within round-off.
+        let err = (r_sc.transpose() * r_sc - Matrix3::identity()).norm();
+        if !(err < 1e-4 && (r_sc.determinant() - 1.0).abs() < 1e-4) {
+            return None;
+        }
+        let r_cs = Rotation3::from_matrix(&r_sc.transpose());
+        Some(HandEye {
+            q_cs: UnitQuaternion::from_rotation_matrix(&r_cs),
+            c_s: t.fixed_view::<3, 1>(0, 3).into_owned(),
+        })
+    }
+
+    /// Camera pose `(c_w, q_cw)` for an IMU pose `(s_w, q_ws)` (DESIGN.md §3).
+    pub fn camera_pose(
+        &self,
+        s_w: &Vector3<f64>,
+        q_ws: &UnitQuaternion<f64>,
+    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        (s_w + q_ws * self.c_s, self.q_cs * q_ws.inverse())
+    }
+
+    /// As the wire `HandEye`.
+    pub fn to_wire(&self) -> protocol::HandEye {
+        let q = self.q_cs.quaternion();
+        protocol::HandEye {
+            q_cs: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
+            c_s: [self.c_s.x as f32, self.c_s.y as f32, self.c_s.z as f32],
+        }
+    }
+}
+
+/// A dataset opened for tracking.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    /// Root folder.
+    pub root: PathBuf,
+    /// IMU samples, time-ordered.
+    pub imu: Vec<ImuRow>,
+    /// IMU rate [Hz] (from `sensor.yaml`, else from the time stamps).
+    pub imu_rate_hz: f64,
+    /// IMU noise densities, when `sensor.yaml` gives them.
+    pub imu_noise: Option<ImuNoiseDensities>,
+    /// The camera.
+    pub camera: CameraCalib,
+    /// Camera mount.
+    pub hand_eye: HandEye,
+    /// Frames, time-ordered.
+    pub frames: Vec<FrameRecord>,
+    /// Ground truth of the IMU (body) pose, when present.
+    pub groundtruth: Option<Vec<GroundTruthRow>>,
+    /// `model/scene.obj`, when present.
+    pub model: Option<PathBuf>,
+}
+
+fn require(path: PathBuf, what: &'static str) -> Result<PathBuf, DatasetError> {
+    if path.exists() {
+        Ok(path)
+    } else {
+        Err(DatasetError::Missing { path, what })
+    }
+}
+
+#[derive(Deserialize)]
+struct ImuYaml {
+    rate_hz: Option<f64>,
+    #[serde(flatten)]
+    noise: Option<ImuNoiseDensities>,
+}
+
+impl Dataset {
+    /// Opens `root` (the folder holding `mav0/`).
+    pub fn open(root: &Path) -> Result<Self, DatasetError> {
+        let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
+        let imu_csv = require(mav0.join("imu0/data.csv"), "IMU samples")?;
+        let cam_dir = require(mav0.join("cam0"), "camera folder")?;
+        let cam_yaml = require(cam_dir.join("sensor.yaml"), "camera calibration")?;
+        let cam_csv = require(cam_dir.join("data.csv"), "camera frame list")?;
+
+        let imu = euroc::read_imu_csv(&imu_csv)?;
+        if imu.len() < 2 {
+            return Err(DatasetError::Invalid {
+                path: imu_csv,
+                what: format!("{} IMU samples; need at least 2", imu.len()),
+            });
+        }
+        if let Some(w) = imu.windows(2).position(|w| w[1].stamp <= w[0].stamp) {
+            return Err(DatasetError::Invalid {
+                path: imu_csv,
+                what: format!(
+                    "time stamps not increasing at sample {} ({} after {})",
+                    w + 1,
+                    imu[w + 1].stamp,
+                    imu[w].stamp
+                ),
+            });
+        }
+        let imu_yaml_path = mav0.join("imu0/sensor.yaml");
+        let imu_yaml = match std::fs::read_to_string(&imu_yaml_path) {
+            Ok(text) => {
+                let text: String = text
+                    .lines()
+                    .filter(|l| !l.starts_with("%YAML"))
+                    .collect::<Vec<_>>()
+                    .join("\n");
+                Some(serde_yaml_ng::from_str::<ImuYaml>(&text).map_err(|e| {
+                    DatasetError::Invalid {
+                        path: imu_yaml_path.clone(),
+                        what: e.to_string(),
+                    }
+                })?)
+            }
+            Err(_) => None,
+        };
+        let median_dt = {
+            let mut dts: Vec<u64> = imu.windows(2).map(|w| w[1].stamp - w[0].stamp).collect();
+            dts.sort_unstable();
+            dts[dts.len() / 2] as f64 * 1e-9
+        };
+        let imu_rate_hz = imu_yaml
+            .as_ref()
+            .and_then(|y| y.rate_hz)
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .unwrap_or(1.0 / median_dt);
+
+        let camera = read_euroc_sensor_yaml(&cam_yaml)?;
+        let hand_eye = camera
+            .extrinsics
+            .as_ref()
+            .ok_or_else(|| DatasetError::Invalid {
+                path: cam_yaml.clone(),
+                what: "no T_BS: the camera's mount on the IMU is needed".into(),
+            })
+            .and_then(|t| {
+                HandEye::from_t_bs(t).ok_or_else(|| DatasetError::Invalid {
+                    path: cam_yaml.clone(),
+                    what: "T_BS is not a rigid transform".into(),
+                })
+            })?;
+        let frames = read_frame_list(&cam_csv, &cam_dir.join("data"))?;
+
+        let gt_path = mav0.join("state_groundtruth_estimate0/data.csv");
+        let groundtruth = if gt_path.exists() {
+            Some(euroc::read_groundtruth_csv(&gt_path)?)
+        } else {
+            None
+        };
+        let model = Some(root.join("model/scene.obj")).filter(|p| p.exists());
+        Ok(Dataset {
+            root: root.to_owned(),
+            imu,
+            imu_rate_hz,
+            imu_noise: imu_yaml.and_then(|y| y.noise),
+            camera,
+            hand_eye,
+            frames,
+            groundtruth,
+            model,
+        })
+    }
+
+    /// Index of the IMU sample that triggered each frame (the nearest within half a sample
+    /// period; frames without one are dropped from the list returned).
+    pub fn triggers(&self) -> Vec<(usize, usize)> {
+        let half = (0.5e9 / self.imu_rate_hz) as u64;
+        let mut out = Vec::with_capacity(self.frames.len());
+        let mut k = 0usize;
+        for (f, frame) in self.frames.iter().enumerate() {
+            while k + 1 < self.imu.len() && self.imu[k + 1].stamp <= frame.stamp {
+                k += 1;
+            }
+            let best = [k, (k + 1).min(self.imu.len() - 1)]
+                .into_iter()
+                .min_by_key(|&i| self.imu[i].stamp.abs_diff(frame.stamp))
+                .unwrap_or(k);
+            if self.imu[best].stamp.abs_diff(frame.stamp) <= half
+                && out.last().is_none_or(|&(_, last)| last < best)
+            {
+                out.push((f, best));
+            }
+        }
+        out
+    }
+
+    /// Ground-truth IMU pose at `stamp` (linear/slerp interpolation; `None` outside).
+    pub fn groundtruth_at(&self, stamp: u64) -> Option<(Vector3<f64>, UnitQuaternion<f64>)> {
+        let gt = self.groundtruth.as_ref()?;
+        let i = gt.partition_point(|r| r.stamp <= stamp);
+        if i == 0 {
+            return (gt.first()?.stamp == stamp).then(|| (gt[0].p_w, gt[0].q_ws));
+        }
+        let a = &gt[i - 1];
+        if a.stamp == stamp {
+            return Some((a.p_w, a.q_ws));
+        }
+        let b = gt.get(i)?;
+        // A gap in the ground truth longer than 50 ms is not interpolated.
+        if b.stamp - a.stamp > 50_000_000 {
+            return None;
+        }
+        let s = (stamp - a.stamp) as f64 / (b.stamp - a.stamp) as f64;
+        Some((a.p_w.lerp(&b.p_w, s), a.q_ws.slerp(&b.q_ws, s)))
+    }
+}
+
+fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
+    let text = std::fs::read_to_string(csv).map_err(|source| {
+        DatasetError::Csv(CsvError::Io {
+            path: csv.to_owned(),
+            source,
+        })
+    })?;
+    let mut out = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let bad = |what: String| {
+            DatasetError::Csv(CsvError::Parse {
+                path: csv.to_owned(),
+                line: i + 1,
+                what,
+            })
+        };
+        let (stamp, name) = line
+            .split_once(',')
+            .ok_or_else(|| bad("expected `timestamp,filename`".into()))?;
+        let stamp: u64 = stamp
+            .trim()
+            .parse()
+            .map_err(|e| bad(format!("time stamp `{stamp}`: {e}")))?;
+        if out.last().is_some_and(|f: &FrameRecord| f.stamp >= stamp) {
+            return Err(bad(format!("time stamp {stamp} not increasing")));
+        }
+        out.push(FrameRecord {
+            stamp,
+            path: data.join(name.trim()),
+        });
+    }
+    if out.is_empty() {
+        return Err(DatasetError::Invalid {
+            path: csv.to_owned(),
+            what: "no frames".into(),
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hand_eye_from_t_bs_round_trips_a_camera_pose() {
+        let q_cs = UnitQuaternion::from_euler_angles(0.3, -1.2, 2.0);
+        let c_s = Vector3::new(0.02, -0.01, 0.03);
+        let mut t = nalgebra::Matrix4::identity();
+        t.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(q_cs.inverse().to_rotation_matrix().matrix());
+        t.fixed_view_mut::<3, 1>(0, 3).copy_from(&c_s);
+        let he = HandEye::from_t_bs(&t).unwrap();
+        assert!(he.q_cs.angle_to(&q_cs) < 1e-12);
+        assert!((he.c_s - c_s).norm() < 1e-15);
+        let bad = nalgebra::Matrix4::from_element(1.0);
+        assert!(HandEye::from_t_bs(&bad).is_none());
+    }
+
+    #[test]
+    fn missing_folder_is_named() {
+        let err = Dataset::open(Path::new("/nonexistent/dataset")).unwrap_err();
+        assert!(
+            err.to_string().contains("/nonexistent/dataset/mav0"),
+            "{err}"
+        );
+    }
+}

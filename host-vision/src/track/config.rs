@@ -1,0 +1,102 @@
+//! The core's configuration for a dataset and a model: IMU rate and noise from the dataset,
+//! hand-eye from the camera's `T_BS`, and the process noise tuned per model as the paper did
+//! (the constant-velocity models need a much larger motion noise than the acc model).
+
+use protocol::{Config, DivergenceParams, InitSigma, ModelKind, NoiseParams};
+
+use crate::dataset::Dataset;
+
+/// Tuning knobs of the core (the rest follows from the dataset).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CoreTuning {
+    /// Peak free acceleration expected [m/s²]: scales the motion noise.
+    pub expected_accel: f64,
+    /// Floor of the accelerometer measurement noise [m/s²] (vibration, misalignment).
+    pub accel_noise_floor: f64,
+    /// Outlier gate on `s_i` (eq. 17).
+    pub gate: f64,
+    /// Initial position standard deviation [m].
+    pub init_position_sigma: f64,
+    /// Seconds of IMU averaged for roll and pitch at (re)initialisation.
+    pub still_seconds: f64,
+}
+
+impl Default for CoreTuning {
+    fn default() -> Self {
+        Self {
+            expected_accel: 10.0,
+            accel_noise_floor: 0.3,
+            gate: 30.0,
+            init_position_sigma: 0.02,
+            still_seconds: 0.3,
+        }
+    }
+}
+
+/// The `Configure` message for `model` on `dataset`.
+pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> Config {
+    let rate = dataset.imu_rate_hz;
+    let noise = dataset.imu_noise;
+    let (gyro_density, accel_density, gyro_walk, accel_walk) = match noise {
+        Some(n) => (
+            n.gyroscope_noise_density,
+            n.accelerometer_noise_density,
+            n.gyroscope_random_walk,
+            n.accelerometer_random_walk,
+        ),
+        // EuRoC's ADIS16448 figures: a middle-of-the-road MEMS IMU.
+        None => (1.7e-4, 2.0e-3, 1.9e-5, 3.0e-3),
+    };
+    let accel = tuning.expected_accel.max(0.5);
+    let accel_sample = accel_density * rate.sqrt() * 1.5;
+    let camera_rate = dataset
+        .camera
+        .rate_hz
+        .filter(|r| r.is_finite() && *r > 0.0)
+        .unwrap_or(20.0);
+    let motion = match model {
+        // White jerk: the peak jerk of hand-held motion is about a · 2πf at 1-2 Hz.
+        ModelKind::Acc => (accel * 8.0).max(1.0),
+        // White acceleration for the constant-velocity models.
+        _ => (accel * 1.5).max(0.5),
+    };
+    Config {
+        model,
+        noise: NoiseParams {
+            motion: motion as f32,
+            angular: 3.0,
+            gyro_bias_walk: (gyro_walk * 5.0) as f32,
+            accel_bias_walk: (accel_walk * 5.0) as f32,
+            gyro_meas: (gyro_density * rate.sqrt() * 1.5).max(2e-3) as f32,
+            accel_meas: match model {
+                // The gravity model's accelerometer noise absorbs the free acceleration.
+                ModelKind::Gravity => (accel * 0.7).max(0.3),
+                _ => accel_sample.max(tuning.accel_noise_floor),
+            } as f32,
+        },
+        init_sigma: InitSigma {
+            position: tuning.init_position_sigma as f32,
+            velocity: 0.05,
+            acceleration: 0.5,
+            tilt: 0.03,
+            yaw: 0.05,
+            angular_velocity: 0.1,
+            gyro_bias: 0.01,
+            accel_bias: 0.1,
+        },
+        hand_eye: dataset.hand_eye.to_wire(),
+        gate: tuning.gate as f32,
+        divergence: DivergenceParams {
+            residual_lowpass: 0.95,
+            residual_threshold: 50.0,
+            // Dead reckoning with a large motion noise grows the covariance fast: leave room
+            // for a few frames without vision.
+            covariance_frobenius: (2.0 * motion * motion).max(10.0) as f32,
+            quaternion_norm: 0.01,
+        },
+        imu_rate_hz: rate as f32,
+        camera_rate_hz: camera_rate as f32,
+        still_samples: ((rate * tuning.still_seconds).round() as u16).max(2),
+        state_every: 1,
+    }
+}

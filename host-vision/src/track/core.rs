@@ -1,0 +1,280 @@
+//! The host's connection to a fusion core: the simulated board in-process on a pty pair,
+//! a serial device, a TCP peer, or the firmware under QEMU. A reader thread decodes the core's
+//! frames as they arrive, so the core never blocks on a full line while the host is busy with
+//! a frame.
+
+use std::io::{self, Write};
+use std::path::PathBuf;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError, channel};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use firmware_sim::board::{self, BoardReport, Precision};
+use firmware_sim::qemu::QemuBoard;
+use firmware_sim::transport::{self, Duplex};
+use protocol::io::{FrameReader, FrameWriter, RecvError};
+use protocol::{CoreToHost, DecodeError, HostToCore};
+
+use super::TrackError;
+
+/// Where the core is.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LinkSpec {
+    /// The simulated board on a pty pair in this process.
+    Sim(Precision),
+    /// A serial device (hardware board, or a simulated board in another process).
+    Serial {
+        /// Device path.
+        path: String,
+        /// Baud rate.
+        baud: u32,
+    },
+    /// A TCP peer (`firmware-sim --link tcp:ADDR`).
+    Tcp(String),
+    /// The firmware image under QEMU's Cortex-M4F board.
+    Qemu(PathBuf),
+}
+
+impl FromStr for LinkSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "sim" | "sim:f32" => return Ok(LinkSpec::Sim(Precision::F32)),
+            "sim:f64" => return Ok(LinkSpec::Sim(Precision::F64)),
+            "qemu" => {
+                let ws = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+                return Ok(LinkSpec::Qemu(firmware_sim::qemu::default_image(
+                    &ws, "device",
+                )));
+            }
+            _ => {}
+        }
+        if let Some(rest) = s.strip_prefix("serial:") {
+            let (path, baud) = match rest.rsplit_once('@') {
+                Some((p, b)) => (
+                    p,
+                    b.parse()
+                        .map_err(|e| format!("baud rate `{b}` in `{s}`: {e}"))?,
+                ),
+                None => (rest, 921_600),
+            };
+            if path.is_empty() {
+                return Err(format!("`{s}`: no device path"));
+            }
+            return Ok(LinkSpec::Serial {
+                path: path.into(),
+                baud,
+            });
+        }
+        if let Some(addr) = s.strip_prefix("tcp:") {
+            return Ok(LinkSpec::Tcp(addr.into()));
+        }
+        if let Some(image) = s.strip_prefix("qemu:") {
+            return Ok(LinkSpec::Qemu(image.into()));
+        }
+        Err(format!(
+            "unknown link `{s}`: expected sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE"
+        ))
+    }
+}
+
+/// What the reader thread passes on.
+#[derive(Debug)]
+pub enum Incoming {
+    /// A message from the core.
+    Message(CoreToHost),
+    /// A frame from the core that failed to decode (the reader is in sync again).
+    Rejected(DecodeError),
+}
+
+/// An open connection to a core.
+pub struct CoreLink {
+    name: String,
+    writer: Option<FrameWriter<Box<dyn Write + Send>>>,
+    rx: Receiver<Result<Incoming, String>>,
+    stop: Arc<AtomicBool>,
+    reader: Option<JoinHandle<()>>,
+    board: Option<JoinHandle<io::Result<BoardReport>>>,
+    qemu: Option<QemuBoard>,
+    /// Messages sent.
+    pub messages_out: u64,
+}
+
+impl std::fmt::Debug for CoreLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CoreLink")
+            .field("name", &self.name)
+            .finish()
+    }
+}
+
+impl CoreLink {
+    /// Opens the link (starting the simulated board or QEMU where asked).
+    pub fn open(spec: &LinkSpec) -> Result<Self, TrackError> {
+        let (duplex, board, qemu) = match spec {
+            LinkSpec::Sim(precision) => {
+                let (host, board_end) = transport::pty_pair()?;
+                let handle = board::spawn(board_end, *precision)
+                    .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
+                (host, Some(handle), None)
+            }
+            LinkSpec::Serial { path, baud } => (transport::serial(path, *baud)?, None, None),
+            LinkSpec::Tcp(addr) => (transport::tcp_connect(addr.as_str())?, None, None),
+            LinkSpec::Qemu(image) => {
+                let (q, duplex) = QemuBoard::start(image, Duration::from_secs(20))
+                    .map_err(|e| TrackError::Core(e.to_string()))?;
+                (duplex, None, Some(q))
+            }
+        };
+        Ok(Self::with_duplex(duplex, board, qemu))
+    }
+
+    fn with_duplex(
+        duplex: Duplex,
+        board: Option<JoinHandle<io::Result<BoardReport>>>,
+        qemu: Option<QemuBoard>,
+    ) -> Self {
+        let Duplex {
+            reader,
+            writer,
+            name,
+        } = duplex;
+        let (tx, rx) = channel();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop_reader = stop.clone();
+        let reader = std::thread::Builder::new()
+            .name("core reader".into())
+            .spawn(move || {
+                let mut r = FrameReader::new(reader);
+                loop {
+                    let item = match r.recv::<CoreToHost>() {
+                        Ok(m) => Ok(Incoming::Message(m)),
+                        Err(RecvError::Frame(e)) => Ok(Incoming::Rejected(e)),
+                        Err(RecvError::Io(e))
+                            if matches!(
+                                e.kind(),
+                                io::ErrorKind::TimedOut
+                                    | io::ErrorKind::WouldBlock
+                                    | io::ErrorKind::Interrupted
+                            ) =>
+                        {
+                            if stop_reader.load(Ordering::Relaxed) {
+                                return;
+                            }
+                            continue;
+                        }
+                        Err(RecvError::Io(e)) => Err(format!("I/O error: {e}")),
+                        Err(RecvError::Closed { partial }) => Err(format!(
+                            "closed by the core ({partial} bytes of an unfinished frame lost)"
+                        )),
+                    };
+                    let end = item.is_err();
+                    if tx.send(item).is_err() || end {
+                        return;
+                    }
+                }
+            })
+            .ok();
+        CoreLink {
+            name,
+            writer: Some(FrameWriter::new(writer)),
+            rx,
+            stop,
+            reader,
+            board,
+            qemu,
+            messages_out: 0,
+        }
+    }
+
+    /// The transport's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Sends one message.
+    pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackError> {
+        let w = self
+            .writer
+            .as_mut()
+            .ok_or_else(|| TrackError::Core("link already closed".into()))?;
+        w.send(msg)
+            .map_err(|e| TrackError::Core(format!("link {}: write failed: {e}", self.name)))?;
+        self.messages_out += 1;
+        Ok(())
+    }
+
+    /// Waits up to `timeout` for the next item.
+    pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackError> {
+        match self.rx.recv_timeout(timeout) {
+            Ok(Ok(m)) => Ok(m),
+            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
+            Err(RecvTimeoutError::Timeout) => Err(TrackError::Core(format!(
+                "link {}: no answer from the core within {timeout:?}",
+                self.name
+            ))),
+            Err(RecvTimeoutError::Disconnected) => Err(TrackError::Core(format!(
+                "link {}: reader stopped",
+                self.name
+            ))),
+        }
+    }
+
+    /// The next item if one is waiting.
+    pub fn try_recv(&self) -> Result<Option<Incoming>, TrackError> {
+        match self.rx.try_recv() {
+            Ok(Ok(m)) => Ok(Some(m)),
+            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(TrackError::Core(format!(
+                "link {}: reader stopped",
+                self.name
+            ))),
+        }
+    }
+
+    /// Closes the link and waits for the simulated board (whose report is returned) or
+    /// stops QEMU.
+    pub fn close(mut self) -> Result<Option<BoardReport>, TrackError> {
+        self.shutdown()
+    }
+
+    fn shutdown(&mut self) -> Result<Option<BoardReport>, TrackError> {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(r) = self.reader.take() {
+            let _ = r.join();
+        }
+        // Dropping our last descriptors of the line ends the board's session.
+        self.writer = None;
+        self.qemu = None;
+        let deadline = Instant::now() + Duration::from_secs(10);
+        match self.board.take() {
+            Some(handle) => {
+                while !handle.is_finished() && Instant::now() < deadline {
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                if !handle.is_finished() {
+                    return Err(TrackError::Core(
+                        "the simulated board did not end its session".into(),
+                    ));
+                }
+                match handle.join() {
+                    Ok(Ok(report)) => Ok(Some(report)),
+                    Ok(Err(e)) => Err(TrackError::Core(format!("simulated board: {e}"))),
+                    Err(_) => Err(TrackError::Core("simulated board panicked".into())),
+                }
+            }
+            None => Ok(None),
+        }
+    }
+}
+
+impl Drop for CoreLink {
+    fn drop(&mut self) {
+        let _ = self.shutdown();
+    }
+}

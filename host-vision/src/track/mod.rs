@@ -1,0 +1,716 @@
+//! The tracking pipeline (`host-vision track`): a dataset in, the fusion core at the other end
+//! of a real byte link, trajectories, per-frame statistics, overlays and plots out.
+//!
+//! Per IMU sample the host sends `Imu`; at a trigger the core answers with a `PosePrediction`,
+//! which goes to the vision worker (a thread of its own, holding the renderer), while the host
+//! keeps streaming IMU samples, as the core's integration would go on on hardware. The frame's
+//! correspondences are sent when ready:
+//! - **lock-step** ([`Pacing::LockStep`]): exactly `latency` after the trigger, counted in IMU
+//!   samples, waiting for the worker if needed, so a replay is deterministic and the core's
+//!   delayed-update path is always exercised. After each trigger the host sends `Hello` as a
+//!   barrier (the core answers it at any time, in order), so it knows whether a prediction came;
+//! - **real time** ([`Pacing::RealTime`]): IMU samples paced by the clock, correspondences sent
+//!   as soon as the worker has them.
+
+pub mod config;
+pub mod core;
+pub mod output;
+pub mod overlay;
+pub mod plot;
+pub mod vision;
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, Sender, channel};
+use std::time::{Duration, Instant};
+
+use nalgebra::{UnitQuaternion, Vector3};
+use protocol::{
+    CoreToHost, Correspondence, ErrorReport, HostToCore, Init, InitAttitude, ModelKind,
+    PROTOCOL_VERSION, PosePrediction, StateReport, Status, UpdateReport,
+};
+use rand::rngs::StdRng;
+use rand::{RngExt as _, SeedableRng};
+
+pub use self::config::{CoreTuning, core_config};
+pub use self::core::{CoreLink, Incoming, LinkSpec};
+pub use self::output::{FrameRow, Summary};
+pub use self::vision::{FrameJob, FrameResult, Vision, VisionOptions};
+
+use crate::camera::{CalibError, CameraError};
+use crate::dataset::{Dataset, DatasetError};
+use crate::features::ImageError;
+use crate::model::ModelError;
+use crate::render::RenderError;
+
+/// Why tracking could not run (or stopped).
+#[derive(Debug, thiserror::Error)]
+pub enum TrackError {
+    /// The dataset.
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    /// The model file.
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    /// The renderer.
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    /// Camera parameters.
+    #[error(transparent)]
+    Camera(#[from] CameraError),
+    /// Calibration file.
+    #[error(transparent)]
+    Calib(#[from] CalibError),
+    /// Image buffers.
+    #[error(transparent)]
+    Features(#[from] ImageError),
+    /// A live image could not be read.
+    #[error("{path}: {source}")]
+    Image {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: image::ImageError,
+    },
+    /// A live image has the wrong size.
+    #[error("{path}: image is {got:?}, the calibration says {expected:?}")]
+    ImageSize {
+        /// File.
+        path: PathBuf,
+        /// Its size.
+        got: (u32, u32),
+        /// The calibration's.
+        expected: (u32, u32),
+    },
+    /// The transport could not be opened.
+    #[error(transparent)]
+    Transport(#[from] firmware_sim::transport::TransportError),
+    /// The core refused something or the link failed.
+    #[error("core: {0}")]
+    Core(String),
+    /// An output file could not be written.
+    #[error("{path}: {source}")]
+    Output {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// A bad option.
+    #[error("{0}")]
+    Option(String),
+}
+
+/// How the IMU stream is paced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Pacing {
+    /// As fast as the link takes it; correspondences after a fixed latency in IMU samples.
+    LockStep,
+    /// By the clock; correspondences as soon as they are ready.
+    RealTime,
+}
+
+/// Faults injected by the host, for tests of the core's robustness.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Faults {
+    /// Fraction of correspondences replaced by outliers (model point moved 0.1-0.5 m).
+    pub outlier_fraction: f64,
+    /// From this time [s] on, for `corrupt_seconds`, every correspondence is an outlier:
+    /// the core's divergence monitor must fire and tracking must resume.
+    pub corrupt_from: Option<f64>,
+    /// Length of the corrupted stretch [s].
+    pub corrupt_seconds: f64,
+    /// Seed of the injected faults.
+    pub seed: u64,
+}
+
+/// Where tracking starts (the paper's semi-automatic initialisation: the user holds the
+/// camera near a known pose; roll and pitch come from the IMU).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Start {
+    /// IMU position [m]; from the ground truth when `None`.
+    pub position: Option<[f64; 3]>,
+    /// Yaw of the IMU [rad]; from the ground truth when `None`.
+    pub yaw: Option<f64>,
+}
+
+/// Everything `track` needs.
+#[derive(Debug, Clone)]
+pub struct TrackOptions {
+    /// Dataset folder.
+    pub dataset: PathBuf,
+    /// Model file (OBJ or glTF); the dataset's `model/scene.obj` when `None`.
+    pub model: Option<PathBuf>,
+    /// Output folder.
+    pub out: PathBuf,
+    /// The core.
+    pub link: LinkSpec,
+    /// Filter model.
+    pub filter: ModelKind,
+    /// Core tuning.
+    pub tuning: CoreTuning,
+    /// Image analysis.
+    pub vision: VisionOptions,
+    /// Pacing.
+    pub pacing: Pacing,
+    /// Latency from trigger to correspondences in lock-step mode [s].
+    pub latency: f64,
+    /// Start pose.
+    pub start: Start,
+    /// Write an overlay image every this many frames (0: none).
+    pub overlay_every: usize,
+    /// Track only this many seconds of the dataset.
+    pub duration: Option<f64>,
+    /// Injected faults.
+    pub faults: Faults,
+    /// Longest wait for an answer of the core.
+    pub timeout: Duration,
+}
+
+impl TrackOptions {
+    /// Defaults for a dataset and output folder: simulated board, acc model, lock-step.
+    pub fn new(dataset: PathBuf, out: PathBuf) -> Self {
+        Self {
+            dataset,
+            model: None,
+            out,
+            link: LinkSpec::Sim(firmware_sim::board::Precision::F32),
+            filter: ModelKind::Acc,
+            tuning: CoreTuning::default(),
+            vision: VisionOptions::default(),
+            pacing: Pacing::LockStep,
+            latency: 0.03,
+            start: Start::default(),
+            overlay_every: 25,
+            duration: None,
+            faults: Faults::default(),
+            timeout: Duration::from_secs(10),
+        }
+    }
+}
+
+/// Everything the core said, as received.
+#[derive(Debug, Default)]
+pub struct CoreLog {
+    /// State reports (one per IMU sample while running).
+    pub states: Vec<StateReport>,
+    /// Pose predictions by trigger time [µs].
+    pub predictions: BTreeMap<u64, PosePrediction>,
+    /// Update reports by frame id.
+    pub updates: BTreeMap<u32, Vec<UpdateReport>>,
+    /// Mode changes.
+    pub statuses: Vec<Status>,
+    /// Refusals.
+    pub errors: Vec<ErrorReport>,
+    /// Frames from the core that failed to decode.
+    pub rejected_frames: usize,
+    /// `HelloAck`s received (handshake and barriers).
+    pub acks: usize,
+}
+
+impl CoreLog {
+    fn take(&mut self, item: Incoming) {
+        match item {
+            Incoming::Rejected(_) => self.rejected_frames += 1,
+            Incoming::Message(m) => match m {
+                CoreToHost::HelloAck(_) => self.acks += 1,
+                CoreToHost::Error(e) => self.errors.push(e),
+                CoreToHost::PosePrediction(p) => {
+                    self.predictions.insert(p.t_us, p);
+                }
+                CoreToHost::State(s) => self.states.push(s),
+                CoreToHost::UpdateReport(r) => self.updates.entry(r.frame_id).or_default().push(r),
+                CoreToHost::Status(s) => self.statuses.push(s),
+            },
+        }
+    }
+
+    /// The current mode (last status).
+    pub fn mode(&self) -> Option<protocol::Mode> {
+        self.statuses.last().map(|s| s.mode)
+    }
+}
+
+/// The result of a tracking run.
+#[derive(Debug)]
+pub struct TrackRun {
+    /// What the core said.
+    pub log: CoreLog,
+    /// One row per frame analysed.
+    pub frames: Vec<FrameRow>,
+    /// Summary figures.
+    pub summary: Summary,
+    /// Files written.
+    pub written: Vec<PathBuf>,
+}
+
+/// Progress callback: `(imu samples done, total, frames analysed, current mode)`.
+pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize, Option<protocol::Mode>);
+
+/// A job for the vision worker, or the end.
+enum Job {
+    Frame(Box<FrameJob>),
+}
+
+/// Tracks a dataset. `interrupt` stops it early (Ctrl-C); what was tracked is still written.
+pub fn run(
+    options: &TrackOptions,
+    interrupt: Arc<AtomicBool>,
+    progress: Progress,
+) -> Result<TrackRun, TrackError> {
+    let dataset = Dataset::open(&options.dataset)?;
+    if !(options.latency.is_finite() && options.latency >= 0.0) {
+        return Err(TrackError::Option(format!(
+            "latency must be a non-negative number of seconds, got {}",
+            options.latency
+        )));
+    }
+    let model_path = options
+        .model
+        .clone()
+        .or_else(|| dataset.model.clone())
+        .ok_or_else(|| {
+            TrackError::Option(format!(
+                "{}: no model/scene.obj in the dataset; give the model with --model",
+                dataset.root.display()
+            ))
+        })?;
+    std::fs::create_dir_all(&options.out).map_err(|source| TrackError::Output {
+        path: options.out.clone(),
+        source,
+    })?;
+
+    // The vision worker owns the renderer: created once, on its own thread.
+    let (job_tx, job_rx) = channel::<Job>();
+    let (res_tx, res_rx) = channel::<Result<FrameResult, TrackError>>();
+    let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
+    let camera = dataset.camera.camera;
+    let vision_options = options.vision;
+    let worker = std::thread::Builder::new()
+        .name("vision".into())
+        .spawn(move || vision_worker(camera, model_path, vision_options, job_rx, res_tx, ready_tx))
+        .map_err(|e| TrackError::Option(format!("cannot start the vision thread: {e}")))?;
+    let ready = ready_rx
+        .recv()
+        .map_err(|_| TrackError::Option("the vision thread stopped".into()))??;
+    let adapter = ready.adapter;
+
+    let mut link = CoreLink::open(&options.link)?;
+    let mut session = Session {
+        options,
+        dataset: &dataset,
+        log: CoreLog::default(),
+        results: Vec::new(),
+        frame_errors: Vec::new(),
+        rng: StdRng::seed_from_u64(options.faults.seed),
+        injected_outliers: 0,
+        sent_correspondences: 0,
+        wall: Instant::now(),
+        axes: ready.axes,
+    };
+    let outcome = session.drive(&mut link, &job_tx, &res_rx, &interrupt, progress);
+    drop(job_tx);
+    let board = link.close();
+    let _ = worker.join();
+    // Whatever happened, write what was tracked.
+    let stopped_early = match &outcome {
+        Ok(completed) => !completed,
+        Err(_) => true,
+    };
+    let board = board.ok().flatten();
+    let (frames, summary, written) = output::write_all(
+        &dataset,
+        options,
+        &session,
+        &adapter,
+        board.as_ref(),
+        stopped_early,
+        outcome.as_ref().err().map(|e| e.to_string()),
+    )?;
+    outcome?;
+    Ok(TrackRun {
+        log: session.log,
+        frames,
+        summary,
+        written,
+    })
+}
+
+fn vision_worker(
+    camera: crate::camera::Camera,
+    model_path: PathBuf,
+    options: VisionOptions,
+    jobs: Receiver<Job>,
+    results: Sender<Result<FrameResult, TrackError>>,
+    ready: Sender<Result<Ready, TrackError>>,
+) {
+    let setup = || -> Result<(Vision, Ready), TrackError> {
+        let model = crate::model::load(&model_path)?;
+        let vision = Vision::new(camera, &model, options)?;
+        let ready = Ready {
+            adapter: vision.adapter_summary(),
+            axes: model_axes(&model),
+        };
+        Ok((vision, ready))
+    };
+    let mut vision = match setup() {
+        Ok((v, r)) => {
+            let _ = ready.send(Ok(r));
+            v
+        }
+        Err(e) => {
+            let _ = ready.send(Err(e));
+            return;
+        }
+    };
+    while let Ok(Job::Frame(job)) = jobs.recv() {
+        if results.send(vision.process(*job)).is_err() {
+            return;
+        }
+    }
+}
+
+/// What the vision worker reports once set up.
+struct Ready {
+    adapter: String,
+    axes: (Vector3<f64>, f64),
+}
+
+/// Where the overlays draw the model's axes: the centre of its bounding box, a quarter of its
+/// largest extent long.
+fn model_axes(model: &crate::model::Model) -> (Vector3<f64>, f64) {
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for p in model.meshes.iter().flat_map(|m| m.positions.iter()) {
+        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        lo = lo.inf(&p);
+        hi = hi.sup(&p);
+    }
+    if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite())) {
+        return (Vector3::zeros(), 0.1);
+    }
+    ((lo + hi) * 0.5, ((hi - lo).max() * 0.25).max(0.02))
+}
+
+/// A frame whose correspondences are awaited.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    frame_id: u32,
+    trigger_us: u64,
+    due: usize,
+}
+
+/// One tracking session's state.
+pub struct Session<'a> {
+    options: &'a TrackOptions,
+    dataset: &'a Dataset,
+    /// What the core said.
+    pub log: CoreLog,
+    /// Frame results with the id the core gave them.
+    pub results: Vec<(u32, FrameResult)>,
+    /// Frames that could not be analysed, with why.
+    pub frame_errors: Vec<(usize, String)>,
+    rng: StdRng,
+    /// Correspondences replaced by outliers.
+    pub injected_outliers: usize,
+    /// Correspondences sent.
+    pub sent_correspondences: usize,
+    wall: Instant,
+    /// Where the overlays draw the model's axes, and their length.
+    pub axes: (Vector3<f64>, f64),
+}
+
+impl Session<'_> {
+    /// Micro-seconds since the first IMU sample.
+    fn t_us(&self, k: usize) -> u64 {
+        (self.dataset.imu[k].stamp - self.dataset.imu[0].stamp) / 1000
+    }
+
+    fn handshake(&mut self, link: &mut CoreLink) -> Result<(), TrackError> {
+        link.send(&HostToCore::Hello(protocol::Hello {
+            version: PROTOCOL_VERSION,
+        }))?;
+        loop {
+            match link.recv(self.options.timeout)? {
+                Incoming::Message(m @ (CoreToHost::HelloAck(_) | CoreToHost::Error(_))) => {
+                    protocol::handshake::check_answer(&m)
+                        .map_err(|e| TrackError::Core(format!("handshake: {e}")))?;
+                    self.log.acks += 1;
+                    return Ok(());
+                }
+                other => self.log.take(other),
+            }
+        }
+    }
+
+    /// Sends `Hello` and collects everything up to its answer.
+    fn barrier(&mut self, link: &mut CoreLink) -> Result<(), TrackError> {
+        link.send(&HostToCore::Hello(protocol::Hello {
+            version: PROTOCOL_VERSION,
+        }))?;
+        let acks = self.log.acks;
+        while self.log.acks == acks {
+            let item = link.recv(self.options.timeout)?;
+            self.log.take(item);
+        }
+        Ok(())
+    }
+
+    fn drain(&mut self, link: &CoreLink) -> Result<(), TrackError> {
+        while let Some(item) = link.try_recv()? {
+            self.log.take(item);
+        }
+        Ok(())
+    }
+
+    fn init_message(&self) -> Result<Init, TrackError> {
+        let gt = self.dataset.groundtruth_at(self.dataset.imu[0].stamp);
+        let position = match (self.options.start.position, gt) {
+            (Some(p), _) => p,
+            (None, Some((p, _))) => [p.x, p.y, p.z],
+            (None, None) => {
+                return Err(TrackError::Option(
+                    "the dataset has no ground truth: give the start position (--start-position)"
+                        .into(),
+                ));
+            }
+        };
+        let yaw = match (self.options.start.yaw, gt) {
+            (Some(y), _) => y,
+            (None, Some((_, q))) => q.euler_angles().2,
+            (None, None) => 0.0,
+        };
+        Ok(Init {
+            position: position.map(|v| v as f32),
+            attitude: InitAttitude::GravityAndYaw(yaw as f32),
+        })
+    }
+
+    /// Runs the session; `Ok(false)` when interrupted.
+    fn drive(
+        &mut self,
+        link: &mut CoreLink,
+        jobs: &Sender<Job>,
+        results: &Receiver<Result<FrameResult, TrackError>>,
+        interrupt: &AtomicBool,
+        progress: Progress,
+    ) -> Result<bool, TrackError> {
+        self.handshake(link)?;
+        let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
+        link.send(&HostToCore::Configure(config))?;
+        link.send(&HostToCore::Init(self.init_message()?))?;
+        self.barrier(link)?;
+        if let Some(e) = self.log.errors.first() {
+            return Err(TrackError::Core(format!(
+                "refused the configuration: {:?}",
+                e.code
+            )));
+        }
+
+        let ds = self.dataset;
+        let stamp0 = ds.imu[0].stamp;
+        let end = match self.options.duration {
+            Some(d) => ds
+                .imu
+                .partition_point(|r| ((r.stamp - stamp0) as f64) * 1e-9 <= d),
+            None => ds.imu.len(),
+        };
+        let triggers: BTreeMap<usize, usize> =
+            ds.triggers().into_iter().map(|(f, k)| (k, f)).collect();
+        let latency_samples = (self.options.latency * ds.imu_rate_hz).round() as usize;
+        let mut pending: VecDeque<Pending> = VecDeque::new();
+        let start = Instant::now();
+        let mut frames_done = 0usize;
+        for k in 0..end {
+            if interrupt.load(Ordering::Relaxed) {
+                self.finish(link, &mut pending, results, true)?;
+                return Ok(false);
+            }
+            let lock_step = self.options.pacing == Pacing::LockStep;
+            if lock_step {
+                while pending.front().is_some_and(|p| p.due <= k) {
+                    let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                    let r = results
+                        .recv()
+                        .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+                    self.deliver(link, p, r)?;
+                    frames_done += 1;
+                }
+            } else {
+                let due = start + Duration::from_nanos(ds.imu[k].stamp - stamp0);
+                if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                    std::thread::sleep(wait);
+                }
+                while !pending.is_empty() {
+                    match results.try_recv() {
+                        Ok(r) => {
+                            let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                            self.deliver(link, p, r)?;
+                            frames_done += 1;
+                        }
+                        Err(_) => break,
+                    }
+                }
+            }
+            let row = &ds.imu[k];
+            let t_us = self.t_us(k);
+            let frame = triggers.get(&k).copied();
+            link.send(&HostToCore::Imu(protocol::ImuSample {
+                t_us,
+                gyro: [row.gyro.x as f32, row.gyro.y as f32, row.gyro.z as f32],
+                accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
+                trigger: frame.is_some(),
+            }))?;
+            if let Some(f) = frame {
+                if lock_step {
+                    self.barrier(link)?;
+                } else {
+                    // Real time: the prediction is usually back within a millisecond.
+                    let deadline = Instant::now() + Duration::from_millis(20);
+                    while !self.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
+                        if let Ok(item) = link.recv(Duration::from_millis(2)) {
+                            self.log.take(item);
+                        }
+                    }
+                }
+                if let Some(p) = self.log.predictions.get(&t_us).copied() {
+                    let every = self.options.overlay_every;
+                    let job = FrameJob {
+                        index: f,
+                        stamp: ds.frames[f].stamp,
+                        image: ds.frames[f].path.clone(),
+                        prediction: p,
+                        keep_image: every > 0 && f % every == 0,
+                    };
+                    jobs.send(Job::Frame(Box::new(job)))
+                        .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+                    pending.push_back(Pending {
+                        frame_id: p.frame_id,
+                        trigger_us: t_us,
+                        due: k + latency_samples.max(1),
+                    });
+                }
+            } else {
+                self.drain(link)?;
+            }
+            if k % 50 == 0 || k + 1 == end {
+                progress(k + 1, end, frames_done, self.log.mode());
+            }
+        }
+        self.finish(link, &mut pending, results, false)?;
+        progress(end, end, self.results.len(), self.log.mode());
+        Ok(true)
+    }
+
+    /// Delivers the frames still in flight and collects the last answers.
+    fn finish(
+        &mut self,
+        link: &mut CoreLink,
+        pending: &mut VecDeque<Pending>,
+        results: &Receiver<Result<FrameResult, TrackError>>,
+        interrupted: bool,
+    ) -> Result<(), TrackError> {
+        while let Some(p) = pending.pop_front() {
+            let r = results
+                .recv()
+                .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+            if interrupted {
+                // Record the analysis; the core has no samples left to apply it to.
+                if let Ok(r) = r {
+                    self.results.push((p.frame_id, r));
+                }
+            } else {
+                self.deliver(link, p, r)?;
+            }
+        }
+        self.barrier(link)
+    }
+
+    /// Sends a frame's correspondences (after injecting faults, if asked).
+    fn deliver(
+        &mut self,
+        link: &mut CoreLink,
+        p: Pending,
+        result: Result<FrameResult, TrackError>,
+    ) -> Result<(), TrackError> {
+        let result = match result {
+            Ok(r) => r,
+            // A frame whose image cannot be used is skipped (the core dead-reckons), and
+            // reported; anything else stops the run.
+            Err(e @ (TrackError::Image { .. } | TrackError::ImageSize { .. })) => {
+                self.frame_errors.push((self.results.len(), e.to_string()));
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        };
+        let t = p.trigger_us as f64 * 1e-6;
+        let f = &self.options.faults;
+        let corrupt = f
+            .corrupt_from
+            .is_some_and(|from| t >= from && t < from + f.corrupt_seconds);
+        let mut items: Vec<Correspondence> = result.correspondences.clone();
+        for c in &mut items {
+            if corrupt
+                || (f.outlier_fraction > 0.0 && self.rng.random::<f64>() < f.outlier_fraction)
+            {
+                self.injected_outliers += 1;
+                outlier(c, &mut self.rng);
+            }
+        }
+        if !items.is_empty() {
+            let parts = protocol::Correspondences::split(p.frame_id, p.trigger_us, &items)
+                .map_err(|e| TrackError::Core(format!("frame {}: {e:?}", p.frame_id)))?;
+            for part in parts {
+                link.send(&HostToCore::Correspondences(part))?;
+            }
+            self.sent_correspondences += items.len();
+        }
+        self.results.push((p.frame_id, result));
+        Ok(())
+    }
+
+    /// The filter model.
+    pub fn model(&self) -> ModelKind {
+        self.options.filter
+    }
+
+    /// Seconds since the session started.
+    pub fn elapsed(&self) -> f64 {
+        self.wall.elapsed().as_secs_f64()
+    }
+}
+
+/// Replaces a correspondence's model point by one 0.1-0.5 m away in a random direction.
+fn outlier(c: &mut Correspondence, rng: &mut StdRng) {
+    let dir = Vector3::new(
+        rng.random::<f64>() - 0.5,
+        rng.random::<f64>() - 0.5,
+        rng.random::<f64>() - 0.5,
+    )
+    .try_normalize(1e-9)
+    .unwrap_or_else(Vector3::x);
+    let shift = dir * (0.1 + 0.4 * rng.random::<f64>());
+    for (m, s) in c.m_w.iter_mut().zip(shift.iter()) {
+        *m += *s as f32;
+    }
+}
+
+/// Camera pose `(c_w, q_wc)` of a state report (DESIGN.md §3: `c_w = s_w + R(q_sw)ᵀ c_s`).
+pub fn camera_of_state(
+    s: &StateReport,
+    hand_eye: &crate::dataset::HandEye,
+) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        s.q_sw[0] as f64,
+        s.q_sw[1] as f64,
+        s.q_sw[2] as f64,
+        s.q_sw[3] as f64,
+    ));
+    let s_w = Vector3::new(s.s_w[0] as f64, s.s_w[1] as f64, s.s_w[2] as f64);
+    let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_sw.inverse());
+    (c_w, q_cw.inverse())
+}

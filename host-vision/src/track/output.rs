@@ -1,0 +1,560 @@
+//! What a tracking run writes: TUM trajectories (readable by `evo`), a per-frame CSV, a JSON
+//! summary, overlay images and plots; and the accuracy figures against ground truth.
+
+use std::fmt;
+use std::io::Write as _;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{UnitQuaternion, Vector3};
+use protocol::{Mode, StatusReason};
+use serde::Serialize;
+
+use firmware_sim::board::BoardReport;
+
+use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot};
+use crate::dataset::Dataset;
+
+/// One analysed frame.
+#[derive(Debug, Clone, Serialize)]
+pub struct FrameRow {
+    /// Index in the dataset.
+    pub index: usize,
+    /// Time since the first IMU sample [s].
+    pub t: f64,
+    /// Frame id the core gave the trigger.
+    pub frame_id: u32,
+    /// Fraction of the image covered by the model rendered at the prediction.
+    pub model_coverage: f64,
+    /// Map features predicted visible.
+    pub visible: usize,
+    /// Features added.
+    pub added: usize,
+    /// Features registered (tried).
+    pub tried: usize,
+    /// Registered.
+    pub registered: usize,
+    /// Correspondences sent.
+    pub sent: usize,
+    /// Accepted by the core.
+    pub accepted: usize,
+    /// Gated out (or otherwise rejected) by the core.
+    pub gated: usize,
+    /// Mean prediction error [px] (predicted → registered).
+    pub prediction_error_px: Option<f64>,
+    /// Camera position error of the prediction [m], with ground truth.
+    pub position_error_m: Option<f64>,
+    /// Rendering [ms].
+    pub render_ms: f64,
+    /// Pyramids [ms].
+    pub pyramids_ms: f64,
+    /// Registration [ms].
+    pub klt_ms: f64,
+    /// Whole frame [ms].
+    pub total_ms: f64,
+}
+
+/// Accuracy against ground truth.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Accuracy {
+    /// States compared.
+    pub samples: usize,
+    /// Mean camera position error [m].
+    pub mean_position_m: f64,
+    /// RMS camera position error [m].
+    pub rms_position_m: f64,
+    /// Largest camera position error [m].
+    pub max_position_m: f64,
+    /// Mean absolute Euler angle errors of the IMU orientation (roll, pitch, yaw) [°].
+    pub mean_euler_deg: [f64; 3],
+    /// Mean attitude error (angle of the error rotation) [°].
+    pub mean_attitude_deg: f64,
+}
+
+/// A divergence the core reported.
+#[derive(Debug, Clone, Serialize)]
+pub struct Event {
+    /// Time [s].
+    pub t: f64,
+    /// Mode entered.
+    pub mode: String,
+    /// Why.
+    pub reason: String,
+}
+
+/// Summary of a run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Summary {
+    /// Dataset folder.
+    pub dataset: String,
+    /// Filter model.
+    pub model: String,
+    /// Link.
+    pub link: String,
+    /// Renderer adapter.
+    pub adapter: String,
+    /// Seconds of data tracked.
+    pub duration_s: f64,
+    /// Frames analysed.
+    pub frames: usize,
+    /// Frames that could not be analysed.
+    pub frame_errors: Vec<String>,
+    /// Correspondences sent.
+    pub correspondences_sent: usize,
+    /// Accepted by the core.
+    pub accepted: usize,
+    /// Rejected by the core's gate (or behind the camera, singular).
+    pub gated: usize,
+    /// Outliers injected by the host.
+    pub injected_outliers: usize,
+    /// Mean prediction error [px] over frames with registrations (the paper's Table 2).
+    pub mean_prediction_error_px: Option<f64>,
+    /// Median of the per-frame prediction errors [px].
+    pub median_prediction_error_px: Option<f64>,
+    /// Accuracy of the IMU-rate output from the first accepted update on.
+    pub accuracy: Option<Accuracy>,
+    /// Time of the first accepted update [s].
+    pub snapped_on_at: Option<f64>,
+    /// Divergences and re-initialisations.
+    pub divergences: Vec<Event>,
+    /// Stretches after snap-on without vision (dead reckoning), `[start, end]` [s].
+    pub without_vision: Vec<[f64; 2]>,
+    /// Mean time per frame in the host's analysis [ms].
+    pub mean_frame_ms: f64,
+    /// Wall-clock time of the run [s].
+    pub wall_s: f64,
+    /// Core messages refused (errors) and frames from the core that failed to decode.
+    pub core_errors: usize,
+    /// Frames from the core that failed to decode.
+    pub core_rejected_frames: usize,
+    /// The run was interrupted or failed before the end of the data.
+    pub stopped_early: bool,
+    /// Why it failed, if it did.
+    pub error: Option<String>,
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let opt = |v: Option<f64>, unit: &str| match v {
+            Some(v) => format!("{v:.3} {unit}"),
+            None => "n/a".into(),
+        };
+        writeln!(f, "dataset      {}", self.dataset)?;
+        writeln!(f, "model        {}   link {}", self.model, self.link)?;
+        writeln!(f, "renderer     {}", self.adapter)?;
+        writeln!(
+            f,
+            "tracked      {:.1} s, {} frames ({} unusable), wall time {:.1} s, {:.1} ms per frame",
+            self.duration_s,
+            self.frames,
+            self.frame_errors.len(),
+            self.wall_s,
+            self.mean_frame_ms
+        )?;
+        writeln!(
+            f,
+            "vision       {} correspondences sent, {} accepted, {} gated out, {} outliers injected",
+            self.correspondences_sent, self.accepted, self.gated, self.injected_outliers
+        )?;
+        writeln!(
+            f,
+            "prediction   mean {}, median {}",
+            opt(self.mean_prediction_error_px, "px"),
+            opt(self.median_prediction_error_px, "px")
+        )?;
+        match &self.accuracy {
+            Some(a) => writeln!(
+                f,
+                "accuracy     position mean {:.2} mm (rms {:.2}, max {:.2}); Euler errors [{:.2}, {:.2}, {:.2}]° (from snap-on at {})",
+                a.mean_position_m * 1e3,
+                a.rms_position_m * 1e3,
+                a.max_position_m * 1e3,
+                a.mean_euler_deg[0],
+                a.mean_euler_deg[1],
+                a.mean_euler_deg[2],
+                opt(self.snapped_on_at, "s"),
+            )?,
+            None => writeln!(f, "accuracy     no ground truth or never snapped on")?,
+        }
+        writeln!(f, "divergences  {}", self.divergences.len())?;
+        for e in &self.divergences {
+            writeln!(f, "  {:8.2} s  {} ({})", e.t, e.mode, e.reason)?;
+        }
+        if !self.without_vision.is_empty() {
+            let total: f64 = self.without_vision.iter().map(|w| w[1] - w[0]).sum();
+            writeln!(
+                f,
+                "no vision    {} stretches, {:.2} s in all",
+                self.without_vision.len(),
+                total
+            )?;
+        }
+        if self.core_errors + self.core_rejected_frames > 0 {
+            writeln!(
+                f,
+                "core errors  {} refusals, {} undecodable frames",
+                self.core_errors, self.core_rejected_frames
+            )?;
+        }
+        if self.stopped_early {
+            writeln!(
+                f,
+                "STOPPED EARLY{}",
+                self.error
+                    .as_ref()
+                    .map(|e| format!(": {e}"))
+                    .unwrap_or_default()
+            )?;
+        }
+        Ok(())
+    }
+}
+
+fn create(path: &Path) -> Result<std::io::BufWriter<std::fs::File>, TrackError> {
+    std::fs::File::create(path)
+        .map(std::io::BufWriter::new)
+        .map_err(|source| TrackError::Output {
+            path: path.to_owned(),
+            source,
+        })
+}
+
+fn io(path: &Path) -> impl Fn(std::io::Error) -> TrackError + '_ {
+    move |source| TrackError::Output {
+        path: path.to_owned(),
+        source,
+    }
+}
+
+/// Writes `(stamp ns, position, q_wc)` rows as a TUM trajectory.
+pub fn write_tum(
+    path: &Path,
+    rows: impl Iterator<Item = (u64, Vector3<f64>, UnitQuaternion<f64>)>,
+) -> Result<usize, TrackError> {
+    let mut w = create(path)?;
+    let e = io(path);
+    writeln!(w, "# timestamp tx ty tz qx qy qz qw").map_err(&e)?;
+    let mut n = 0;
+    for (stamp, p, q) in rows {
+        let q = q.quaternion();
+        writeln!(
+            w,
+            "{}.{:09} {:.6} {:.6} {:.6} {:.7} {:.7} {:.7} {:.7}",
+            stamp / 1_000_000_000,
+            stamp % 1_000_000_000,
+            p.x,
+            p.y,
+            p.z,
+            q.i,
+            q.j,
+            q.k,
+            q.w
+        )
+        .map_err(&e)?;
+        n += 1;
+    }
+    w.flush().map_err(&e)?;
+    Ok(n)
+}
+
+/// Wraps an angle difference into (−180°, 180°].
+fn wrap_deg(a: f64) -> f64 {
+    let mut a = a % 360.0;
+    if a > 180.0 {
+        a -= 360.0;
+    } else if a <= -180.0 {
+        a += 360.0;
+    }
+    a
+}
+
+/// Errors of one estimated IMU-rate state against the ground truth: camera position [m],
+/// IMU Euler angles [°] and attitude angle [°].
+pub fn state_errors(
+    dataset: &Dataset,
+    stamp: u64,
+    s: &protocol::StateReport,
+) -> Option<(f64, [f64; 3], f64)> {
+    let (p_true, q_true) = dataset.groundtruth_at(stamp)?;
+    let (c_true, _) = dataset.hand_eye.camera_pose(&p_true, &q_true);
+    let (c_est, _) = camera_of_state(s, &dataset.hand_eye);
+    let q_ws_est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        s.q_sw[0] as f64,
+        s.q_sw[1] as f64,
+        s.q_sw[2] as f64,
+        s.q_sw[3] as f64,
+    ))
+    .inverse();
+    let (r0, p0, y0) = q_true.euler_angles();
+    let (r1, p1, y1) = q_ws_est.euler_angles();
+    let euler = [
+        wrap_deg((r1 - r0).to_degrees()).abs(),
+        wrap_deg((p1 - p0).to_degrees()).abs(),
+        wrap_deg((y1 - y0).to_degrees()).abs(),
+    ];
+    Some((
+        (c_est - c_true).norm(),
+        euler,
+        q_true.angle_to(&q_ws_est).to_degrees(),
+    ))
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// Builds the frame rows and the summary, and writes every output file.
+pub(super) fn write_all(
+    dataset: &Dataset,
+    options: &TrackOptions,
+    session: &Session,
+    adapter: &str,
+    board: Option<&BoardReport>,
+    stopped_early: bool,
+    error: Option<String>,
+) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
+    let out = &options.out;
+    let log = &session.log;
+    let stamp0 = dataset.imu[0].stamp;
+    let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
+    let mut written = Vec::new();
+
+    // Trajectories.
+    let he = dataset.hand_eye;
+    let path = out.join("trajectory.tum");
+    write_tum(
+        &path,
+        log.states.iter().map(|s| {
+            let (c, q) = camera_of_state(s, &he);
+            (stamp_of(s.t_us), c, q)
+        }),
+    )?;
+    written.push(path);
+    let path = out.join("trajectory_frames.tum");
+    write_tum(
+        &path,
+        log.predictions.values().filter_map(|p| {
+            let (c, q) = super::vision::camera_in_world(p)?;
+            Some((stamp_of(p.t_us), c, q))
+        }),
+    )?;
+    written.push(path);
+    if dataset.groundtruth.is_some() {
+        let path = out.join("groundtruth.tum");
+        write_tum(
+            &path,
+            dataset.imu.iter().filter_map(|r| {
+                let (p, q) = dataset.groundtruth_at(r.stamp)?;
+                let (c, q_cw) = he.camera_pose(&p, &q);
+                Some((r.stamp, c, q_cw.inverse()))
+            }),
+        )?;
+        written.push(path);
+    }
+
+    // Frames.
+    let mut rows = Vec::with_capacity(session.results.len());
+    for (frame_id, r) in &session.results {
+        let reports = log.updates.get(frame_id);
+        let accepted = reports.map_or(0, |v| v.iter().map(|u| u.accepted as usize).sum());
+        let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
+        let p = &r.job.prediction;
+        let position_error_m = dataset.groundtruth_at(r.job.stamp).and_then(|(pt, qt)| {
+            let (c_true, _) = he.camera_pose(&pt, &qt);
+            let (c, _) = super::vision::camera_in_world(p)?;
+            Some((c - c_true).norm())
+        });
+        rows.push(FrameRow {
+            index: r.job.index,
+            t: p.t_us as f64 * 1e-6,
+            frame_id: *frame_id,
+            model_coverage: r.model_coverage,
+            visible: r.visible,
+            added: r.added,
+            tried: r.features.len(),
+            registered: r.features.iter().filter(|f| f.registered.is_ok()).count(),
+            sent: r.correspondences.len(),
+            accepted,
+            gated,
+            prediction_error_px: r.prediction_error_px,
+            position_error_m,
+            render_ms: r.times.render * 1e3,
+            pyramids_ms: r.times.pyramids * 1e3,
+            klt_ms: r.times.klt * 1e3,
+            total_ms: r.times.total * 1e3,
+        });
+    }
+    let path = out.join("frames.csv");
+    {
+        let mut w = create(&path)?;
+        let e = io(&path);
+        writeln!(
+            w,
+            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms"
+        )
+        .map_err(&e)?;
+        let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
+        for r in &rows {
+            writeln!(
+                w,
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3}",
+                r.index,
+                r.t,
+                r.frame_id,
+                r.model_coverage,
+                r.visible,
+                r.added,
+                r.tried,
+                r.registered,
+                r.sent,
+                r.accepted,
+                r.gated,
+                o(r.prediction_error_px),
+                o(r.position_error_m),
+                r.render_ms,
+                r.pyramids_ms,
+                r.klt_ms,
+                r.total_ms
+            )
+            .map_err(&e)?;
+        }
+        w.flush().map_err(&e)?;
+    }
+    written.push(path);
+
+    // Events.
+    let snapped_on_at = log
+        .statuses
+        .iter()
+        .find(|s| s.reason == StatusReason::VisionAccepted)
+        .map(|s| s.t_us as f64 * 1e-6);
+    let divergences: Vec<Event> = log
+        .statuses
+        .iter()
+        .filter(|s| matches!(s.mode, Mode::Diverged))
+        .map(|s| Event {
+            t: s.t_us as f64 * 1e-6,
+            mode: format!("{:?}", s.mode),
+            reason: format!("{:?}", s.reason),
+        })
+        .collect();
+    let mut without_vision = Vec::new();
+    if snapped_on_at.is_some() {
+        let mut from: Option<f64> = None;
+        for s in &log.statuses {
+            let t = s.t_us as f64 * 1e-6;
+            match (s.mode, from) {
+                (Mode::Tracking, Some(f)) => {
+                    without_vision.push([f, t]);
+                    from = None;
+                }
+                (Mode::DeadReckoning | Mode::Diverged | Mode::Reinitialising, None)
+                    if snapped_on_at.is_some_and(|t0| t > t0) =>
+                {
+                    from = Some(t);
+                }
+                _ => {}
+            }
+        }
+        if let (Some(f), Some(last)) = (from, log.states.last()) {
+            without_vision.push([f, last.t_us as f64 * 1e-6]);
+        }
+    }
+
+    // Accuracy from snap-on.
+    let accuracy = snapped_on_at.and_then(|t0| {
+        let mut acc = Accuracy::default();
+        let mut sq = 0.0;
+        for s in log.states.iter().filter(|s| s.t_us as f64 * 1e-6 >= t0) {
+            let Some((pe, euler, att)) = state_errors(dataset, stamp_of(s.t_us), s) else {
+                continue;
+            };
+            acc.samples += 1;
+            acc.mean_position_m += pe;
+            sq += pe * pe;
+            acc.max_position_m = acc.max_position_m.max(pe);
+            for (m, e) in acc.mean_euler_deg.iter_mut().zip(euler) {
+                *m += e;
+            }
+            acc.mean_attitude_deg += att;
+        }
+        (acc.samples > 0).then(|| {
+            let n = acc.samples as f64;
+            acc.mean_position_m /= n;
+            acc.rms_position_m = (sq / n).sqrt();
+            acc.mean_euler_deg.iter_mut().for_each(|m| *m /= n);
+            acc.mean_attitude_deg /= n;
+            acc
+        })
+    });
+
+    let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
+    let duration_s = log.states.last().map_or(0.0, |s| s.t_us as f64 * 1e-6);
+    let summary = Summary {
+        dataset: dataset.root.display().to_string(),
+        model: format!("{:?}", options.filter).to_lowercase(),
+        link: format!("{:?}", options.link),
+        adapter: adapter.to_string(),
+        duration_s,
+        frames: rows.len(),
+        frame_errors: session
+            .frame_errors
+            .iter()
+            .map(|(_, e)| e.clone())
+            .collect(),
+        correspondences_sent: session.sent_correspondences,
+        accepted: rows.iter().map(|r| r.accepted).sum(),
+        gated: rows.iter().map(|r| r.gated).sum(),
+        injected_outliers: session.injected_outliers,
+        mean_prediction_error_px: (!errors_px.is_empty())
+            .then(|| errors_px.iter().sum::<f64>() / errors_px.len() as f64),
+        median_prediction_error_px: median(errors_px),
+        accuracy,
+        snapped_on_at,
+        divergences,
+        without_vision,
+        mean_frame_ms: if rows.is_empty() {
+            0.0
+        } else {
+            rows.iter().map(|r| r.total_ms).sum::<f64>() / rows.len() as f64
+        },
+        wall_s: session.elapsed(),
+        core_errors: log.errors.len(),
+        core_rejected_frames: log.rejected_frames,
+        stopped_early,
+        error,
+    };
+    let path = out.join("summary.json");
+    let mut json = serde_json::to_value(&summary).map_err(|e| TrackError::Output {
+        path: path.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    if let Some(b) = board {
+        json["board"] = serde_json::json!({
+            "bytes_in": b.bytes_in,
+            "bytes_out": b.bytes_out,
+            "imu_applied": b.counters.imu_applied,
+            "accepted": b.counters.accepted,
+            "gated": b.counters.gated,
+            "divergences": b.counters.divergences,
+            "decode_errors": b.counters.decode_errors,
+        });
+    }
+    let text = serde_json::to_string_pretty(&json).map_err(|e| TrackError::Output {
+        path: path.clone(),
+        source: std::io::Error::other(e),
+    })?;
+    std::fs::write(&path, text + "\n").map_err(io(&path))?;
+    written.push(path);
+
+    written.extend(overlay::write_overlays(
+        &out.join("overlays"),
+        dataset,
+        session,
+    )?);
+    written.extend(plot::write_track_plots(out, dataset, session, &rows)?);
+    Ok((rows, summary, written))
+}

@@ -1,0 +1,326 @@
+//! One camera frame through the host's image analysis (DESIGN.md §1 step 2): undistort the live
+//! image, render the model at the predicted pose, extract features on demand, select a spread
+//! subset, register each with the photometric KLT, and turn the registered ones into
+//! correspondences. The renderer and its GPU resources are created once.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use image::GrayImage;
+use nalgebra::{Matrix2, UnitQuaternion, Vector2, Vector3};
+use protocol::{Correspondence, PosePrediction};
+
+use crate::camera::{Camera, CameraPose, UndistortMap};
+use crate::features::correspondence::correspondence;
+use crate::features::{
+    FeatureMap, GrayF32, KltConfig, KltFailure, MapConfig, Mask, Outcome, Pyramid, TemplatePyramid,
+    register,
+};
+use crate::model::Model;
+use crate::render::{RenderView, Renderer};
+
+use super::TrackError;
+
+/// Image-analysis parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionOptions {
+    /// Feature map management.
+    pub map: MapConfig,
+    /// Registration.
+    pub klt: KltConfig,
+    /// Anti-aliasing blur of the rendering, px (σ).
+    pub blur_sigma: f32,
+    /// Near and far clip distances, m.
+    pub clip: (f64, f64),
+}
+
+impl Default for VisionOptions {
+    fn default() -> Self {
+        Self {
+            map: MapConfig::default(),
+            klt: KltConfig::default(),
+            blur_sigma: 1.0,
+            clip: (0.05, 50.0),
+        }
+    }
+}
+
+/// A frame to analyse.
+#[derive(Debug, Clone)]
+pub struct FrameJob {
+    /// Index of the frame in the dataset.
+    pub index: usize,
+    /// Time stamp of the image [ns].
+    pub stamp: u64,
+    /// Image file.
+    pub image: PathBuf,
+    /// The core's prediction for the frame's trigger.
+    pub prediction: PosePrediction,
+    /// Keep the undistorted live image in the result (for an overlay).
+    pub keep_image: bool,
+}
+
+/// What happened to one selected feature.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FeatureOutcome {
+    /// Map id.
+    pub id: u64,
+    /// Predicted pixel (undistorted image).
+    pub predicted: [f64; 2],
+    /// Registered pixel, or why registration failed.
+    pub registered: Result<[f64; 2], KltFailure>,
+    /// Whether a correspondence was sent for it.
+    pub sent: bool,
+}
+
+/// Time spent per stage [s].
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageTimes {
+    /// Reading and undistorting the live image.
+    pub load: f64,
+    /// Rendering and read-back.
+    pub render: f64,
+    /// Feature extraction (FAST) when the map needed more.
+    pub extract: f64,
+    /// Template and live pyramids.
+    pub pyramids: f64,
+    /// Registration of all selected features.
+    pub klt: f64,
+    /// The whole frame.
+    pub total: f64,
+}
+
+/// The analysis of one frame.
+#[derive(Debug, Clone)]
+pub struct FrameResult {
+    /// The job.
+    pub job: FrameJob,
+    /// Map features predicted visible.
+    pub visible: usize,
+    /// Features added from this rendering.
+    pub added: usize,
+    /// Features retired after this frame.
+    pub retired: usize,
+    /// Per selected feature.
+    pub features: Vec<FeatureOutcome>,
+    /// The correspondences to send.
+    pub correspondences: Vec<Correspondence>,
+    /// Mean distance predicted → registered, px (the paper's prediction error).
+    pub prediction_error_px: Option<f64>,
+    /// Fraction of the image covered by the rendered model.
+    pub model_coverage: f64,
+    /// Stage timings.
+    pub times: StageTimes,
+    /// The undistorted live image, if the job asked for it.
+    pub image: Option<GrayImage>,
+}
+
+/// The host's image analysis, with its renderer and feature map.
+pub struct Vision {
+    camera: Camera,
+    ideal: Camera,
+    undistort: UndistortMap,
+    renderer: Renderer,
+    map: FeatureMap,
+    options: VisionOptions,
+}
+
+impl std::fmt::Debug for Vision {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Vision")
+            .field("camera", &self.camera)
+            .field("map_features", &self.map.len())
+            .finish()
+    }
+}
+
+/// The camera pose of a prediction.
+pub fn prediction_pose(p: &PosePrediction) -> Result<CameraPose, TrackError> {
+    let q = p.q_cw.map(f64::from);
+    CameraPose::from_wxyz(
+        q,
+        Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64),
+    )
+    .map_err(|e| TrackError::Core(format!("frame {}: bad predicted pose: {e}", p.frame_id)))
+}
+
+impl Vision {
+    /// Creates the renderer for `camera` and uploads `model`.
+    pub fn new(camera: Camera, model: &Model, options: VisionOptions) -> Result<Self, TrackError> {
+        let ideal = camera.ideal();
+        let undistort = UndistortMap::new(&camera)?;
+        let mut renderer = Renderer::new(camera.width, camera.height)?;
+        renderer.set_model(model)?;
+        Ok(Self {
+            camera,
+            ideal,
+            undistort,
+            renderer,
+            map: FeatureMap::new(options.map),
+            options,
+        })
+    }
+
+    /// The renderer's adapter, for reports.
+    pub fn adapter_summary(&self) -> String {
+        self.renderer.adapter_summary()
+    }
+
+    /// The feature map.
+    pub fn map(&self) -> &FeatureMap {
+        &self.map
+    }
+
+    /// The ideal (undistorted) camera the analysis works in.
+    pub fn ideal_camera(&self) -> &Camera {
+        &self.ideal
+    }
+
+    /// Analyses one frame.
+    pub fn process(&mut self, job: FrameJob) -> Result<FrameResult, TrackError> {
+        let t0 = Instant::now();
+        let mut times = StageTimes::default();
+        let raw = image::open(&job.image)
+            .map_err(|source| TrackError::Image {
+                path: job.image.clone(),
+                source,
+            })?
+            .into_luma8();
+        if raw.dimensions() != (self.camera.width, self.camera.height) {
+            return Err(TrackError::ImageSize {
+                path: job.image.clone(),
+                got: raw.dimensions(),
+                expected: (self.camera.width, self.camera.height),
+            });
+        }
+        let live = self.undistort.remap_gray(&raw)?;
+        times.load = t0.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let pose = prediction_pose(&job.prediction)?;
+        let view = RenderView {
+            pinhole: self.ideal.pinhole,
+            pose,
+            near: self.options.clip.0,
+            far: self.options.clip.1,
+        };
+        let rendering = self.renderer.render(&view)?;
+        times.render = t.elapsed().as_secs_f64();
+        let (w, h) = (self.camera.width, self.camera.height);
+        let frame_index = job.index as u64;
+        let model_coverage =
+            rendering.mask.pixels().filter(|p| p.0[0] > 0).count() as f64 / (w as f64 * h as f64);
+
+        let t = Instant::now();
+        let mut visible = self
+            .map
+            .predict_visible(&view, w, h, Some(&rendering.depth));
+        let mut added = 0;
+        if self.map.needs_features(&visible) && model_coverage > 0.0 {
+            let occupied: Vec<[f64; 2]> = visible.iter().map(|p| [p.pixel.x, p.pixel.y]).collect();
+            added = self
+                .map
+                .add_from_rendering(&rendering, &occupied, frame_index)?
+                .len();
+            if added > 0 {
+                visible = self
+                    .map
+                    .predict_visible(&view, w, h, Some(&rendering.depth));
+            }
+        }
+        times.extract = t.elapsed().as_secs_f64();
+        let selected = self.map.select(&visible, w, h);
+
+        let mut features = Vec::with_capacity(selected.len());
+        let mut correspondences = Vec::with_capacity(selected.len());
+        let mut error_sum = 0.0;
+        let mut error_count = 0usize;
+        if !selected.is_empty() {
+            let t = Instant::now();
+            let klt = &self.options.klt;
+            let template = TemplatePyramid::build(
+                &GrayF32::from_gray8(&rendering.gray)?,
+                Mask::from_gray8(&rendering.mask)?,
+                klt.levels,
+                self.options.blur_sigma,
+            )?;
+            let target = Pyramid::build(GrayF32::from_gray8(&live)?, klt.levels);
+            times.pyramids = t.elapsed().as_secs_f64();
+
+            let t = Instant::now();
+            for p in &selected {
+                let position = [p.pixel.x, p.pixel.y];
+                let result = register(
+                    &template.image,
+                    Some(&template.mask),
+                    &target,
+                    position,
+                    [0.0, 0.0],
+                    klt,
+                );
+                let Some(feature) = self.map.get(p.id).copied() else {
+                    continue;
+                };
+                let outcome = match result {
+                    Ok(r) => {
+                        let px = Vector2::new(r.position[0], r.position[1]);
+                        error_sum += (px - p.pixel).norm();
+                        error_count += 1;
+                        let cov: Matrix2<f64> = r.covariance;
+                        let sent = match correspondence(
+                            &self.ideal,
+                            px,
+                            &cov,
+                            &feature.p_w,
+                            &feature.cov_w,
+                        ) {
+                            Ok(c) => {
+                                correspondences.push(c);
+                                true
+                            }
+                            Err(_) => false,
+                        };
+                        self.map.record(p.id, Outcome::Success, frame_index);
+                        FeatureOutcome {
+                            id: p.id,
+                            predicted: position,
+                            registered: Ok(r.position),
+                            sent,
+                        }
+                    }
+                    Err(why) => {
+                        self.map.record(p.id, Outcome::Failure(why), frame_index);
+                        FeatureOutcome {
+                            id: p.id,
+                            predicted: position,
+                            registered: Err(why),
+                            sent: false,
+                        }
+                    }
+                };
+                features.push(outcome);
+            }
+            times.klt = t.elapsed().as_secs_f64();
+        }
+        let retired = self.map.retire().len();
+        times.total = t0.elapsed().as_secs_f64();
+        Ok(FrameResult {
+            visible: visible.len(),
+            added,
+            retired,
+            features,
+            correspondences,
+            prediction_error_px: (error_count > 0).then(|| error_sum / error_count as f64),
+            model_coverage,
+            times,
+            image: job.keep_image.then_some(live),
+            job,
+        })
+    }
+}
+
+/// Camera pose of a prediction as position and `q_wc` (camera → world), for trajectories.
+pub fn camera_in_world(p: &PosePrediction) -> Option<(Vector3<f64>, UnitQuaternion<f64>)> {
+    let pose = prediction_pose(p).ok()?;
+    Some((pose.c_w, pose.q_cw.inverse()))
+}
