@@ -67,6 +67,9 @@ struct TrackArgs {
     /// Peak free acceleration expected [m/s²] (scales the motion noise).
     #[arg(long, default_value_t = 10.0)]
     expected_accel: f64,
+    /// Angular-acceleration noise density [rad/s²/√Hz].
+    #[arg(long, default_value_t = 10.0)]
+    angular_noise: f64,
     /// Write an overlay image every N frames (0: none).
     #[arg(long, default_value_t = 25)]
     overlay_every: usize,
@@ -142,6 +145,7 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
         yaw: a.start_yaw.map(f64::to_radians),
     };
     o.tuning.expected_accel = a.expected_accel;
+    o.tuning.angular_noise = a.angular_noise;
     o.overlay_every = a.overlay_every;
     o.faults = Faults {
         outlier_fraction: a.outliers,

@@ -11,6 +11,9 @@ use crate::dataset::Dataset;
 pub struct CoreTuning {
     /// Peak free acceleration expected [m/s²]: scales the motion noise.
     pub expected_accel: f64,
+    /// Angular-acceleration noise density [rad/s²/√Hz]: how fast ω may change between gyro
+    /// samples (hand-held shakes reach 150 rad/s²).
+    pub angular_noise: f64,
     /// Floor of the accelerometer measurement noise [m/s²] (vibration, misalignment).
     pub accel_noise_floor: f64,
     /// Outlier gate on `s_i` (eq. 17).
@@ -25,6 +28,7 @@ impl Default for CoreTuning {
     fn default() -> Self {
         Self {
             expected_accel: 10.0,
+            angular_noise: 10.0,
             accel_noise_floor: 0.3,
             gate: 30.0,
             init_position_sigma: 0.02,
@@ -64,7 +68,7 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
         model,
         noise: NoiseParams {
             motion: motion as f32,
-            angular: 3.0,
+            angular: tuning.angular_noise as f32,
             gyro_bias_walk: (gyro_walk * 5.0) as f32,
             accel_bias_walk: (accel_walk * 5.0) as f32,
             gyro_meas: (gyro_density * rate.sqrt() * 1.5).max(2e-3) as f32,

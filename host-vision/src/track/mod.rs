@@ -579,12 +579,21 @@ impl Session<'_> {
                 }
                 if let Some(p) = self.log.predictions.get(&t_us).copied() {
                     let every = self.options.overlay_every;
+                    let omega_c = self.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
+                        let w = Vector3::new(
+                            s.omega_s[0] as f64,
+                            s.omega_s[1] as f64,
+                            s.omega_s[2] as f64,
+                        );
+                        ds.hand_eye.q_cs * w
+                    });
                     let job = FrameJob {
                         index: f,
                         stamp: ds.frames[f].stamp,
                         image: ds.frames[f].path.clone(),
                         prediction: p,
                         keep_image: every > 0 && f % every == 0,
+                        omega_c,
                     };
                     jobs.send(Job::Frame(Box::new(job)))
                         .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;

@@ -32,6 +32,11 @@ pub struct VisionOptions {
     pub blur_sigma: f32,
     /// Near and far clip distances, m.
     pub clip: (f64, f64),
+    /// Exposure time of the live camera [s]: with the angular velocity it predicts each
+    /// feature's motion blur, whose extent is added to the registered position's covariance.
+    pub exposure: f64,
+    /// Standard deviation of the registration error per pixel of blur extent.
+    pub blur_sigma_per_px: f64,
 }
 
 impl Default for VisionOptions {
@@ -41,6 +46,8 @@ impl Default for VisionOptions {
             klt: KltConfig::default(),
             blur_sigma: 1.0,
             clip: (0.05, 50.0),
+            exposure: 0.008,
+            blur_sigma_per_px: 0.5,
         }
     }
 }
@@ -58,6 +65,9 @@ pub struct FrameJob {
     pub prediction: PosePrediction,
     /// Keep the undistorted live image in the result (for an overlay).
     pub keep_image: bool,
+    /// Angular velocity of the camera at the trigger, in the camera frame [rad/s] (from the
+    /// core's state report), for the motion-blur term of the covariance.
+    pub omega_c: Option<Vector3<f64>>,
 }
 
 /// What happened to one selected feature.
@@ -176,6 +186,29 @@ impl Vision {
         &self.ideal
     }
 
+    /// Covariance [px²] of the registration error caused by motion blur at `pixel`: the image
+    /// motion of a rotating camera (the rotational part of the image Jacobian) over the
+    /// exposure, `b`, gives `σ² b bᵀ / |b|²·(k|b|)²`, i.e. a spread of `k|b|` along the blur.
+    fn blur_covariance(
+        &self,
+        omega_c: Option<&Vector3<f64>>,
+        pixel: &Vector2<f64>,
+    ) -> Matrix2<f64> {
+        let Some(w) = omega_c else {
+            return Matrix2::zeros();
+        };
+        let pin = &self.ideal.pinhole;
+        let n = pin.to_normalised(*pixel);
+        let (x, y) = (n.x, n.y);
+        // ṅ = ω × n for a point fixed in the world seen from a rotating camera (sign is
+        // irrelevant here: only b bᵀ is used).
+        let nx = x * y * w.x - (1.0 + x * x) * w.y + y * w.z;
+        let ny = (1.0 + y * y) * w.x - x * y * w.y - x * w.z;
+        let b = Vector2::new(pin.fx * nx, pin.fy * ny) * self.options.exposure;
+        let k = self.options.blur_sigma_per_px;
+        b * b.transpose() * (k * k)
+    }
+
     /// Analyses one frame.
     pub fn process(&mut self, job: FrameJob) -> Result<FrameResult, TrackError> {
         let t0 = Instant::now();
@@ -266,7 +299,8 @@ impl Vision {
                         let px = Vector2::new(r.position[0], r.position[1]);
                         error_sum += (px - p.pixel).norm();
                         error_count += 1;
-                        let cov: Matrix2<f64> = r.covariance;
+                        let cov: Matrix2<f64> =
+                            r.covariance + self.blur_covariance(job.omega_c.as_ref(), &p.pixel);
                         let sent = match correspondence(
                             &self.ideal,
                             px,
