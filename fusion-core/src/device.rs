@@ -31,6 +31,13 @@ pub const CLOCK_JUMP_CONFIRM: u8 = 3;
 /// Camera triggers without accepted correspondences after which the mode is dead reckoning.
 pub const NO_VISION_FRAMES: u16 = 3;
 
+/// A divergence within this time [µs] of the last accepted vision update, with a finite
+/// state, is answered by a soft re-initialisation: the estimate is kept (it was anchored by
+/// vision a moment ago and dead-reckoned since) and the covariance reset to the initial one,
+/// so vision snaps on again at once even while the device moves. Later, or when the state is
+/// not finite, the full re-initialisation (still window, last good position) follows.
+pub const SOFT_RESET_WINDOW_US: u64 = 500_000;
+
 /// Inputs refused or dropped, by reason.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
@@ -122,6 +129,8 @@ pub struct Device<T: Scalar> {
     frames_without_vision: u16,
     /// Position and orientation at the last frame with accepted correspondences.
     last_good: Option<(Vector3<T>, Quat<T>)>,
+    /// Trigger time of that frame [µs].
+    last_good_us: Option<u64>,
     /// Position given by the last `Init` (fallback for re-initialisation).
     init_position: Vector3<T>,
     since_state: u16,
@@ -154,6 +163,7 @@ impl<T: Scalar> Device<T> {
             clock_candidate: None,
             frames_without_vision: 0,
             last_good: None,
+            last_good_us: None,
             init_position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
             since_state: 0,
             counters: Counters::ZERO,
@@ -254,6 +264,7 @@ impl<T: Scalar> Device<T> {
         self.config = Some(*c);
         self.prm = Some(Params::from_config(c));
         self.last_good = None;
+        self.last_good_us = None;
         self.restart_phase(Phase::AwaitingInit);
         self.set_mode(Mode::AwaitingInit, StatusReason::Configured, out);
     }
@@ -271,6 +282,7 @@ impl<T: Scalar> Device<T> {
         );
         self.init_position = p;
         self.last_good = None;
+        self.last_good_us = None;
         self.restart_phase(Phase::Initialising {
             position: p,
             attitude: i.attitude,
@@ -549,6 +561,7 @@ impl<T: Scalar> Device<T> {
         if report.accepted > 0 {
             self.frames_without_vision = 0;
             self.last_good = Some(good);
+            self.last_good_us = Some(c.trigger_us);
             if self.mode != Mode::Tracking {
                 self.set_mode(Mode::Tracking, StatusReason::VisionAccepted, out);
             }
@@ -558,6 +571,26 @@ impl<T: Scalar> Device<T> {
     fn diverged(&mut self, reason: StatusReason, prm: &Params<T>, out: Out) {
         self.counters.divergences += 1;
         self.set_mode(Mode::Diverged, reason, out);
+        let recent = match (self.last_good_us, self.last_t_us) {
+            (Some(good), Some(now)) => now.saturating_sub(good) <= SOFT_RESET_WINDOW_US,
+            _ => false,
+        };
+        let sane = !matches!(
+            reason,
+            StatusReason::NonFiniteState | StatusReason::QuaternionNorm
+        ) && self.filter.st.is_finite();
+        if recent && sane && matches!(self.phase, Phase::Running) {
+            // Soft re-initialisation: keep the estimate, restart its uncertainty. Pending
+            // snapshots hold the old covariance: drop them (their frames are refused as too
+            // old).
+            let tilt = T::from_wire(prm.init_sigma.tilt);
+            crate::init::reset_covariance(&mut self.filter.st, prm, tilt);
+            self.delay.clear();
+            self.monitor = Monitor::default();
+            self.set_mode(Mode::Reinitialising, reason, out);
+            self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
+            return;
+        }
         self.reinitialise(reason, prm, out);
     }
 

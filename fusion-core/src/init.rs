@@ -100,7 +100,6 @@ pub fn initialise<T: Scalar>(
         ),
     };
     st.x.fill(T::zero());
-    st.p.fill(T::zero());
     st.set_v3(POS, position);
     st.set_q(&q);
     let mean_gyro = window.mean_gyro();
@@ -109,6 +108,17 @@ pub fn initialise<T: Scalar>(
     } else {
         st.set_v3(OMEGA, &mean_gyro);
     }
+    reset_covariance(st, prm, yaw_sigma);
+}
+
+/// Sets the covariance to the initial one (the configured standard deviations) around the
+/// current estimate, with `yaw_sigma` about the vertical. Used at (re)initialisation, and on
+/// its own for a soft re-initialisation that keeps a recently vision-anchored estimate.
+pub fn reset_covariance<T: Scalar>(st: &mut State<T>, prm: &Params<T>, yaw_sigma: T) {
+    let sig = &prm.init_sigma;
+    let f = T::from_wire;
+    let q = st.q();
+    st.p.fill(T::zero());
     let n = prm.n;
     let mut var = |at: usize, count: usize, sigma: f32| {
         for k in at..at + count {

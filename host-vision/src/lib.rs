@@ -11,6 +11,7 @@
 pub mod backproject;
 pub mod camera;
 pub mod dataset;
+pub mod eval;
 pub mod features;
 pub mod link;
 pub mod model;

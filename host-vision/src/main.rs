@@ -25,6 +25,40 @@ enum Command {
     Synth(Box<SynthArgs>),
     /// Tracks a EuRoC-layout dataset with the fusion core at the other end of a link.
     Track(Box<TrackArgs>),
+    /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
+    Eval(Box<EvalArgs>),
+}
+
+/// Options of `eval`.
+#[derive(clap::Args, Debug)]
+struct EvalArgs {
+    /// Output folder (eval.md, eval.json, plots, and each run's outputs).
+    #[arg(long, default_value = "eval-out")]
+    out: PathBuf,
+    /// Where synthetic datasets are cached.
+    #[arg(long, default_value = "datasets")]
+    cache: PathBuf,
+    /// Scenarios (repeatable; default: all four).
+    #[arg(long = "scenario", value_enum)]
+    scenarios: Vec<ScenarioName>,
+    /// Models (repeatable; default: gyro, gravity, acc).
+    #[arg(long = "filter", value_enum)]
+    filters: Vec<FilterArg>,
+    /// Shorter scenarios [s] (default: their nominal lengths).
+    #[arg(long)]
+    duration: Option<f64>,
+    /// Seed of the synthetic sensors.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
+    #[arg(long, default_value = "sim")]
+    link: host_vision::track::LinkSpec,
+    /// Skip the two-feature run on desktop-slow (the paper's Fig. 6).
+    #[arg(long)]
+    no_two_features: bool,
+    /// Overlay images every N frames (0: none).
+    #[arg(long, default_value_t = 0)]
+    overlay_every: usize,
 }
 
 /// Options of `track`.
@@ -64,9 +98,13 @@ struct TrackArgs {
     /// Start yaw of the IMU [deg] (default: from the ground truth).
     #[arg(long)]
     start_yaw: Option<f64>,
-    /// Peak free acceleration expected [m/s²] (scales the motion noise).
-    #[arg(long, default_value_t = 10.0)]
-    expected_accel: f64,
+    /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
+    /// synthetic dataset's manifest, else 10).
+    #[arg(long)]
+    expected_accel: Option<f64>,
+    /// Accelerometer measurement noise [m/s²] (default: per model).
+    #[arg(long)]
+    accel_noise: Option<f64>,
     /// Angular-acceleration noise density [rad/s²/√Hz].
     #[arg(long, default_value_t = 10.0)]
     angular_noise: f64,
@@ -122,7 +160,7 @@ fn progress_bar(template: &str) -> anyhow::Result<indicatif::ProgressBar> {
 }
 
 fn track(a: &TrackArgs) -> anyhow::Result<()> {
-    use host_vision::track::{self, Faults, Start, TrackOptions};
+    use host_vision::track::{self, Faults, Start};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
     if !(0.0..=1.0).contains(&a.outliers) {
@@ -131,21 +169,23 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
             a.outliers
         );
     }
-    let mut o = TrackOptions::new(a.dataset.clone(), a.out.clone());
+    let mut o = host_vision::eval::options_for(&a.dataset, a.out.clone());
     o.model = a.model.clone();
     o.link = a.link.clone();
     o.filter = a.filter.into();
     o.pacing = a.pacing;
     o.latency = a.latency;
     o.vision.map.subset_size = a.features;
-    o.vision.map.min_visible = a.features;
     o.duration = a.duration;
     o.start = Start {
         position: a.start_position,
         yaw: a.start_yaw.map(f64::to_radians),
     };
-    o.tuning.expected_accel = a.expected_accel;
+    if let Some(accel) = a.expected_accel {
+        o.tuning.expected_accel = accel;
+    }
     o.tuning.angular_noise = a.angular_noise;
+    o.tuning.accel_noise = a.accel_noise;
     o.overlay_every = a.overlay_every;
     o.faults = Faults {
         outlier_fraction: a.outliers,
@@ -315,6 +355,47 @@ fn synth(a: &SynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn eval(a: &EvalArgs) -> anyhow::Result<()> {
+    use host_vision::eval::{EvalOptions, run};
+    let options = EvalOptions {
+        scenarios: if a.scenarios.is_empty() {
+            ScenarioName::ALL.to_vec()
+        } else {
+            a.scenarios.clone()
+        },
+        models: if a.filters.is_empty() {
+            protocol::ModelKind::ALL.to_vec()
+        } else {
+            a.filters.iter().map(|&f| f.into()).collect()
+        },
+        duration: a.duration,
+        cache: a.cache.clone(),
+        out: a.out.clone(),
+        seed: a.seed,
+        link: a.link.clone(),
+        two_features: !a.no_two_features,
+        overlay_every: a.overlay_every,
+    };
+    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
+    let report = run(&options, &mut |what, done, total| {
+        if bar.message() != what {
+            bar.set_message(what.to_string());
+            bar.reset();
+        }
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    println!("{}", report.markdown());
+    println!(
+        "written: {} and {}, plots and each run's outputs in {}",
+        a.out.join("eval.md").display(),
+        a.out.join("eval.json").display(),
+        a.out.display()
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Selftest { imu_samples } => {
@@ -324,6 +405,7 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Synth(args) => synth(&args)?,
         Command::Track(args) => track(&args)?,
+        Command::Eval(args) => eval(&args)?,
     }
     Ok(())
 }

@@ -16,6 +16,8 @@ pub struct CoreTuning {
     pub angular_noise: f64,
     /// Floor of the accelerometer measurement noise [m/s²] (vibration, misalignment).
     pub accel_noise_floor: f64,
+    /// Accelerometer measurement noise [m/s²] instead of the model's default.
+    pub accel_noise: Option<f64>,
     /// Outlier gate on `s_i` (eq. 17).
     pub gate: f64,
     /// Initial position standard deviation [m].
@@ -30,6 +32,7 @@ impl Default for CoreTuning {
             expected_accel: 10.0,
             angular_noise: 10.0,
             accel_noise_floor: 0.3,
+            accel_noise: None,
             gate: 30.0,
             init_position_sigma: 0.02,
             still_seconds: 0.3,
@@ -73,6 +76,7 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
             accel_bias_walk: (accel_walk * 5.0) as f32,
             gyro_meas: (gyro_density * rate.sqrt() * 1.5).max(2e-3) as f32,
             accel_meas: match model {
+                _ if tuning.accel_noise.is_some() => tuning.accel_noise.unwrap_or_default(),
                 // The gravity model's accelerometer noise absorbs the free acceleration.
                 ModelKind::Gravity => (accel * 0.7).max(0.3),
                 _ => accel_sample.max(tuning.accel_noise_floor),

@@ -1,0 +1,425 @@
+//! The paper's experiments (`host-vision eval`): each synthetic scenario tracked with each
+//! filter model, giving Table 2 (mean prediction error in px per model and sequence), the
+//! absolute accuracy against ground truth, where a model lost track, and the two-feature
+//! experiment of Fig. 6 (desktop-slow with two features per frame: the gyro model's attitude
+//! drifts, the accelerometer keeps the other two stable).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use firmware_sim::sim::scenario::ScenarioName;
+use protocol::ModelKind;
+use serde::Serialize;
+
+use crate::synth::{SynthError, SynthOptions};
+use crate::track::plot::{Series, line_plot};
+use crate::track::{self, CoreTuning, LinkSpec, Summary, TrackError, TrackOptions};
+
+/// Why the evaluation failed.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    /// Making a dataset.
+    #[error("synthesising {scenario}: {source}")]
+    Synth {
+        /// Scenario.
+        scenario: ScenarioName,
+        /// Cause.
+        #[source]
+        source: SynthError,
+    },
+    /// Tracking.
+    #[error("tracking {scenario} with the {model} model: {source}")]
+    Track {
+        /// Scenario.
+        scenario: String,
+        /// Model.
+        model: String,
+        /// Cause.
+        #[source]
+        source: TrackError,
+    },
+    /// Writing the report.
+    #[error("{path}: {source}")]
+    Output {
+        /// File.
+        path: PathBuf,
+        /// Cause.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+/// Hints a synthetic dataset's `manifest.json` gives the tracker, as the paper derived its
+/// noise settings from the ground truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DatasetHints {
+    /// Peak free acceleration [m/s²].
+    pub peak_accel: Option<f64>,
+    /// Exposure time [s].
+    pub exposure: Option<f64>,
+}
+
+/// Reads the hints of `dataset/manifest.json` (all `None` when absent or unreadable).
+pub fn dataset_hints(dataset: &Path) -> DatasetHints {
+    let v: Option<serde_json::Value> = std::fs::read_to_string(dataset.join("manifest.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    let get = |path: &[&str]| {
+        let mut x = v.as_ref()?;
+        for k in path {
+            x = x.get(k)?;
+        }
+        x.as_f64().filter(|f| f.is_finite() && *f > 0.0)
+    };
+    DatasetHints {
+        peak_accel: get(&["peaks", "free_acceleration_m_s2"]),
+        exposure: get(&["camera", "exposure_s"]),
+    }
+}
+
+/// Tracking options for a dataset, with its hints applied.
+pub fn options_for(dataset: &Path, out: PathBuf) -> TrackOptions {
+    let mut o = TrackOptions::new(dataset.to_owned(), out);
+    let hints = dataset_hints(dataset);
+    o.tuning = CoreTuning {
+        expected_accel: hints.peak_accel.unwrap_or(10.0),
+        ..CoreTuning::default()
+    };
+    if let Some(e) = hints.exposure {
+        o.vision.exposure = e;
+    }
+    o
+}
+
+/// Synthesises `scenario` into `cache` unless a dataset of the same parameters is there.
+pub fn ensure_dataset(
+    cache: &Path,
+    scenario: ScenarioName,
+    duration: Option<f64>,
+    seed: u64,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<PathBuf, EvalError> {
+    let name = match duration {
+        Some(d) => format!("{scenario}-{d}s-seed{seed}"),
+        None => format!("{scenario}-seed{seed}"),
+    };
+    let dir = cache.join(name);
+    // A dataset is complete once its manifest is written (it is written last).
+    let manifest = dir.join("manifest.json");
+    let generator = format!("host-vision synth {}", env!("CARGO_PKG_VERSION"));
+    let complete = std::fs::read_to_string(&manifest)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .is_some_and(|v| v["generator"] == generator.as_str());
+    if !complete {
+        let options = SynthOptions {
+            seed,
+            duration,
+            overwrite: true,
+            ..SynthOptions::new(scenario, dir.clone())
+        };
+        crate::synth::run(&options, progress)
+            .map_err(|source| EvalError::Synth { scenario, source })?;
+    }
+    Ok(dir)
+}
+
+/// One run of the evaluation.
+#[derive(Debug, Clone, Serialize)]
+pub struct EvalRow {
+    /// Scenario.
+    pub scenario: String,
+    /// Features per frame.
+    pub features: usize,
+    /// Model.
+    pub model: String,
+    /// The run's summary.
+    pub summary: Summary,
+    /// Share of frames after snap-on with at least one accepted correspondence.
+    pub vision_share: f64,
+    /// Prediction error per frame `(t, px)`.
+    #[serde(skip)]
+    pub prediction_errors: Vec<(f64, f64)>,
+}
+
+impl EvalRow {
+    /// Times the core declared a divergence (where the model lost track).
+    pub fn lost_at(&self) -> Vec<f64> {
+        self.summary.divergences.iter().map(|e| e.t).collect()
+    }
+}
+
+/// The evaluation's results.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct EvalReport {
+    /// Every run.
+    pub rows: Vec<EvalRow>,
+}
+
+/// What to evaluate.
+#[derive(Debug, Clone)]
+pub struct EvalOptions {
+    /// Scenarios.
+    pub scenarios: Vec<ScenarioName>,
+    /// Models.
+    pub models: Vec<ModelKind>,
+    /// Shorter scenarios (seconds), or the nominal lengths.
+    pub duration: Option<f64>,
+    /// Where datasets are cached.
+    pub cache: PathBuf,
+    /// Where results go.
+    pub out: PathBuf,
+    /// Seed of the synthetic sensors.
+    pub seed: u64,
+    /// The core.
+    pub link: LinkSpec,
+    /// Also run desktop-slow with two features per frame (Fig. 6).
+    pub two_features: bool,
+    /// Overlay images every N frames (0: none).
+    pub overlay_every: usize,
+}
+
+/// Progress: `(what, done, total)`.
+pub type EvalProgress<'a> = &'a mut dyn FnMut(&str, u64, u64);
+
+fn model_name(m: ModelKind) -> String {
+    format!("{m:?}").to_lowercase()
+}
+
+/// One tracking run of the evaluation.
+pub fn run_one(
+    dataset: &Path,
+    scenario: &str,
+    model: ModelKind,
+    features: usize,
+    options: &EvalOptions,
+    progress: EvalProgress,
+) -> Result<EvalRow, EvalError> {
+    let tag = if features == 40 {
+        model_name(model)
+    } else {
+        format!("{}-{features}features", model_name(model))
+    };
+    let mut o = options_for(dataset, options.out.join(scenario).join(&tag));
+    o.filter = model;
+    o.link = options.link.clone();
+    o.overlay_every = options.overlay_every;
+    o.vision.map.subset_size = features;
+    let what = format!("{scenario} {tag}");
+    let run = track::run(
+        &o,
+        Arc::new(AtomicBool::new(false)),
+        &mut |done, total, _, _| progress(&what, done as u64, total as u64),
+    )
+    .map_err(|source| EvalError::Track {
+        scenario: scenario.into(),
+        model: tag.clone(),
+        source,
+    })?;
+    let after: Vec<_> = run
+        .frames
+        .iter()
+        .filter(|f| run.summary.snapped_on_at.is_some_and(|t0| f.t >= t0))
+        .collect();
+    let vision_share = if after.is_empty() {
+        0.0
+    } else {
+        after.iter().filter(|f| f.accepted > 0).count() as f64 / after.len() as f64
+    };
+    Ok(EvalRow {
+        scenario: scenario.into(),
+        features,
+        model: model_name(model),
+        prediction_errors: run
+            .frames
+            .iter()
+            .filter_map(|f| Some((f.t, f.prediction_error_px?)))
+            .collect(),
+        summary: run.summary,
+        vision_share,
+    })
+}
+
+/// Runs the evaluation and writes `eval.md`, `eval.json` and the comparison plots.
+pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, EvalError> {
+    let mut report = EvalReport::default();
+    for &scenario in &options.scenarios {
+        let what = format!("synth {scenario}");
+        let dataset = ensure_dataset(
+            &options.cache,
+            scenario,
+            options.duration,
+            options.seed,
+            &mut |d, t| progress(&what, d, t),
+        )?;
+        for &model in &options.models {
+            report.rows.push(run_one(
+                &dataset,
+                scenario.as_str(),
+                model,
+                40,
+                options,
+                progress,
+            )?);
+        }
+        if options.two_features && scenario == ScenarioName::DesktopSlow {
+            for &model in &options.models {
+                report.rows.push(run_one(
+                    &dataset,
+                    scenario.as_str(),
+                    model,
+                    2,
+                    options,
+                    progress,
+                )?);
+            }
+        }
+        write_plots(&options.out, scenario.as_str(), &report)?;
+    }
+    report.write(&options.out)?;
+    Ok(report)
+}
+
+fn write_plots(out: &Path, scenario: &str, report: &EvalReport) -> Result<(), EvalError> {
+    let series: Vec<Series> = report
+        .rows
+        .iter()
+        .filter(|r| r.scenario == scenario && r.features == 40)
+        .map(|r| Series {
+            name: format!("{} model", r.model),
+            points: r.prediction_errors.clone(),
+        })
+        .collect();
+    if series.is_empty() {
+        return Ok(());
+    }
+    let path = out.join(format!("{scenario}_prediction_error.svg"));
+    std::fs::create_dir_all(out).map_err(|source| EvalError::Output {
+        path: out.to_owned(),
+        source,
+    })?;
+    line_plot(
+        &path,
+        &format!("{scenario}: prediction error per frame"),
+        "mean prediction error [px]",
+        &series,
+        Some(20.0),
+    )
+    .map_err(|e| EvalError::Track {
+        scenario: scenario.into(),
+        model: "plot".into(),
+        source: e,
+    })
+}
+
+impl EvalReport {
+    /// The rows of a scenario and feature count, in model order.
+    fn cell(&self, scenario: &str, features: usize, model: &str) -> Option<&EvalRow> {
+        self.rows
+            .iter()
+            .find(|r| r.scenario == scenario && r.features == features && r.model == model)
+    }
+
+    /// The report as Markdown: Table 2, accuracy, the two-feature experiment, lost tracks.
+    pub fn markdown(&self) -> String {
+        let mut s = String::new();
+        let mut scenarios: Vec<&str> = Vec::new();
+        let mut models: Vec<&str> = Vec::new();
+        for r in &self.rows {
+            if !scenarios.contains(&r.scenario.as_str()) {
+                scenarios.push(&r.scenario);
+            }
+            if !models.contains(&r.model.as_str()) {
+                models.push(&r.model);
+            }
+        }
+        let _ = writeln!(
+            s,
+            "## Table 2: mean prediction error [px] (share of frames with vision after snap-on)\n"
+        );
+        let _ = writeln!(s, "| sequence | {} |", models.join(" | "));
+        let _ = writeln!(s, "|---|{}", "---:|".repeat(models.len()));
+        for sc in &scenarios {
+            let cells: Vec<String> = models
+                .iter()
+                .map(|m| match self.cell(sc, 40, m) {
+                    Some(r) => format!(
+                        "{} ({:.0} %)",
+                        r.summary
+                            .mean_prediction_error_px
+                            .map_or("n/a".into(), |v| format!("{v:.2}")),
+                        100.0 * r.vision_share
+                    ),
+                    None => "-".into(),
+                })
+                .collect();
+            let _ = writeln!(s, "| {sc} | {} |", cells.join(" | "));
+        }
+        let _ = writeln!(
+            s,
+            "\n## Accuracy against ground truth (IMU-rate output from snap-on)\n"
+        );
+        let _ = writeln!(
+            s,
+            "| sequence | features | model | position mean [mm] | position max [mm] | Euler errors roll, pitch, yaw [°] | divergences (lost track at [s]) |"
+        );
+        let _ = writeln!(s, "|---|---:|---|---:|---:|---|---|");
+        for r in &self.rows {
+            let (mean, max, euler) = match &r.summary.accuracy {
+                Some(a) => (
+                    format!("{:.2}", a.mean_position_m * 1e3),
+                    format!("{:.1}", a.max_position_m * 1e3),
+                    format!(
+                        "{:.2}, {:.2}, {:.2}",
+                        a.mean_euler_deg[0], a.mean_euler_deg[1], a.mean_euler_deg[2]
+                    ),
+                ),
+                None => ("n/a".into(), "n/a".into(), "n/a".into()),
+            };
+            let lost = r.lost_at();
+            let lost = if lost.is_empty() {
+                "0".to_string()
+            } else {
+                let shown: Vec<String> = lost.iter().take(5).map(|t| format!("{t:.1}")).collect();
+                format!(
+                    "{} ({}{})",
+                    lost.len(),
+                    shown.join(", "),
+                    if lost.len() > 5 { ", …" } else { "" }
+                )
+            };
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {mean} | {max} | {euler} | {lost} |",
+                r.scenario, r.features, r.model
+            );
+        }
+        s
+    }
+
+    /// Writes `eval.md` and `eval.json` into `out`.
+    pub fn write(&self, out: &Path) -> Result<(), EvalError> {
+        std::fs::create_dir_all(out).map_err(|source| EvalError::Output {
+            path: out.to_owned(),
+            source,
+        })?;
+        let md = out.join("eval.md");
+        std::fs::write(&md, format!("# Evaluation\n\n{}", self.markdown())).map_err(|source| {
+            EvalError::Output {
+                path: md.clone(),
+                source,
+            }
+        })?;
+        let json = out.join("eval.json");
+        let text = serde_json::to_string_pretty(self).map_err(|e| EvalError::Output {
+            path: json.clone(),
+            source: std::io::Error::other(e),
+        })?;
+        std::fs::write(&json, text + "\n").map_err(|source| EvalError::Output {
+            path: json.clone(),
+            source,
+        })
+    }
+}
