@@ -27,7 +27,7 @@ pub enum EvalError {
         scenario: ScenarioName,
         /// Cause.
         #[source]
-        source: SynthError,
+        source: Box<SynthError>,
     },
     /// Tracking.
     #[error("tracking {scenario} with the {model} model: {source}")]
@@ -38,7 +38,7 @@ pub enum EvalError {
         model: String,
         /// Cause.
         #[source]
-        source: TrackError,
+        source: Box<TrackError>,
     },
     /// Writing the report.
     #[error("{path}: {source}")]
@@ -120,8 +120,10 @@ pub fn ensure_dataset(
             overwrite: true,
             ..SynthOptions::new(scenario, dir.clone())
         };
-        crate::synth::run(&options, progress)
-            .map_err(|source| EvalError::Synth { scenario, source })?;
+        crate::synth::run(&options, progress).map_err(|source| EvalError::Synth {
+            scenario,
+            source: Box::new(source),
+        })?;
     }
     Ok(dir)
 }
@@ -216,7 +218,7 @@ pub fn run_one(
     .map_err(|source| EvalError::Track {
         scenario: scenario.into(),
         model: tag.clone(),
-        source,
+        source: Box::new(source),
     })?;
     let after: Vec<_> = run
         .frames
@@ -310,7 +312,7 @@ fn write_plots(out: &Path, scenario: &str, report: &EvalReport) -> Result<(), Ev
     .map_err(|e| EvalError::Track {
         scenario: scenario.into(),
         model: "plot".into(),
-        source: e,
+        source: Box::new(e),
     })
 }
 
