@@ -1,7 +1,8 @@
-//! Covariance arithmetic shared by all models: sparse measurement rows, the Joseph-form update,
-//! and the guards that keep the covariance symmetric with bounded variances.
+//! Covariance arithmetic shared by all models: sparse measurement rows, the measurement update
+//! (an `LDLᵀ`-decorrelated sequence of scalar updates in symmetric form), and the guards that
+//! keep the covariance symmetric with bounded variances.
 
-use nalgebra::{SMatrix, SVector};
+use nalgebra::SVector;
 
 use crate::scalar::Scalar;
 use crate::state::{Cov, N, State};
@@ -54,32 +55,6 @@ impl<T: Scalar> SparseRow<T> {
             .map(|(&i, &v)| (i as usize, v))
     }
 
-    /// `P hᵀ` over the active block, read from the upper triangle only (the lower one may be
-    /// stale between a step's updates; see [`condition`]).
-    pub fn p_ht(&self, p: &Cov<T>, n: usize) -> SVector<T, N> {
-        let mut u = [T::zero(); N];
-        let ps = p.as_slice();
-        for (j, h) in self.iter() {
-            // Column j holds P[0..=j, j] contiguously; P[i, j] for i > j is P[j, i], found in
-            // column i at row j: a stride of N from (j, j + 1).
-            for (ui, &v) in u[..=j].iter_mut().zip(&ps[j * N..=j * N + j]) {
-                *ui += v * h;
-            }
-            if j + 1 < n {
-                let strided = ps[(j + 1) * N + j..].iter().step_by(N);
-                for (ui, &v) in u[j + 1..n].iter_mut().zip(strided) {
-                    *ui += v * h;
-                }
-            }
-        }
-        SVector::from(u)
-    }
-
-    /// `h v`.
-    pub fn dot(&self, v: &SVector<T, N>) -> T {
-        self.iter().fold(T::zero(), |acc, (j, h)| acc + h * v[j])
-    }
-
     /// Dense form (tests and finite-difference checks).
     pub fn dense(&self) -> SVector<T, N> {
         let mut d = SVector::zeros();
@@ -97,120 +72,150 @@ pub enum UpdateError {
     Singular,
 }
 
-/// `U = P Hᵀ` and `S = H P Hᵀ + R` of an `M`-dimensional measurement.
-pub fn innovation<T: Scalar, const M: usize>(
-    st: &State<T>,
-    n: usize,
+/// Rows of `U = P Hᵀ` of an `M`-dimensional measurement (`u[i][m] = (P h_mᵀ)_i`): the update
+/// pass reads all `M` entries of a row at once.
+pub type Gains<T, const M: usize> = [[T; M]; N];
+
+/// `S = H U + R`, with `U = P Hᵀ` from [`Gains`] and `H` from sparse rows.
+#[allow(clippy::needless_range_loop)] // triangle index loops
+pub fn innovation_cov<T: Scalar, const M: usize>(
     h: &[SparseRow<T>; M],
-    r: &SMatrix<T, M, M>,
-) -> (SMatrix<T, N, M>, SMatrix<T, M, M>) {
-    let mut u = SMatrix::<T, N, M>::zeros();
-    for (m, row) in h.iter().enumerate() {
-        u.set_column(m, &row.p_ht(&st.p, n));
-    }
+    u: &Gains<T, M>,
+    r: &[[T; M]; M],
+) -> [[T; M]; M] {
     let mut s = *r;
-    for a in 0..M {
-        for b in 0..M {
-            s[(a, b)] += h[a].dot(&u.column(b).into_owned());
+    for (sm, row) in s.iter_mut().zip(h) {
+        for (j, hj) in row.iter() {
+            for (a, &b) in sm.iter_mut().zip(&u[j]) {
+                *a += hj * b;
+            }
         }
     }
     // H P Hᵀ is symmetric in exact arithmetic; make it so in floating point.
-    let s = (s + s.transpose()) * T::c(0.5);
-    (u, s)
+    for a in 0..M {
+        for b in a + 1..M {
+            let v = (s[a][b] + s[b][a]) * T::c(0.5);
+            s[a][b] = v;
+            s[b][a] = v;
+        }
+    }
+    s
 }
 
-/// Joseph-form update with innovation `z`, `U = P Hᵀ`, `S = H P Hᵀ + R`:
-/// `x ← x + K z`, `P ← (I − K H) P (I − K H)ᵀ + K R Kᵀ` with `K = U S⁻¹`.
-///
-/// Expanded, `P ← P − K Uᵀ − U Kᵀ + K S Kᵀ = P + K Wᵀ − U Kᵀ` with `W = K S − U`: valid for
-/// any gain, so rounding in `K` enters only to second order (the point of the Joseph form).
-/// Only the upper triangle of the active block is written (column by column, contiguous), in
-/// `O(n² M)`: callers finish a batch of updates with [`condition`], which mirrors it.
-pub fn joseph_update<T: Scalar, const M: usize>(
-    st: &mut State<T>,
-    n: usize,
-    u: &SMatrix<T, N, M>,
-    s: &SMatrix<T, M, M>,
-    z: &SVector<T, M>,
-) -> Result<(), UpdateError> {
-    let s_inv = spd_inverse(s).ok_or(UpdateError::Singular)?;
-    let us = u.as_slice();
-    // K = U S⁻¹ and W = K S − U, column by column, on plain arrays (no bounds checks in the
-    // loops that run n² times below).
-    let mut k = [[T::zero(); N]; M];
-    let mut w = [[T::zero(); N]; M];
-    for m in 0..M {
-        for l in 0..M {
-            let f = s_inv[(l, m)];
-            for (ki, &ui) in k[m][..n].iter_mut().zip(&us[l * N..l * N + n]) {
-                *ki += ui * f;
+/// `S = L D Lᵀ` (unit lower `L`) of an innovation covariance, with the innovation `y`
+/// decorrelated: `ỹ = L⁻¹ y`. Its rows are independent scalar measurements with variances `D`.
+#[derive(Clone, Copy, Debug)]
+pub struct Ldl<T: Scalar, const M: usize> {
+    l: [[T; M]; M],
+    d_inv: [T; M],
+    /// `ỹ_m / D_m`.
+    e: [T; M],
+    /// Leading rows with `D_m > 0` (finite): the ones that can be applied.
+    pub rank: usize,
+    /// Normalised residual `yᵀ S⁻¹ y = Σ ỹ_m² / D_m` over those rows.
+    pub nis: T,
+}
+
+impl<T: Scalar, const M: usize> Ldl<T, M> {
+    /// Factors `S` and decorrelates `y`; stops at the first non-positive or non-finite pivot.
+    #[allow(clippy::needless_range_loop)] // triangle index loops
+    pub fn new(s: &[[T; M]; M], y: &[T; M]) -> Self {
+        let mut f = Ldl {
+            l: [[T::zero(); M]; M],
+            d_inv: [T::zero(); M],
+            e: [T::zero(); M],
+            rank: M,
+            nis: T::zero(),
+        };
+        let mut d = [T::zero(); M];
+        let mut yt = [T::zero(); M];
+        for m in 0..M {
+            for k in 0..m {
+                let mut a = s[m][k];
+                for t in 0..k {
+                    a -= f.l[m][t] * f.l[k][t] * d[t];
+                }
+                f.l[m][k] = a * f.d_inv[k];
             }
-        }
-    }
-    for m in 0..M {
-        for l in 0..M {
-            let f = s[(l, m)];
-            let kl = k[l];
-            for (wi, &ki) in w[m][..n].iter_mut().zip(&kl[..n]) {
-                *wi += ki * f;
+            let mut dm = s[m][m];
+            let mut ym = y[m];
+            for t in 0..m {
+                dm -= f.l[m][t] * f.l[m][t] * d[t];
+                ym -= f.l[m][t] * yt[t];
             }
+            // Written so that a NaN is refused too.
+            if !(dm > T::zero() && dm.is_finite()) {
+                f.rank = m;
+                f.l[m] = [T::zero(); M];
+                break;
+            }
+            d[m] = dm;
+            f.d_inv[m] = T::one() / dm;
+            yt[m] = ym;
+            f.e[m] = ym * f.d_inv[m];
+            f.nis += ym * f.e[m];
         }
-        for (wi, &ui) in w[m][..n].iter_mut().zip(&us[m * N..m * N + n]) {
-            *wi -= ui;
-        }
+        f
     }
-    for m in 0..M {
-        let zm = z[m];
-        for (x, &ki) in st.x.as_mut_slice()[..n].iter_mut().zip(&k[m][..n]) {
-            *x += ki * zm;
-        }
-    }
-    // One pass over the upper triangle for all M columns: each P_ij is loaded and stored once.
-    let p = st.p.as_mut_slice();
-    for (j, col) in p.chunks_exact_mut(N).take(n).enumerate() {
-        let wj: [T; M] = core::array::from_fn(|m| w[m][j]);
-        let kj: [T; M] = core::array::from_fn(|m| k[m][j]);
-        for (i, pij) in col[..=j].iter_mut().enumerate() {
-            let mut acc = *pij;
+
+    /// The update by the first [`Self::rank`] decorrelated rows, with `u` the rows of `P Hᵀ`
+    /// (overwritten): `W = U L⁻ᵀ`, `x ← x + W D⁻¹ ỹ`, `P ← P − W D⁻¹ Wᵀ`. This is the Kalman
+    /// update `K = U S⁻¹`, `P ← P − K S Kᵀ` in symmetric form, i.e. the sequence of scalar updates
+    /// `P ← P − w wᵀ / d` (each symmetric, each removing variance only along its row).
+    ///
+    /// One pass over the upper triangle of the active block: row `j` of `W` is made just
+    /// before column `j` of `P` needs it, every `P_ij` is loaded and stored once, and the pass
+    /// also mirrors it into the lower triangle and applies the variance floor (the work of
+    /// [`condition`]).
+    pub fn apply(&self, st: &mut State<T>, n: usize, u: &mut Gains<T, M>) {
+        let n = n.min(N);
+        let r = self.rank;
+        let floor = T::c(T::VARIANCE_FLOOR);
+        let p = st.p.as_mut_slice();
+        let x = st.x.as_mut_slice();
+        for j in 0..n {
+            let mut w = u[j];
+            w[r..].fill(T::zero());
+            // Rows of L past the rank are zero.
+            for m in 1..M {
+                for t in 0..m {
+                    w[m] -= self.l[m][t] * w[t];
+                }
+            }
+            u[j] = w;
+            let mut dx = T::zero();
+            let mut c = [T::zero(); M];
             for m in 0..M {
-                acc += k[m][i] * wj[m] - us[m * N + i] * kj[m];
+                dx += w[m] * self.e[m];
+                c[m] = w[m] * self.d_inv[m];
             }
-            *pij = acc;
+            x[j] += dx;
+            let (left, rest) = p.split_at_mut(j * N);
+            let col = &mut rest[..=j];
+            for (pij, wi) in col.iter_mut().zip(u.iter()) {
+                let mut acc = *pij;
+                for m in 0..M {
+                    acc -= wi[m] * c[m];
+                }
+                *pij = acc;
+            }
+            if let Some(d) = col.last_mut()
+                && *d < floor
+            {
+                *d = floor;
+            }
+            // P[j, i] (column i, row j) ← P[i, j] for i < j.
+            for (other, &v) in left.chunks_exact_mut(N).zip(&*col) {
+                other[j] = v;
+            }
         }
     }
-    Ok(())
-}
-
-/// Inverse of a symmetric positive definite innovation covariance; `None` otherwise (closed
-/// form for the 1×1 and 2×2 cases the filter uses, Cholesky beyond).
-fn spd_inverse<T: Scalar, const M: usize>(s: &SMatrix<T, M, M>) -> Option<SMatrix<T, M, M>> {
-    let inv = match M {
-        1 => {
-            let a = s[(0, 0)];
-            (a > T::zero()).then(|| SMatrix::from_element(T::one() / a))?
-        }
-        2 => {
-            let (a, b, d) = (s[(0, 0)], s[(0, 1)], s[(1, 1)]);
-            let det = a * d - b * b;
-            // A NaN passes here but not the finiteness check below.
-            if a <= T::zero() || det <= T::zero() {
-                return None;
-            }
-            let mut inv = SMatrix::zeros();
-            inv[(0, 0)] = d / det;
-            inv[(0, 1)] = -b / det;
-            inv[(1, 0)] = -b / det;
-            inv[(1, 1)] = a / det;
-            inv
-        }
-        _ => s.cholesky()?.inverse(),
-    };
-    inv.iter().all(|v| v.is_finite()).then_some(inv)
 }
 
 /// Ends a batch of updates: mirrors the upper triangle of the active block into the lower one
 /// (so the covariance is exactly symmetric) and keeps variances at or above the scalar's
-/// floor.
+/// floor. [`Ldl::apply`] already does both as it goes; this is for covariances written by
+/// other means, and a cheap guarantee at the end of a batch.
 pub fn condition<T: Scalar>(p: &mut Cov<T>, n: usize) {
     let floor = T::c(T::VARIANCE_FLOOR);
     let ps = p.as_mut_slice();
@@ -229,6 +234,7 @@ pub fn condition<T: Scalar>(p: &mut Cov<T>, n: usize) {
 mod tests {
     use super::*;
     use approx::assert_relative_eq;
+    use nalgebra::SMatrix;
 
     fn random_spd(seed: u64) -> Cov<f64> {
         let mut s = seed;
@@ -243,7 +249,7 @@ mod tests {
     }
 
     #[test]
-    fn joseph_update_equals_the_textbook_update() {
+    fn update_equals_the_textbook_joseph_update() {
         let mut st = State::<f64> {
             p: random_spd(7),
             ..Default::default()
@@ -262,25 +268,40 @@ mod tests {
         let k_ref = p0 * hd.transpose() * s_ref.try_inverse().unwrap();
         let ikh = Cov::<f64>::identity() - k_ref * hd;
         let p_ref = ikh * p0 * ikh.transpose() + k_ref * r * k_ref.transpose();
-        let (u, s) = innovation(&st, N, &h, &r);
-        assert_relative_eq!(s, s_ref, epsilon = 1e-10);
-        joseph_update(&mut st, N, &u, &s, &z).unwrap();
-        condition(&mut st.p, N);
+        let u_ref = p0 * hd.transpose();
+        let mut u: Gains<f64, 2> = core::array::from_fn(|i| [u_ref[(i, 0)], u_ref[(i, 1)]]);
+        let s = innovation_cov(&h, &u, &[[r[(0, 0)], r[(0, 1)]], [r[(1, 0)], r[(1, 1)]]]);
+        assert_relative_eq!(
+            SMatrix::<f64, 2, 2>::from_fn(|a, b| s[a][b]),
+            s_ref,
+            epsilon = 1e-10
+        );
+        let f = Ldl::new(&s, &[z[0], z[1]]);
+        assert_eq!(f.rank, 2);
+        assert_relative_eq!(
+            f.nis,
+            (z.transpose() * s_ref.try_inverse().unwrap() * z)[0],
+            epsilon = 1e-12
+        );
+        f.apply(&mut st, N, &mut u);
         assert_relative_eq!(st.p, p_ref, epsilon = 1e-10);
+        assert_eq!(st.p, st.p.transpose());
         assert_relative_eq!(st.x - x0, k_ref * z, epsilon = 1e-10);
     }
 
     #[test]
-    fn singular_innovation_is_an_error() {
-        let mut st = State::<f64>::default();
-        let mut h = [SparseRow::default()];
-        h[0].push(0, 1.0);
-        let (u, s) = innovation(&st, N, &h, &SMatrix::<f64, 1, 1>::zeros());
+    fn singular_innovation_applies_only_the_rows_before_it() {
+        let mut st = State::<f64> {
+            p: random_spd(9),
+            ..Default::default()
+        };
         let before = st.clone();
-        assert_eq!(
-            joseph_update(&mut st, N, &u, &s, &SVector::<f64, 1>::new(1.0)),
-            Err(UpdateError::Singular)
-        );
+        let mut u: Gains<f64, 1> = [[0.0]; N];
+        let f = Ldl::new(&[[0.0]], &[1.0]);
+        assert_eq!(f.rank, 0);
+        f.apply(&mut st, N, &mut u);
         assert_eq!(st, before);
+        let f = Ldl::new(&[[f64::NAN]], &[1.0]);
+        assert_eq!(f.rank, 0);
     }
 }

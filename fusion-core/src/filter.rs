@@ -1,14 +1,14 @@
 //! One IMU step of the filter: normalise, time update, gyro and accelerometer updates.
 
-use nalgebra::{SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, Matrix3x4, Vector3};
 use protocol::{ModelKind, StatusReason};
 
 use crate::divergence::Monitor;
-use crate::ekf::{SparseRow, UpdateError, innovation, joseph_update};
+use crate::ekf::{Gains, Ldl, SparseRow, UpdateError, innovation_cov};
 use crate::models::{accel, gyro, motion};
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::State;
+use crate::state::{ACC, ACC_BIAS, GYRO_BIAS, N, OMEGA, QUAT, State};
 
 /// Longest single time-update step [µs]; longer intervals are split (the linearisation of the
 /// quaternion increment and the Q discretisation stay accurate).
@@ -79,6 +79,15 @@ impl<T: Scalar> Filter<T> {
     /// Applies one IMU sample (its time stamp must be after the filter's). Returns the reason
     /// if the state diverged.
     pub fn imu_step(&mut self, prm: &Params<T>, s: &ImuSample<T>) -> Result<(), StatusReason> {
+        T::imu_step(self, prm, s)
+    }
+
+    /// [`Self::imu_step`], instantiated through [`crate::scalar::Kernels`].
+    pub(crate) fn imu_step_generic(
+        &mut self,
+        prm: &Params<T>,
+        s: &ImuSample<T>,
+    ) -> Result<(), StatusReason> {
         let mut remaining = s.t_us.saturating_sub(self.t_us);
         let mut worst = T::zero();
         while remaining > 0 {
@@ -88,17 +97,17 @@ impl<T: Scalar> Filter<T> {
             if err > worst {
                 worst = err;
             }
-            motion::time_update(&mut self.st, prm, T::c(step as f64 * 1e-6));
+            // `step` ≤ MAX_STEP_US is exact in an f32: no double arithmetic on the MCU.
+            motion::time_update(
+                &mut self.st,
+                prm,
+                T::c(1e-6) * T::from_wire(step as u32 as f32),
+            );
         }
         self.t_us = s.t_us;
         self.quat_norm_error = worst;
         // A singular innovation here means a broken covariance: the monitor reports it below.
-        let updated = if prm.model == ModelKind::Gyro {
-            imu_update::<T, 3>(&mut self.st, prm, s)
-        } else {
-            imu_update::<T, 6>(&mut self.st, prm, s)
-        };
-        crate::ekf::condition(&mut self.st.p, prm.n);
+        let updated = imu_update(&mut self.st, prm, s);
         match Monitor::step(&self.st, worst, prm) {
             Some(reason) => Err(reason),
             None if updated.is_err() => Err(StatusReason::NonFiniteState),
@@ -108,38 +117,122 @@ impl<T: Scalar> Filter<T> {
 }
 
 /// The gyro (eq. 9) and, except in the gyro model, accelerometer (eq. 13 / 16) readings of one
-/// sample, one axis at a time (the noises are uncorrelated across axes), all linearised once
-/// at the prior: axis k's innovation is `y_k − h_k(x₀) − H_k (x − x₀)`, so the sequence equals
-/// one joint update while each step is a cheap scalar one (`M` = 3 or 6 axes).
-fn imu_update<T: Scalar, const M: usize>(
+/// sample as one measurement with uncorrelated noise (3 or 6 axes), linearised at the prior;
+/// applied as the equivalent sequence of scalar updates ([`Ldl::apply`]). The gyro model's
+/// accelerometer rows are left zero: the factorisation stops before them.
+fn imu_update<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     s: &ImuSample<T>,
 ) -> Result<(), UpdateError> {
+    const M: usize = 6;
+    let with_accel = prm.model != ModelKind::Gyro;
     let mut rows = [SparseRow::default(); M];
-    let mut y0 = [T::zero(); M];
-    let mut var = [prm.r_gyro; M];
+    let mut y = [T::zero(); M];
+    let mut r = [[T::zero(); M]; M];
     let g = gyro::predict(st);
     for k in 0..3 {
         rows[k] = gyro::row(k);
-        y0[k] = s.gyro[k] - g[k];
+        y[k] = s.gyro[k] - g[k];
+        r[k][k] = prm.r_gyro;
     }
-    if M == 6 {
+    let (d_q, d_acc) = if with_accel {
         let a = accel::predict(st);
-        for (k, row) in accel::rows(st, prm.model).into_iter().enumerate() {
+        let (d_q, d_acc) = accel::jacobian(st, prm.model);
+        for (k, row) in accel::rows_of(&d_q, &d_acc, prm.model)
+            .into_iter()
+            .enumerate()
+        {
             rows[3 + k] = row;
-            y0[3 + k] = s.accel[k] - a[k];
-            var[3 + k] = prm.r_accel;
+            y[3 + k] = s.accel[k] - a[k];
+            r[3 + k][3 + k] = prm.r_accel;
+        }
+        (d_q, d_acc)
+    } else {
+        (Matrix3x4::zeros(), Matrix3::zeros())
+    };
+    // U = P Hᵀ from whole columns of the symmetric P, on the rows' structure: eq. 9 is
+    // ∂/∂ω = ∂/∂b_ω = I, eq. 13 / 16 the blocks of `accel::jacobian` and ∂/∂b_a = I.
+    let mut u: Gains<T, M> = [[T::zero(); M]; N];
+    for (ui, col) in u
+        .iter_mut()
+        .zip(st.p.as_slice().chunks_exact(N))
+        .take(prm.n)
+    {
+        let Ok(col) = <&[T; N]>::try_from(col) else {
+            continue;
+        };
+        for k in 0..3 {
+            ui[k] = col[OMEGA + k] + col[GYRO_BIAS + k];
+        }
+        if with_accel {
+            for k in 0..3 {
+                let mut a = col[ACC_BIAS + k];
+                for c in 0..4 {
+                    a += d_q[(k, c)] * col[QUAT + c];
+                }
+                for c in 0..3 {
+                    a += d_acc[(k, c)] * col[ACC + c];
+                }
+                ui[3 + k] = a;
+            }
         }
     }
-    let x0 = st.x;
-    for ((row, &dy), &r) in rows.iter().zip(&y0).zip(&var) {
-        let moved = row
-            .iter()
-            .fold(T::zero(), |acc, (j, h)| acc + h * (st.x[j] - x0[j]));
-        let z = SVector::<T, 1>::new(dy - moved);
-        let (u, sm) = innovation(st, prm.n, &[*row], &SMatrix::<T, 1, 1>::new(r));
-        joseph_update(st, prm.n, &u, &sm, &z)?;
+    let f = Ldl::new(&innovation_cov(&rows, &u, &r), &y);
+    f.apply(st, prm.n, &mut u);
+    if f.rank < if with_accel { M } else { 3 } {
+        Err(UpdateError::Singular)
+    } else {
+        Ok(())
     }
-    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::state::Cov;
+    use crate::testutil::{params, random_state};
+    use approx::assert_relative_eq;
+    use nalgebra::{SMatrix, SVector};
+
+    #[test]
+    fn imu_update_equals_the_dense_joseph_update() {
+        for model in ModelKind::ALL {
+            let prm = params::<f64>(model);
+            let mut st = random_state(prm.n, 31);
+            let s = ImuSample {
+                t_us: 0,
+                gyro: Vector3::new(0.1, -0.2, 0.05),
+                accel: Vector3::new(0.3, -0.1, 9.7),
+            };
+            // Dense reference: the gyro rows, then the accelerometer's (zero rows with unit
+            // noise, which change nothing, in the gyro model).
+            let mut h = SMatrix::<f64, 6, N>::zeros();
+            let mut y = SVector::<f64, 6>::zeros();
+            let mut r = SMatrix::<f64, 6, 6>::identity();
+            let g = gyro::predict(&st);
+            for k in 0..3 {
+                h.set_row(k, &gyro::row::<f64>(k).dense().transpose());
+                y[k] = s.gyro[k] - g[k];
+                r[(k, k)] = prm.r_gyro;
+            }
+            if model != ModelKind::Gyro {
+                let a = accel::predict(&st);
+                for (k, row) in accel::rows(&st, model).iter().enumerate() {
+                    h.set_row(3 + k, &row.dense().transpose());
+                    y[3 + k] = s.accel[k] - a[k];
+                    r[(3 + k, 3 + k)] = prm.r_accel;
+                }
+            }
+            let p = st.p;
+            let k = p * h.transpose() * (h * p * h.transpose() + r).try_inverse().unwrap();
+            let ikh = Cov::<f64>::identity() - k * h;
+            let p_ref = ikh * p * ikh.transpose() + k * r * k.transpose();
+            let x_ref = st.x + k * y;
+            imu_update(&mut st, &prm, &s).unwrap();
+            assert_relative_eq!(st.x, x_ref, epsilon = 1e-10);
+            assert_relative_eq!(st.p, p_ref, epsilon = 1e-10);
+            assert_eq!(st.p, st.p.transpose());
+        }
+    }
 }

@@ -11,7 +11,7 @@
 //! | gyro measurement (9) | [`models::gyro`] |
 //! | correspondence measurement (10), gate (17) | [`models::correspondence`] |
 //! | accelerometer measurement (13, 16) | [`models::accel`] |
-//! | Joseph-form update | [`ekf`] |
+//! | measurement update (LDLᵀ-decorrelated scalar updates, symmetric form) | [`ekf`] |
 //! | outlier gate (17) | [`models::correspondence::update`] |
 //! | divergence monitor (§4.6) | [`divergence`] |
 //! | (re)initialisation | [`init`] |

@@ -86,20 +86,26 @@ pub fn exp_increment<T: Scalar>(omega: &Vector3<T>, dt: T) -> (Quat<T>, Matrix4x
     let v = omega * (-dt * T::c(0.5));
     let theta2 = v.norm_squared();
     let theta = theta2.sqrt();
-    // sin θ / θ and (θ cos θ − sin θ) / θ³, with their series near 0 to avoid 0/0.
-    let (sinc, dsinc) = if theta < T::c(1e-4) {
+    // cos θ, sin θ / θ and (θ cos θ − sin θ) / θ³. Below 0.1 rad (every IMU step but the
+    // fastest spins) their Taylor series, to the last term that matters in f64 (the next is
+    // below 3e-17 relative): no 0/0 near 0, and no libm `sinf`/`cosf`, which compute in
+    // software doubles on the MCU.
+    let (cos, sinc, dsinc) = if theta < T::c(0.1) {
+        let t = theta2;
+        let c = |x: f64| T::c(x);
         (
-            T::one() - theta2 / T::c(6.0),
-            -T::one() / T::c(3.0) + theta2 / T::c(30.0),
+            T::one()
+                - t * (c(0.5) - t * (c(1.0 / 24.0) - t * (c(1.0 / 720.0) - t * c(1.0 / 40320.0)))),
+            T::one()
+                - t * (c(1.0 / 6.0)
+                    - t * (c(1.0 / 120.0) - t * (c(1.0 / 5040.0) - t * c(1.0 / 362880.0)))),
+            -c(1.0 / 3.0)
+                + t * (c(1.0 / 30.0)
+                    - t * (c(1.0 / 840.0) - t * (c(1.0 / 45360.0) - t * c(1.0 / 3991680.0)))),
         )
     } else {
         let (s, c) = (theta.sin(), theta.cos());
-        (s / theta, (theta * c - s) / (theta2 * theta))
-    };
-    let cos = if theta < T::c(1e-4) {
-        T::one() - theta2 * T::c(0.5)
-    } else {
-        theta.cos()
+        (c, s / theta, (theta * c - s) / (theta2 * theta))
     };
     let dq = Vector4::new(cos, sinc * v[0], sinc * v[1], sinc * v[2]);
     let mut d_dv = Matrix4x3::zeros();
@@ -186,6 +192,27 @@ mod tests {
                     (exp_increment(&(omega + e), dt).0 - exp_increment(&(omega - e), dt).0) / 2e-6;
                 assert_relative_eq!(d.column(k).into_owned(), fd, epsilon = 1e-8);
             }
+        }
+    }
+
+    #[test]
+    fn increment_series_matches_the_closed_form() {
+        // Just below and just above the series' 0.1 rad limit, and well below it.
+        for theta in [0.0999999f64, 0.1000001, 0.05, 1e-3] {
+            let omega = Vector3::new(0.6, -0.8, 0.0) * (theta / 0.005);
+            let (dq, d) = exp_increment(&omega, 0.01);
+            let axis = Vector3::new(-0.6, 0.8, 0.0);
+            let exact = Vector4::new(
+                theta.cos(),
+                axis[0] * theta.sin(),
+                axis[1] * theta.sin(),
+                0.0,
+            );
+            assert_relative_eq!(dq, exact, epsilon = 1e-15);
+            let e = Vector3::new(0.0, 0.0, 1e-6);
+            let fd =
+                (exp_increment(&(omega + e), 0.01).0 - exp_increment(&(omega - e), 0.01).0) / 2e-6;
+            assert_relative_eq!(d.column(2).into_owned(), fd, epsilon = 1e-9);
         }
     }
 

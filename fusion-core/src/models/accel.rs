@@ -5,7 +5,7 @@
 //!
 //! The gyro model does not use the accelerometer.
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Matrix3x4, Vector3};
 use protocol::ModelKind;
 
 use crate::ekf::SparseRow;
@@ -31,11 +31,31 @@ pub fn row<T: Scalar>(st: &State<T>, model: ModelKind, k: usize) -> SparseRow<T>
     rows(st, model)[k]
 }
 
-/// Jacobian rows of all three axes at the state.
-pub fn rows<T: Scalar>(st: &State<T>, model: ModelKind) -> [SparseRow<T>; 3] {
+/// Jacobian blocks of all three axes at the state: `∂y_a/∂q_sw` (3×4) and `∂y_a/∂s̈_w`
+/// (`R(q_sw)`; zero in the gravity model). `∂y_a/∂b_a = I`; all other blocks are zero.
+pub fn jacobian<T: Scalar>(st: &State<T>, model: ModelKind) -> (Matrix3x4<T>, Matrix3<T>) {
     let q = st.q().normalize();
     let d_q = quat::d_rotate_dq(&q, &specific_force_world(st));
-    let r = quat::rot(&q);
+    let d_acc = if model == ModelKind::Acc {
+        quat::rot(&q)
+    } else {
+        Matrix3::zeros()
+    };
+    (d_q, d_acc)
+}
+
+/// Jacobian rows of all three axes at the state.
+pub fn rows<T: Scalar>(st: &State<T>, model: ModelKind) -> [SparseRow<T>; 3] {
+    let (d_q, d_acc) = jacobian(st, model);
+    rows_of(&d_q, &d_acc, model)
+}
+
+/// Jacobian rows of all three axes from the blocks of [`jacobian`].
+pub fn rows_of<T: Scalar>(
+    d_q: &Matrix3x4<T>,
+    d_acc: &Matrix3<T>,
+    model: ModelKind,
+) -> [SparseRow<T>; 3] {
     core::array::from_fn(|k| {
         let mut h = SparseRow::default();
         for c in 0..4 {
@@ -43,7 +63,7 @@ pub fn rows<T: Scalar>(st: &State<T>, model: ModelKind) -> [SparseRow<T>; 3] {
         }
         if model == ModelKind::Acc {
             for c in 0..3 {
-                h.push(ACC + c, r[(k, c)]);
+                h.push(ACC + c, d_acc[(k, c)]);
             }
         }
         h.push(ACC_BIAS + k, T::one());

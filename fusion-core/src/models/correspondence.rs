@@ -3,13 +3,13 @@
 //! `0 = [I₂ | −m_n] · R(q_cs)(R(q_sw)(m_w − s_w) − c_s) + v_c`, `v_c ~ N(0, P_c)`, where `P_c`
 //! propagates the covariances of `m_n` and `m_w` through the same expression.
 
-use nalgebra::{Matrix2, Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix2x4, Matrix3, Vector2, Vector3};
 
-use crate::ekf::{SparseRow, innovation, joseph_update};
+use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov};
 use crate::params::Params;
 use crate::quat;
 use crate::scalar::Scalar;
-use crate::state::{HandEye, POS, QUAT, State, StateVec};
+use crate::state::{HandEye, N, POS, QUAT, State, StateVec};
 
 /// Nearest depth in front of the camera a model point may have [m].
 pub const MIN_DEPTH: f64 = 1e-3;
@@ -86,70 +86,109 @@ pub fn residual<T: Scalar>(st: &State<T>, he: &HandEye<T>, obs: &Observation<T>)
     Vector2::new(p[0] - obs.m_n[0] * p[2], p[1] - obs.m_n[1] * p[2])
 }
 
+/// Linearisation of eq. 10: `∂h/∂s_w` (2×3), `∂h/∂q_sw` (2×4) (all other state entries do not
+/// enter `h`), `P_c`, the depth of the model point, and `h` itself.
+fn blocks<T: Scalar>(
+    st: &State<T>,
+    he: &HandEye<T>,
+    obs: &Observation<T>,
+) -> (Matrix2x3<T>, Matrix2x4<T>, Matrix2<T>, T, Vector2<T>) {
+    let q = st.q().normalize();
+    let rot = quat::rot(&q);
+    let v = obs.m_w - st.v3(POS);
+    let p_c = he.r_cs * (rot * v - he.c_s);
+    // [I₂ | −m_n] R(q_cs).
+    let a_rcs = Matrix2x3::from_fn(|k, c| he.r_cs[(k, c)] - obs.m_n[k] * he.r_cs[(2, c)]);
+    let d_mw: Matrix2x3<T> = a_rcs * rot; // ∂h/∂m_w = −∂h/∂s_w
+    let d_q = a_rcs * quat::d_rotate_dq(&q, &v);
+    // ∂h/∂m_n = −p_z I₂.
+    let depth = p_c[2];
+    let cov = obs.cov_n * (depth * depth) + d_mw * obs.cov_w * d_mw.transpose();
+    let h = Vector2::new(p_c[0] - obs.m_n[0] * depth, p_c[1] - obs.m_n[1] * depth);
+    (-d_mw, d_q, cov, depth, h)
+}
+
+fn rows_of<T: Scalar>(d_s: &Matrix2x3<T>, d_q: &Matrix2x4<T>) -> [SparseRow<T>; 2] {
+    core::array::from_fn(|k| {
+        let mut row = SparseRow::default();
+        for c in 0..3 {
+            row.push(POS + c, d_s[(k, c)]);
+        }
+        for c in 0..4 {
+            row.push(QUAT + c, d_q[(k, c)]);
+        }
+        row
+    })
+}
+
 /// Linearisation: rows of `∂h/∂x`, and `P_c`.
 pub fn linearise<T: Scalar>(
     st: &State<T>,
     he: &HandEye<T>,
     obs: &Observation<T>,
 ) -> ([SparseRow<T>; 2], Matrix2<T>, T) {
-    let q = st.q().normalize();
-    let rot = quat::rot(&q);
-    let p_c = camera_point(&st.x, he, &obs.m_w);
-    let a = Matrix2x3::new(
-        T::one(),
-        T::zero(),
-        -obs.m_n[0],
-        T::zero(),
-        T::one(),
-        -obs.m_n[1],
-    );
-    let a_rcs = a * he.r_cs;
-    let d_mw: Matrix2x3<T> = a_rcs * rot; // ∂h/∂m_w = −∂h/∂s_w
-    let d_q = a_rcs * quat::d_rotate_dq(&q, &(obs.m_w - st.v3(POS)));
-    let mut rows = [SparseRow::default(), SparseRow::default()];
-    for (k, row) in rows.iter_mut().enumerate() {
-        for c in 0..3 {
-            row.push(POS + c, -d_mw[(k, c)]);
-        }
-        for c in 0..4 {
-            row.push(QUAT + c, d_q[(k, c)]);
-        }
-    }
-    // ∂h/∂m_n = −p_z I₂.
-    let depth = p_c[2];
-    let cov = obs.cov_n * (depth * depth) + d_mw * obs.cov_w * d_mw.transpose();
-    (rows, cov, depth)
+    let (d_s, d_q, cov, depth, _) = blocks(st, he, obs);
+    (rows_of(&d_s, &d_q), cov, depth)
 }
 
 /// Applies one correspondence unless it is behind the camera, singular, or gated out.
 /// Returns the normalised residual `s_i = zᵀ S⁻¹ z` (infinite when it cannot be computed).
+///
+/// The covariance must be symmetric (every update and time update keeps it so).
 pub fn update<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
 ) -> (T, Result<(), Rejection>) {
-    let (h, r, depth) = linearise(st, &prm.hand_eye, obs);
+    T::correspondence_update(st, prm, obs)
+}
+
+/// [`update`], instantiated through [`crate::scalar::Kernels`].
+pub(crate) fn update_generic<T: Scalar>(
+    st: &mut State<T>,
+    prm: &Params<T>,
+    obs: &Observation<T>,
+) -> (T, Result<(), Rejection>) {
+    let (d_s, d_q, r, depth, h) = blocks(st, &prm.hand_eye, obs);
     // Written so that a NaN depth is rejected too.
     if depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
         return (T::c(f64::INFINITY), Err(Rejection::BehindCamera));
     }
-    let z = -residual(st, &prm.hand_eye, obs);
-    let r: SMatrix<T, 2, 2> = (r + r.transpose()) * T::c(0.5);
-    let (u, s) = innovation(st, prm.n, &h, &r);
-    let Some(chol) = s.cholesky() else {
-        return (T::c(f64::INFINITY), Err(Rejection::Singular));
-    };
-    let s_i = z.dot(&chol.solve(&z));
-    if !s_i.is_finite() {
-        return (T::c(f64::INFINITY), Err(Rejection::Singular));
+    let inf = T::c(f64::INFINITY);
+    // U = P Hᵀ from whole columns of the symmetric P, on the two blocks of H.
+    let mut u: Gains<T, 2> = [[T::zero(); 2]; N];
+    for (ui, col) in u
+        .iter_mut()
+        .zip(st.p.as_slice().chunks_exact(N))
+        .take(prm.n)
+    {
+        let Ok(col) = <&[T; N]>::try_from(col) else {
+            continue;
+        };
+        for (k, uk) in ui.iter_mut().enumerate() {
+            let mut a = T::zero();
+            for c in 0..3 {
+                a += d_s[(k, c)] * col[POS + c];
+            }
+            for c in 0..4 {
+                a += d_q[(k, c)] * col[QUAT + c];
+            }
+            *uk = a;
+        }
     }
-    if s_i > prm.gate {
-        return (s_i, Err(Rejection::Gated));
+    let rs = (r[(0, 1)] + r[(1, 0)]) * T::c(0.5);
+    let r = [[r[(0, 0)], rs], [rs, r[(1, 1)]]];
+    let s = innovation_cov(&rows_of(&d_s, &d_q), &u, &r);
+    let f = Ldl::new(&s, &[-h[0], -h[1]]);
+    if f.rank < 2 || !f.nis.is_finite() {
+        return (inf, Err(Rejection::Singular));
     }
-    match joseph_update(st, prm.n, &u, &s, &z) {
-        Ok(()) => (s_i, Ok(())),
-        Err(_) => (T::c(f64::INFINITY), Err(Rejection::Singular)),
+    // Outlier gate (eq. 17): s_i = zᵀ S⁻¹ z, from the factorisation.
+    if f.nis > prm.gate {
+        return (f.nis, Err(Rejection::Gated));
     }
+    f.apply(st, prm.n, &mut u);
+    (f.nis, Ok(()))
 }
 
 #[cfg(test)]

@@ -51,8 +51,14 @@ pub fn time_update<T: Scalar>(st: &mut State<T>, prm: &Params<T>, dt: T) {
     add_process_noise(st, prm, dt, &f_qw);
 }
 
-/// `P ← F P Fᵀ`, touching only the rows and columns where `F` differs from the identity, on
-/// contiguous columns of the column-major storage.
+/// Rows of `F` that differ from the identity: position, velocity and quaternion.
+const F_ROWS: usize = QUAT + 4;
+
+/// `P ← F P Fᵀ` (eq. 7 / 12 / 15 linearised) for a symmetric `P`, touching only the rows and
+/// columns where `F` differs from the identity (the first `F_ROWS`). `M = F P` column by column
+/// (contiguous), then `P' = M Fᵀ` row by row (row `i` of `P'` is `F` applied to row `i` of `M`)
+/// for the rows in `F_ROWS` only. In the other rows `i`, `P'_ij = M_ji` (as `P` is symmetric):
+/// a mirror. Where neither row nor column is in `F_ROWS`, `P` does not change.
 fn propagate_covariance<T: Scalar>(
     st: &mut State<T>,
     n: usize,
@@ -61,8 +67,7 @@ fn propagate_covariance<T: Scalar>(
     f_qq: &Matrix4<T>,
     f_qw: &Matrix4x3<T>,
 ) {
-    let half_dt2 = dt * dt * T::c(0.5);
-    // Plain arrays: the loops below index them n times per entry.
+    // Plain arrays: `apply_f` indexes them for every column and row.
     let mut fq = [[T::zero(); 7]; 4];
     for (r, row) in fq.iter_mut().enumerate() {
         for c in 0..4 {
@@ -72,127 +77,128 @@ fn propagate_covariance<T: Scalar>(
             row[4 + c] = f_qw[(r, c)];
         }
     }
+    let n = n.min(N);
     let p = st.p.as_mut_slice();
-    // Rows: M = F P, applied within each column. Position first (it reads the old velocity).
     for chunk in p.chunks_exact_mut(N).take(n) {
-        let Ok(col) = <&mut [T; N]>::try_from(chunk) else {
-            continue;
-        };
-        for k in 0..3 {
-            let mut pos = col[POS + k] + col[VEL + k] * dt;
-            if acc_model {
-                pos += col[ACC + k] * half_dt2;
-                col[VEL + k] += col[ACC + k] * dt;
-            }
-            col[POS + k] = pos;
-        }
-        let old = [
-            col[QUAT],
-            col[QUAT + 1],
-            col[QUAT + 2],
-            col[QUAT + 3],
-            col[OMEGA],
-            col[OMEGA + 1],
-            col[OMEGA + 2],
-        ];
-        for (r, f) in fq.iter().enumerate() {
-            col[QUAT + r] = f
-                .iter()
-                .zip(&old)
-                .fold(T::zero(), |acc, (&a, &b)| acc + a * b);
+        if let Ok(col) = <&mut [T; N]>::try_from(chunk) {
+            apply_f(col, acc_model, dt, &fq);
         }
     }
-    // Columns: P' = M Fᵀ, the same transform applied to whole columns.
-    for k in 0..3 {
-        axpy_column(p, POS + k, VEL + k, dt, n);
-        if acc_model {
-            axpy_column(p, POS + k, ACC + k, half_dt2, n);
-            axpy_column(p, VEL + k, ACC + k, dt, n);
+    let mut row = [T::zero(); N];
+    for i in 0..F_ROWS {
+        for (v, col) in row.iter_mut().zip(p.chunks_exact(N)).take(n) {
+            *v = col[i];
+        }
+        apply_f(&mut row, acc_model, dt, &fq);
+        for (&v, col) in row.iter().zip(p.chunks_exact_mut(N)).take(F_ROWS) {
+            col[i] = v;
         }
     }
-    // The four quaternion columns mix the old quaternion and ω columns: work from copies.
-    let mut old = [[T::zero(); N]; 7];
-    for (c, o) in old.iter_mut().enumerate() {
-        let src = if c < 4 { QUAT + c } else { OMEGA + c - 4 };
-        o[..n].copy_from_slice(&p[src * N..src * N + n]);
-    }
-    for (r, f) in fq.iter().enumerate() {
-        let dst = &mut p[(QUAT + r) * N..(QUAT + r) * N + n];
-        dst.fill(T::zero());
-        for (&fc, o) in f.iter().zip(&old) {
-            for (d, &v) in dst.iter_mut().zip(&o[..n]) {
-                *d += fc * v;
-            }
+    let (a, b) = p.split_at_mut(F_ROWS * N);
+    for (i, col) in b.chunks_exact(N).enumerate().take(n.saturating_sub(F_ROWS)) {
+        let i = F_ROWS + i;
+        for (pij, a_col) in col[..F_ROWS].iter().zip(a.chunks_exact_mut(N)) {
+            a_col[i] = *pij;
         }
     }
 }
 
-/// Column `dst` += `a` · column `src` over the active rows.
-fn axpy_column<T: Scalar>(p: &mut [T], dst: usize, src: usize, a: T, n: usize) {
-    let (d, s) = if dst < src {
-        let (lo, hi) = p.split_at_mut(src * N);
-        (&mut lo[dst * N..dst * N + n], &hi[..n])
-    } else {
-        let (lo, hi) = p.split_at_mut(dst * N);
-        (&mut hi[..n], &lo[src * N..src * N + n])
-    };
-    for (x, &y) in d.iter_mut().zip(s) {
-        *x += a * y;
+/// `v ← F v`, for a column of `P` or a row of `M` (see [`propagate_covariance`]).
+#[inline(never)]
+fn apply_f<T: Scalar>(v: &mut [T; N], acc_model: bool, dt: T, fq: &[[T; 7]; 4]) {
+    let half_dt2 = dt * dt * T::c(0.5);
+    // Position first (it reads the old velocity).
+    for k in 0..3 {
+        let mut pos = v[POS + k] + v[VEL + k] * dt;
+        if acc_model {
+            pos += v[ACC + k] * half_dt2;
+            v[VEL + k] += v[ACC + k] * dt;
+        }
+        v[POS + k] = pos;
+    }
+    let old = [
+        v[QUAT],
+        v[QUAT + 1],
+        v[QUAT + 2],
+        v[QUAT + 3],
+        v[OMEGA],
+        v[OMEGA + 1],
+        v[OMEGA + 2],
+    ];
+    for (r, f) in fq.iter().enumerate() {
+        v[QUAT + r] = f
+            .iter()
+            .zip(&old)
+            .fold(T::zero(), |acc, (&a, &b)| acc + a * b);
     }
 }
 
 /// Adds the discretised process noise `Q(T)`.
 fn add_process_noise<T: Scalar>(st: &mut State<T>, prm: &Params<T>, dt: T, f_qw: &Matrix4x3<T>) {
-    let p = &mut st.p;
+    let p = st.p.as_mut_slice();
+    // Adds `v` at (r, c) and, off the diagonal, at (c, r).
+    let mut add = |r: usize, c: usize, v: T| {
+        if let Some(x) = p.get_mut(c * N + r) {
+            *x += v;
+        }
+        if r != c
+            && let Some(x) = p.get_mut(r * N + c)
+        {
+            *x += v;
+        }
+    };
     let dt2 = dt * dt;
     let dt3 = dt2 * dt;
-    let third = T::c(1.0 / 3.0);
-    let half = T::c(0.5);
     let q2 = prm.q_motion * prm.q_motion;
-    for k in 0..3 {
-        let (s, v, a) = (POS + k, VEL + k, ACC + k);
-        if prm.model == ModelKind::Acc {
-            // White jerk integrated three times.
-            let dt4 = dt3 * dt;
-            let dt5 = dt4 * dt;
-            p[(s, s)] += q2 * dt5 / T::c(20.0);
-            p[(s, v)] += q2 * dt4 / T::c(8.0);
-            p[(v, s)] += q2 * dt4 / T::c(8.0);
-            p[(s, a)] += q2 * dt3 / T::c(6.0);
-            p[(a, s)] += q2 * dt3 / T::c(6.0);
-            p[(v, v)] += q2 * dt3 * third;
-            p[(v, a)] += q2 * dt2 * half;
-            p[(a, v)] += q2 * dt2 * half;
-            p[(a, a)] += q2 * dt;
-        } else {
-            // White acceleration integrated twice.
-            p[(s, s)] += q2 * dt3 * third;
-            p[(s, v)] += q2 * dt2 * half;
-            p[(v, s)] += q2 * dt2 * half;
-            p[(v, v)] += q2 * dt;
-        }
-    }
+    // Motion noise of one axis: `[[ss, sv, sa], [vv, va], [aa]]`.
+    let (ss, sv, sa, vv, va, aa) = if prm.model == ModelKind::Acc {
+        // White jerk integrated three times.
+        let dt4 = dt3 * dt;
+        let dt5 = dt4 * dt;
+        (
+            q2 * dt5 / T::c(20.0),
+            q2 * dt4 / T::c(8.0),
+            q2 * dt3 / T::c(6.0),
+            q2 * dt3 / T::c(3.0),
+            q2 * dt2 * T::c(0.5),
+            q2 * dt,
+        )
+    } else {
+        // White acceleration integrated twice.
+        let z = T::zero();
+        (q2 * dt3 / T::c(3.0), q2 * dt2 * T::c(0.5), z, q2 * dt, z, z)
+    };
+    let gb2 = prm.q_gyro_bias * prm.q_gyro_bias * dt;
+    let ab2 = if prm.model == ModelKind::Gyro {
+        T::zero()
+    } else {
+        prm.q_accel_bias * prm.q_accel_bias * dt
+    };
     // White angular acceleration: ω gets q² T; the angle it integrates gets q² T³/3, with
     // covariance q² T²/2. Angles enter q through ∂q'/∂ω = T ∂q'/∂θ, i.e. ∂q'/∂θ = f_qw / T.
     let qa2 = prm.q_angular * prm.q_angular;
-    let gq: SMatrix<T, 4, 4> = f_qw * f_qw.transpose() * (qa2 * dt * third);
-    let gw: Matrix4x3<T> = f_qw * (qa2 * dt * half);
+    for k in 0..3 {
+        let (s, v, a) = (POS + k, VEL + k, ACC + k);
+        add(s, s, ss);
+        add(s, v, sv);
+        add(v, v, vv);
+        // Zero in the constant-velocity models (their ACC block stays zero).
+        add(s, a, sa);
+        add(v, a, va);
+        add(a, a, aa);
+        add(OMEGA + k, OMEGA + k, qa2 * dt);
+        add(GYRO_BIAS + k, GYRO_BIAS + k, gb2);
+        add(ACC_BIAS + k, ACC_BIAS + k, ab2);
+    }
+    let gq = qa2 * dt / T::c(3.0);
+    let gw = qa2 * dt * T::c(0.5);
     for r in 0..4 {
-        for c in 0..4 {
-            p[(QUAT + r, QUAT + c)] += gq[(r, c)];
+        for c in r..4 {
+            let v = (0..3).fold(T::zero(), |acc, k| acc + f_qw[(r, k)] * f_qw[(c, k)]);
+            add(QUAT + r, QUAT + c, v * gq);
         }
         for c in 0..3 {
-            p[(QUAT + r, OMEGA + c)] += gw[(r, c)];
-            p[(OMEGA + c, QUAT + r)] += gw[(r, c)];
-        }
-    }
-    let gb2 = prm.q_gyro_bias * prm.q_gyro_bias * dt;
-    let ab2 = prm.q_accel_bias * prm.q_accel_bias * dt;
-    for k in 0..3 {
-        p[(OMEGA + k, OMEGA + k)] += qa2 * dt;
-        p[(GYRO_BIAS + k, GYRO_BIAS + k)] += gb2;
-        if prm.model != ModelKind::Gyro {
-            p[(ACC_BIAS + k, ACC_BIAS + k)] += ab2;
+            add(QUAT + r, OMEGA + c, f_qw[(r, c)] * gw);
         }
     }
 }
