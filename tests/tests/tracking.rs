@@ -1,0 +1,344 @@
+//! End to end, the paper's experiments on synthetic scenarios: `host-vision`'s tracking
+//! pipeline (rendering, FAST, photometric KLT, feature map) with the simulated board running
+//! `fusion-core` at the other end of a pty pair, as a user runs it (`host-vision track`).
+//!
+//! The datasets are synthesised once per test process into `CARGO_TARGET_TMPDIR` (at reduced
+//! lengths where the scenario allows it). `cargo test --release -p tests --test tracking --
+//! --nocapture` prints every figure.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex};
+
+use firmware_sim::sim::scenario::ScenarioName;
+use host_vision::dataset::Dataset;
+use host_vision::eval::{ensure_dataset, options_for};
+use host_vision::track::{self, Faults, Pacing, TrackOptions, TrackRun};
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use protocol::ModelKind;
+
+/// Synthesises `scenario` (first `duration` seconds) once per process.
+fn dataset(scenario: ScenarioName, duration: f64) -> PathBuf {
+    static LOCK: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+    let mut done = LOCK.lock().unwrap_or_else(|e| e.into_inner());
+    let cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("tracking-datasets");
+    let dir = cache.join(format!("{scenario}-{duration}s-seed0"));
+    if !done.contains(&dir) {
+        // Fresh data in every test process: a cached dataset of an older generator could hide
+        // a change.
+        let _ = std::fs::remove_dir_all(&dir);
+        let start = std::time::Instant::now();
+        let made = ensure_dataset(&cache, scenario, Some(duration), 0, &mut |_, _| {})
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(made, dir);
+        println!(
+            "synthesised {scenario} ({duration} s) in {:.1} s",
+            start.elapsed().as_secs_f64()
+        );
+        done.push(dir.clone());
+    }
+    dir
+}
+
+fn options(dataset: &PathBuf, name: &str, model: ModelKind) -> TrackOptions {
+    let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("tracking-runs")
+        .join(name);
+    let mut o = options_for(dataset, out);
+    o.filter = model;
+    o.overlay_every = 0;
+    o
+}
+
+fn track(o: &TrackOptions) -> TrackRun {
+    let run = track::run(o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {})
+        .unwrap_or_else(|e| panic!("tracking {}: {e}", o.out.display()));
+    println!("--- {}\n{}", o.out.display(), run.summary);
+    run
+}
+
+fn mean_px(run: &TrackRun) -> f64 {
+    run.summary
+        .mean_prediction_error_px
+        .expect("some features were registered")
+}
+
+/// Tilt error (angle between the true and estimated vertical in the IMU frame) [°] of every
+/// state, with its time [s].
+fn tilt_errors(dataset: &Dataset, run: &TrackRun) -> Vec<(f64, f64)> {
+    let stamp0 = dataset.imu[0].stamp;
+    run.log
+        .states
+        .iter()
+        .filter_map(|s| {
+            let (_, q_true) = dataset.groundtruth_at(stamp0 + s.t_us * 1000)?;
+            let q_sw = UnitQuaternion::from_quaternion(Quaternion::new(
+                s.q_sw[0] as f64,
+                s.q_sw[1] as f64,
+                s.q_sw[2] as f64,
+                s.q_sw[3] as f64,
+            ));
+            let up_true = q_true.inverse() * Vector3::z();
+            let up_est = q_sw * Vector3::z();
+            Some((s.t_us as f64 * 1e-6, up_true.angle(&up_est).to_degrees()))
+        })
+        .collect()
+}
+
+fn mean_between(series: &[(f64, f64)], t0: f64, t1: f64) -> f64 {
+    let v: Vec<f64> = series
+        .iter()
+        .filter(|(t, _)| *t >= t0 && *t < t1)
+        .map(|&(_, e)| e)
+        .collect();
+    assert!(!v.is_empty(), "no samples in [{t0}, {t1})");
+    v.iter().sum::<f64>() / v.len() as f64
+}
+
+/// The paper's accuracy bounds for the acc model on the fast desktop sequence: mean position
+/// error ≤ 1 cm and each mean Euler angle error ≤ 1° (the paper: 1 cm, [1.0, 0.39, 0.9]°).
+fn assert_desktop_fast_accuracy(run: &TrackRun) {
+    let a = run.summary.accuracy.expect("ground truth and snap-on");
+    assert!(
+        a.mean_position_m <= 0.01,
+        "mean position error {:.2} mm",
+        a.mean_position_m * 1e3
+    );
+    for (axis, e) in ["roll", "pitch", "yaw"].iter().zip(a.mean_euler_deg) {
+        assert!(e <= 1.0, "mean {axis} error {e:.3}°");
+    }
+}
+
+#[test]
+fn desktop_fast_the_acc_model_predicts_twice_as_well_and_meets_the_papers_accuracy() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let runs: Vec<(ModelKind, TrackRun)> = ModelKind::ALL
+        .iter()
+        .map(|&m| {
+            let name = format!("desktop-fast-{m:?}");
+            (m, track(&options(&ds, &name, m)))
+        })
+        .collect();
+    let px = |m: ModelKind| mean_px(&runs.iter().find(|(k, _)| *k == m).unwrap().1);
+    println!(
+        "desktop-fast mean prediction error: gyro {:.3} px, gravity {:.3} px, acc {:.3} px",
+        px(ModelKind::Gyro),
+        px(ModelKind::Gravity),
+        px(ModelKind::Acc)
+    );
+    assert!(px(ModelKind::Acc) <= 0.5 * px(ModelKind::Gyro));
+    assert!(px(ModelKind::Acc) <= 0.5 * px(ModelKind::Gravity));
+    let (_, acc) = runs.iter().find(|(k, _)| *k == ModelKind::Acc).unwrap();
+    assert!(acc.summary.divergences.is_empty());
+    assert_desktop_fast_accuracy(acc);
+}
+
+#[test]
+fn desktop_fast_with_20_percent_outliers_still_meets_the_bounds() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut o = options(&ds, "desktop-fast-outliers", ModelKind::Acc);
+    o.faults = Faults {
+        outlier_fraction: 0.2,
+        seed: 7,
+        ..Faults::default()
+    };
+    let run = track(&o);
+    let s = &run.summary;
+    let share = s.injected_outliers as f64 / s.correspondences_sent as f64;
+    println!(
+        "outliers injected {} of {} ({:.1} %), gated {}",
+        s.injected_outliers,
+        s.correspondences_sent,
+        100.0 * share,
+        s.gated
+    );
+    assert!((0.17..0.23).contains(&share), "{share}");
+    // Nearly every outlier is gated (a few land close to their true point by chance).
+    assert!(s.gated as f64 >= 0.9 * s.injected_outliers as f64);
+    assert!(s.divergences.is_empty(), "{:?}", s.divergences);
+    assert_desktop_fast_accuracy(&run);
+}
+
+#[test]
+fn a_forced_divergence_is_detected_and_tracking_resumes_by_itself() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut o = options(&ds, "desktop-fast-divergence", ModelKind::Acc);
+    // 0.3 s of nothing but outliers, in the middle of the fast figure eight.
+    o.faults = Faults {
+        corrupt_from: Some(6.0),
+        corrupt_seconds: 0.3,
+        seed: 3,
+        ..Faults::default()
+    };
+    let run = track(&o);
+    let first = run
+        .summary
+        .divergences
+        .first()
+        .expect("divergence detected");
+    assert!(
+        (6.0..6.35).contains(&first.t),
+        "detected at {:.2} s",
+        first.t
+    );
+    // Tracking resumes: every frame from 6.5 s on has accepted correspondences, and the
+    // camera position of the predictions is as good as before.
+    let after: Vec<_> = run.frames.iter().filter(|f| f.t >= 6.5).collect();
+    assert!(after.len() > 100);
+    let with_vision = after.iter().filter(|f| f.accepted > 0).count();
+    assert_eq!(
+        with_vision,
+        after.len(),
+        "frames without vision after recovery"
+    );
+    let err = after.iter().filter_map(|f| f.position_error_m).sum::<f64>() / after.len() as f64;
+    println!(
+        "divergence at {:.2} s ({}), {} divergences in all; mean predicted position error after 6.5 s {:.2} mm",
+        first.t,
+        first.reason,
+        run.summary.divergences.len(),
+        err * 1e3
+    );
+    assert!(err < 0.01, "{err}");
+}
+
+/// The paper's Fig. 6: with two features per frame the accelerometer keeps the tilt. Only the
+/// acc model's half is asserted: in this simulation the gyro model does not drift reliably
+/// (it depends on which two features are chosen) and the gravity model drifts too (see the
+/// closing note of issue 8); both are printed.
+#[test]
+fn desktop_slow_with_two_features_the_acc_model_keeps_its_tilt() {
+    let ds = dataset(ScenarioName::DesktopSlow, 30.0);
+    let data = Dataset::open(&ds).unwrap();
+    for m in ModelKind::ALL {
+        let mut o = options(&ds, &format!("desktop-slow-2features-{m:?}"), m);
+        o.vision.map.subset_size = 2;
+        let run = track(&o);
+        let e = tilt_errors(&data, &run);
+        let (early, late) = (mean_between(&e, 2.0, 7.0), mean_between(&e, 25.0, 30.0));
+        println!("{m:?}: tilt error 2-7 s {early:.2}°, 25-30 s {late:.2}°");
+        if m == ModelKind::Acc {
+            assert!(late < 0.5 && early < 0.5, "{early} {late}");
+        }
+    }
+}
+
+#[test]
+fn room_is_tracked_through_both_turns_the_shake_and_the_occlusion() {
+    let ds = dataset(ScenarioName::Room, 45.0);
+    let run = track(&options(&ds, "room-acc", ModelKind::Acc));
+    assert!(
+        run.summary.divergences.is_empty(),
+        "{:?}",
+        run.summary.divergences
+    );
+    // Frames with vision: all but the short stretches facing the unmodelled wall.
+    let after: Vec<_> = run.frames.iter().filter(|f| f.t >= 1.0).collect();
+    let share = after.iter().filter(|f| f.accepted > 0).count() as f64 / after.len() as f64;
+    let a = run.summary.accuracy.unwrap();
+    println!(
+        "room: vision in {:.1} % of frames, mean position error {:.1} mm",
+        100.0 * share,
+        a.mean_position_m * 1e3
+    );
+    assert!(share > 0.9, "{share}");
+    assert!(a.mean_position_m < 0.02);
+}
+
+#[test]
+fn foyer_the_acc_model_tracks_throughout_and_the_others_lose_track() {
+    let ds = dataset(ScenarioName::Foyer, 25.0);
+    for m in ModelKind::ALL {
+        let run = track(&options(&ds, &format!("foyer-{m:?}"), m));
+        let lost: Vec<String> = run
+            .summary
+            .divergences
+            .iter()
+            .map(|e| format!("{:.2} s ({})", e.t, e.reason))
+            .collect();
+        println!("foyer {m:?}: lost track at {lost:?}");
+        if m == ModelKind::Acc {
+            assert!(lost.is_empty(), "{lost:?}");
+            let px = mean_px(&run);
+            assert!(px <= 1.42, "mean prediction error {px:.3} px");
+        } else {
+            assert!(
+                !lost.is_empty(),
+                "the {m:?} model was expected to lose track"
+            );
+        }
+    }
+}
+
+#[test]
+fn real_time_pacing_tracks_too() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut o = options(&ds, "desktop-fast-real-time", ModelKind::Acc);
+    o.pacing = Pacing::RealTime;
+    o.duration = Some(4.0);
+    let run = track(&o);
+    assert!(run.summary.frames >= 80, "{}", run.summary.frames);
+    let a = run.summary.accuracy.unwrap();
+    assert!(a.mean_position_m < 0.01, "{}", a.mean_position_m);
+}
+
+#[test]
+fn bad_inputs_are_named() {
+    let missing = options(
+        &PathBuf::from("/nonexistent/dataset"),
+        "missing",
+        ModelKind::Acc,
+    );
+    let err = track::run(
+        &missing,
+        Arc::new(AtomicBool::new(false)),
+        &mut |_, _, _, _| {},
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("/nonexistent/dataset/mav0"), "{err}");
+
+    // A dataset whose images are gone: frames are reported unusable, the run goes on.
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let broken = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("tracking-broken");
+    let _ = std::fs::remove_dir_all(&broken);
+    copy_dir(&ds, &broken);
+    let data = broken.join("mav0/cam0/data");
+    let mut images: Vec<PathBuf> = std::fs::read_dir(&data)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    images.sort();
+    // Frame 40 (1.6 s): well after snap-on, within the 3 s tracked.
+    let victim = images[40].clone();
+    std::fs::write(&victim, b"not a png").unwrap();
+    let mut o = options(&broken, "broken", ModelKind::Acc);
+    o.duration = Some(3.0);
+    let run = track(&o);
+    assert_eq!(
+        run.summary.frame_errors.len(),
+        1,
+        "{:?}",
+        run.summary.frame_errors
+    );
+    assert!(
+        run.summary.frame_errors[0].contains(victim.file_name().unwrap().to_str().unwrap()),
+        "{:?}",
+        run.summary.frame_errors
+    );
+}
+
+fn copy_dir(from: &PathBuf, to: &PathBuf) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let target = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &target);
+        } else {
+            std::fs::copy(e.path(), &target).unwrap();
+        }
+    }
+}
