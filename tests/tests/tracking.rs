@@ -40,7 +40,7 @@ fn dataset(scenario: ScenarioName, duration: f64) -> PathBuf {
     dir
 }
 
-fn options(dataset: &PathBuf, name: &str, model: ModelKind) -> TrackOptions {
+fn options(dataset: &std::path::Path, name: &str, model: ModelKind) -> TrackOptions {
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
         .join("tracking-runs")
         .join(name);
@@ -330,7 +330,7 @@ fn bad_inputs_are_named() {
     );
 }
 
-fn copy_dir(from: &PathBuf, to: &PathBuf) {
+fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
         let e = e.unwrap();
