@@ -25,39 +25,100 @@ fn reflect101(i: isize, n: usize) -> usize {
     i as usize
 }
 
+/// Horizontal pass of a symmetric kernel at output columns `x = step·i` (`i < out.len()`):
+/// reflect-101 only within the kernel's reach of the borders, plain slice indexing in between
+/// (no index arithmetic per tap there). Same sum order at every pixel.
+#[inline]
+fn convolve_row(row: &[f32], kernel: &[f32], step: usize, out: &mut [f32]) {
+    let w = row.len();
+    let r = kernel.len() - 1;
+    let border = |x: usize| {
+        let mut acc = kernel[0] * row[x];
+        for (k, &wk) in kernel.iter().enumerate().skip(1) {
+            let k = k as isize;
+            acc += wk * (row[reflect101(x as isize - k, w)] + row[reflect101(x as isize + k, w)]);
+        }
+        acc
+    };
+    // Outputs whose taps all lie inside the row: x = step·i with r ≤ x < w − r.
+    let first = r.div_ceil(step).min(out.len());
+    let end = if w > r {
+        (w - r).div_ceil(step).clamp(first, out.len())
+    } else {
+        first
+    };
+    for (i, o) in out.iter_mut().enumerate().take(first) {
+        *o = border(step * i);
+    }
+    if step == 1 && first < end {
+        // Tap by tap over the whole interior: plain slice zips the compiler vectorises.
+        let inner = &mut out[first..end];
+        for (o, &v) in inner.iter_mut().zip(&row[first..end]) {
+            *o = kernel[0] * v;
+        }
+        for (k, &wk) in kernel.iter().enumerate().skip(1) {
+            let (left, right) = (&row[first - k..end - k], &row[first + k..end + k]);
+            for ((o, &a), &b) in inner.iter_mut().zip(left).zip(right) {
+                *o += wk * (a + b);
+            }
+        }
+    } else if let (2, &[k0, k1, k2]) = (step, kernel) {
+        // The pyramid's 5-tap kernel at even columns: fixed-size windows, no index checks.
+        let windows = row[2 * first - 2..].windows(5).step_by(2);
+        for (o, win) in out[first..end].iter_mut().zip(windows) {
+            if let &[a, b, c, d, e] = win {
+                *o = k0 * c + k1 * (b + d) + k2 * (a + e);
+            }
+        }
+    } else {
+        for (i, o) in out.iter_mut().enumerate().take(end).skip(first) {
+            let x = step * i;
+            let win = &row[x - r..=x + r];
+            let mut acc = kernel[0] * win[r];
+            for (k, &wk) in kernel.iter().enumerate().skip(1) {
+                acc += wk * (win[r - k] + win[r + k]);
+            }
+            *o = acc;
+        }
+    }
+    for (i, o) in out.iter_mut().enumerate().skip(end) {
+        *o = border(step * i);
+    }
+}
+
+/// Vertical pass: `out[x] = Σ_k kernel[k] · (rows_above[k][x] + rows_below[k][x])` (centre
+/// once), row slices fetched once per output row so the inner loop is a plain zip.
+#[inline]
+fn convolve_column(tmp: &[f32], w: usize, h: usize, y: usize, kernel: &[f32], out: &mut [f32]) {
+    let row = |yy: usize| &tmp[yy * w..(yy + 1) * w];
+    let centre = row(y);
+    for (o, &c) in out.iter_mut().zip(centre) {
+        *o = kernel[0] * c;
+    }
+    for (k, &wk) in kernel.iter().enumerate().skip(1) {
+        let k = k as isize;
+        let (a, b) = (
+            row(reflect101(y as isize - k, h)),
+            row(reflect101(y as isize + k, h)),
+        );
+        for ((o, &va), &vb) in out.iter_mut().zip(a).zip(b) {
+            *o += wk * (va + vb);
+        }
+    }
+}
+
 /// Separable convolution with a symmetric kernel (`kernel[0]` is the centre tap), reflect-101
 /// borders.
 fn convolve_separable(img: &GrayF32, kernel: &[f32]) -> GrayF32 {
     let (w, h) = (img.width(), img.height());
-    let r = kernel.len() as isize - 1;
     let src = img.data();
     let mut tmp = vec![0f32; w * h];
-    for y in 0..h {
-        let row = &src[y * w..(y + 1) * w];
-        for x in 0..w {
-            let mut acc = kernel[0] * row[x];
-            for k in 1..=r {
-                let a = row[reflect101(x as isize - k, w)];
-                let b = row[reflect101(x as isize + k, w)];
-                acc += kernel[k as usize] * (a + b);
-            }
-            tmp[y * w + x] = acc;
-        }
+    for (row, t) in src.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
+        convolve_row(row, kernel, 1, t);
     }
     let mut out = vec![0f32; w * h];
-    for y in 0..h {
-        for k in 0..=r {
-            let wk = kernel[k as usize];
-            let ya = reflect101(y as isize - k, h);
-            let yb = reflect101(y as isize + k, h);
-            for x in 0..w {
-                out[y * w + x] += if k == 0 {
-                    wk * tmp[ya * w + x]
-                } else {
-                    wk * (tmp[ya * w + x] + tmp[yb * w + x])
-                };
-            }
-        }
+    for (y, o) in out.chunks_exact_mut(w).enumerate() {
+        convolve_column(&tmp, w, h, y, kernel, o);
     }
     // Same size as the input, which was valid.
     GrayF32::new(w, h, out).unwrap_or_else(|_| img.clone())
@@ -92,35 +153,12 @@ pub fn pyr_down(img: &GrayF32) -> GrayF32 {
     let src = img.data();
     // Horizontal pass only at even columns, then vertical only at even rows.
     let mut tmp = vec![0f32; w2 * h];
-    for y in 0..h {
-        let row = &src[y * w..(y + 1) * w];
-        for x2 in 0..w2 {
-            let x = 2 * x2 as isize;
-            let mut acc = K[0] * row[x as usize];
-            for k in 1..3 {
-                acc += K[k as usize] * (row[reflect101(x - k, w)] + row[reflect101(x + k, w)]);
-            }
-            tmp[y * w2 + x2] = acc;
-        }
+    for (row, t) in src.chunks_exact(w).zip(tmp.chunks_exact_mut(w2)) {
+        convolve_row(row, &K, 2, t);
     }
     let mut out = vec![0f32; w2 * h2];
-    for y2 in 0..h2 {
-        let y = 2 * y2 as isize;
-        let rows = [
-            reflect101(y, h),
-            reflect101(y - 1, h),
-            reflect101(y + 1, h),
-            reflect101(y - 2, h),
-            reflect101(y + 2, h),
-        ];
-        let weights = [K[0], K[1], K[1], K[2], K[2]];
-        for x2 in 0..w2 {
-            out[y2 * w2 + x2] = rows
-                .iter()
-                .zip(weights)
-                .map(|(&r, wk)| wk * tmp[r * w2 + x2])
-                .sum();
-        }
+    for (y2, o) in out.chunks_exact_mut(w2).enumerate() {
+        convolve_column(&tmp, w2, h, 2 * y2, &K, o);
     }
     GrayF32::new(w2, h2, out).unwrap_or_else(|_| img.clone())
 }
@@ -188,13 +226,24 @@ impl MaskPyramid {
             if w2 < MIN_LEVEL_SIDE || h2 < MIN_LEVEL_SIDE {
                 break;
             }
-            let mut data = vec![false; w2 * h2];
-            for y2 in 0..h2 {
-                for x2 in 0..w2 {
-                    let (x, y) = (2 * x2 as isize, 2 * y2 as isize);
-                    data[y2 * w2 + x2] = (-2..=2).all(|dy| {
-                        (-2..=2).all(|dx| last.get(reflect101(x + dx, w), reflect101(y + dy, h)))
-                    });
+            // A coarse pixel is the AND over its 5×5 support. Reflect-101 only repeats pixels
+            // of that (symmetric) support, so this is the radius-2 erosion with the window
+            // clipped at the borders, taken at the even pixels: rows at every row, columns only
+            // at even rows.
+            let mut rows = vec![false; w * h];
+            for (row, t) in last.data().chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+                erode_line(row, 2, t);
+            }
+            let mut data = vec![true; w2 * h2];
+            for (y2, o) in data.chunks_exact_mut(w2).enumerate() {
+                let y = 2 * y2;
+                for yy in y.saturating_sub(2)..=(y + 2).min(h - 1) {
+                    for (v, &r) in o
+                        .iter_mut()
+                        .zip(rows[yy * w..(yy + 1) * w].iter().step_by(2))
+                    {
+                        *v &= r;
+                    }
                 }
             }
             match Mask::new(w2, h2, data) {
@@ -259,6 +308,22 @@ impl TemplatePyramid {
     }
 }
 
+/// One line of [`erode`]: `out[x]` = all of `line[x − r ..= x + r]` (clipped to the line).
+/// Shifted ANDs over whole slices (byte-wide, vectorised); `r` is small (the blur's reach).
+#[inline]
+fn erode_line(line: &[bool], r: usize, out: &mut [bool]) {
+    let w = line.len();
+    out.copy_from_slice(line);
+    for k in 1..=r.min(w.saturating_sub(1)) {
+        for (o, &v) in out[k..].iter_mut().zip(&line[..w - k]) {
+            *o &= v;
+        }
+        for (o, &v) in out[..w - k].iter_mut().zip(&line[k..]) {
+            *o &= v;
+        }
+    }
+}
+
 /// Square erosion of radius `r` (separable: rows, then columns); outside the image is valid,
 /// so only background shrinks the mask.
 pub fn erode(mask: &Mask, r: usize) -> Mask {
@@ -266,20 +331,140 @@ pub fn erode(mask: &Mask, r: usize) -> Mask {
         return mask.clone();
     }
     let (w, h) = (mask.width(), mask.height());
-    let src = mask.data();
     let mut rows = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let (a, b) = (x.saturating_sub(r), (x + r).min(w - 1));
-            rows[y * w + x] = src[y * w + a..=y * w + b].iter().all(|&v| v);
-        }
+    for (line, out) in mask.data().chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
+        erode_line(line, r, out);
     }
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        let (a, b) = (y.saturating_sub(r), (y + r).min(h - 1));
-        for x in 0..w {
-            out[y * w + x] = (a..=b).all(|yy| rows[yy * w + x]);
+    // Columns: AND of the whole rows y − r ..= y + r.
+    let mut out = vec![true; w * h];
+    for (y, o) in out.chunks_exact_mut(w).enumerate() {
+        for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+            for (v, &m) in o.iter_mut().zip(&rows[yy * w..(yy + 1) * w]) {
+                *v &= m;
+            }
         }
     }
     Mask::new(w, h, out).unwrap_or_else(|_| mask.clone())
+}
+
+#[cfg(test)]
+mod tests {
+    //! The fast passes against direct per-pixel definitions, including images smaller than
+    //! the kernels (every border case).
+    use super::*;
+
+    fn lcg(seed: &mut u64) -> u64 {
+        *seed = seed
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        *seed >> 33
+    }
+
+    fn sizes() -> Vec<(usize, usize)> {
+        let mut v = vec![
+            (1, 1),
+            (1, 7),
+            (7, 1),
+            (2, 3),
+            (3, 2),
+            (5, 5),
+            (6, 9),
+            (17, 12),
+        ];
+        v.push((40, 31));
+        v
+    }
+
+    fn conv_ref(img: &GrayF32, kernel: &[f32]) -> Vec<f32> {
+        let (w, h) = (img.width(), img.height());
+        let r = kernel.len() as isize - 1;
+        let mut out = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0;
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let v = img.data()
+                            [reflect101(y as isize + dy, h) * w + reflect101(x as isize + dx, w)];
+                        acc += kernel[dy.unsigned_abs()] * kernel[dx.unsigned_abs()] * v;
+                    }
+                }
+                out[y * w + x] = acc;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn blur_and_pyr_down_match_direct_definitions() {
+        let mut seed = 7;
+        for (w, h) in sizes() {
+            let data = (0..w * h).map(|_| (lcg(&mut seed) % 256) as f32).collect();
+            let img = GrayF32::new(w, h, data).unwrap();
+            let sigma = 1.0f32;
+            let mut k: Vec<f32> = (0..=3)
+                .map(|k| (-((k * k) as f32) / (2.0 * sigma * sigma)).exp())
+                .collect();
+            let sum = k[0] + 2.0 * k[1..].iter().sum::<f32>();
+            k.iter_mut().for_each(|v| *v /= sum);
+            let fast = gaussian_blur(&img, sigma);
+            for (a, b) in fast.data().iter().zip(conv_ref(&img, &k)) {
+                assert!((a - b).abs() < 1e-3, "{w}x{h}: {a} vs {b}");
+            }
+            let full = conv_ref(&img, &[6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0]);
+            let down = pyr_down(&img);
+            assert_eq!(
+                (down.width(), down.height()),
+                (w.div_ceil(2), h.div_ceil(2))
+            );
+            for y2 in 0..down.height() {
+                for x2 in 0..down.width() {
+                    let (a, b) = (
+                        down.data()[y2 * down.width() + x2],
+                        full[2 * y2 * w + 2 * x2],
+                    );
+                    assert!((a - b).abs() < 1e-3, "{w}x{h}: {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn erosion_and_mask_pyramid_match_direct_definitions() {
+        let mut seed = 11;
+        for (w, h) in sizes().into_iter().chain([(64, 48), (33, 70)]) {
+            for density in [2, 10, 60] {
+                let data = (0..w * h)
+                    .map(|_| !lcg(&mut seed).is_multiple_of(density))
+                    .collect();
+                let m = Mask::new(w, h, data).unwrap();
+                for r in [1, 2, 3, 8] {
+                    let e = erode(&m, r);
+                    for y in 0..h {
+                        for x in 0..w {
+                            let want = (y.saturating_sub(r)..=(y + r).min(h - 1)).all(|yy| {
+                                (x.saturating_sub(r)..=(x + r).min(w - 1)).all(|xx| m.get(xx, yy))
+                            });
+                            assert_eq!(e.get(x, y), want, "{w}x{h} r={r} at ({x},{y})");
+                        }
+                    }
+                }
+                // Big enough for two levels: each coarse pixel is the AND of its 5×5 support.
+                if w >= 2 * MIN_LEVEL_SIDE && h >= 2 * MIN_LEVEL_SIDE {
+                    let p = MaskPyramid::build(m.clone(), 2);
+                    let c = p.level(1).unwrap();
+                    for y2 in 0..c.height() {
+                        for x2 in 0..c.width() {
+                            let (x, y) = (2 * x2 as isize, 2 * y2 as isize);
+                            let want = (-2..=2).all(|dy| {
+                                (-2..=2)
+                                    .all(|dx| m.get(reflect101(x + dx, w), reflect101(y + dy, h)))
+                            });
+                            assert_eq!(c.get(x2, y2), want);
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
