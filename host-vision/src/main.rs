@@ -27,6 +27,26 @@ enum Command {
     Track(Box<TrackArgs>),
     /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
     Eval(Box<EvalArgs>),
+    /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
+    /// gyro models over the simulated serial link, prints the summary and where the images are.
+    Demo(Box<DemoArgs>),
+}
+
+/// Options of `demo`.
+#[derive(clap::Args, Debug)]
+struct DemoArgs {
+    /// Output folder.
+    #[arg(long, default_value = "target/demo/out")]
+    out: PathBuf,
+    /// Where the synthetic dataset is cached.
+    #[arg(long, default_value = "target/demo/datasets")]
+    cache: PathBuf,
+    /// Seconds of the sequence.
+    #[arg(long, default_value_t = 15.0)]
+    duration: f64,
+    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
+    #[arg(long, default_value = "sim")]
+    link: host_vision::track::LinkSpec,
 }
 
 /// Options of `eval`.
@@ -396,6 +416,62 @@ fn eval(a: &EvalArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+fn demo(a: &DemoArgs) -> anyhow::Result<()> {
+    use host_vision::eval::{EvalOptions, run};
+    let scenario = ScenarioName::DesktopFast;
+    println!(
+        "demo: {scenario} ({} s), tracked by the acc and gyro models; the core runs on the simulated board behind a pty ({:?})",
+        a.duration, a.link
+    );
+    let options = EvalOptions {
+        scenarios: vec![scenario],
+        models: vec![protocol::ModelKind::Gyro, protocol::ModelKind::Acc],
+        duration: Some(a.duration),
+        cache: a.cache.clone(),
+        out: a.out.clone(),
+        seed: 0,
+        link: a.link.clone(),
+        two_features: false,
+        overlay_every: 10,
+    };
+    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
+    let report = run(&options, &mut |what, done, total| {
+        if bar.message() != what {
+            bar.set_message(what.to_string());
+            bar.reset();
+        }
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    for row in &report.rows {
+        println!("── {} model\n{}", row.model, row.summary);
+    }
+    println!("{}", report.markdown());
+    let acc = a.out.join(scenario.as_str()).join("acc");
+    println!("look at:");
+    println!(
+        "  {}   overlays: registered features (green), failed (red), the model's axes",
+        acc.join("overlays").display()
+    );
+    println!(
+        "  {}   prediction error of both models (the paper's Fig. 5)",
+        a.out
+            .join(format!("{scenario}_prediction_error.svg"))
+            .display()
+    );
+    println!(
+        "  {}   camera position error against ground truth",
+        acc.join("plots/position_error.svg").display()
+    );
+    println!(
+        "  {}   camera trajectory (TUM, for evo; ground truth beside it)",
+        acc.join("trajectory.tum").display()
+    );
+    println!("  {}   the table above", a.out.join("eval.md").display());
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Selftest { imu_samples } => {
@@ -406,6 +482,7 @@ fn main() -> anyhow::Result<()> {
         Command::Synth(args) => synth(&args)?,
         Command::Track(args) => track(&args)?,
         Command::Eval(args) => eval(&args)?,
+        Command::Demo(args) => demo(&args)?,
     }
     Ok(())
 }

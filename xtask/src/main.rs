@@ -208,7 +208,7 @@ fn demo(extra: &[String]) -> Result<(), String> {
         "-p",
         "host-vision",
         "--",
-        "selftest",
+        "demo",
     ])
     .args(extra);
     run(cmd)
