@@ -342,3 +342,67 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
         }
     }
 }
+
+/// The same tracking run with the core as the firmware image under QEMU and as the simulated
+/// board: lock-step replay makes both sessions the same byte stream, so the states agree.
+/// Skips without `qemu-system-arm` or the image (`cargo xtask firmware`) unless
+/// `REQUIRE_FIRMWARE` is set.
+#[test]
+fn tracking_over_the_firmware_under_qemu_matches_the_simulated_board() {
+    let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let image = firmware_sim::qemu::default_image(&workspace, "device");
+    let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
+    let qemu_present = std::process::Command::new("qemu-system-arm")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !(image.exists() && qemu_present) {
+        assert!(
+            !required,
+            "REQUIRE_FIRMWARE: need qemu-system-arm and {}",
+            image.display()
+        );
+        println!(
+            "SKIPPED: qemu-system-arm or {} absent (set REQUIRE_FIRMWARE to make this a failure)",
+            image.display()
+        );
+        return;
+    }
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut runs = Vec::new();
+    for (name, link) in [
+        ("qemu", track::LinkSpec::Qemu(image.clone())),
+        (
+            "sim",
+            track::LinkSpec::Sim(firmware_sim::board::Precision::F32),
+        ),
+    ] {
+        let mut o = options(&ds, &format!("desktop-fast-{name}"), ModelKind::Acc);
+        o.link = link;
+        o.duration = Some(4.0);
+        runs.push(track(&o));
+    }
+    let (q, s) = (&runs[0], &runs[1]);
+    assert_eq!(q.log.states.len(), s.log.states.len());
+    assert!(q.log.states.len() > 300);
+    let worst = q
+        .log
+        .states
+        .iter()
+        .zip(&s.log.states)
+        .map(|(a, b)| {
+            assert_eq!(a.t_us, b.t_us);
+            (0..3)
+                .map(|i| (a.s_w[i] - b.s_w[i]).abs())
+                .fold(0.0f32, f32::max)
+        })
+        .fold(0.0f32, f32::max);
+    println!(
+        "firmware under QEMU vs simulated board: {} states, worst position difference {worst:e} m; accepted {} vs {}",
+        q.log.states.len(),
+        q.summary.accepted,
+        s.summary.accepted
+    );
+    assert!(worst < 1e-4, "{worst}");
+    assert_eq!(q.summary.accepted, s.summary.accepted);
+}
