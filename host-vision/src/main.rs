@@ -375,8 +375,25 @@ fn synth(a: &SynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Runs an evaluation with one progress bar per step (synthesis, each tracking run).
+fn run_eval(
+    options: &host_vision::eval::EvalOptions,
+) -> anyhow::Result<host_vision::eval::EvalReport> {
+    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
+    let report = host_vision::eval::run(options, &mut |what, done, total| {
+        if bar.message() != what {
+            bar.set_message(what.to_string());
+            bar.reset();
+        }
+        bar.set_length(total);
+        bar.set_position(done);
+    })?;
+    bar.finish_and_clear();
+    Ok(report)
+}
+
 fn eval(a: &EvalArgs) -> anyhow::Result<()> {
-    use host_vision::eval::{EvalOptions, run};
+    use host_vision::eval::EvalOptions;
     let options = EvalOptions {
         scenarios: if a.scenarios.is_empty() {
             ScenarioName::ALL.to_vec()
@@ -396,16 +413,7 @@ fn eval(a: &EvalArgs) -> anyhow::Result<()> {
         two_features: !a.no_two_features,
         overlay_every: a.overlay_every,
     };
-    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
-    let report = run(&options, &mut |what, done, total| {
-        if bar.message() != what {
-            bar.set_message(what.to_string());
-            bar.reset();
-        }
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let report = run_eval(&options)?;
     println!("{}", report.markdown());
     println!(
         "written: {} and {}, plots and each run's outputs in {}",
@@ -417,7 +425,7 @@ fn eval(a: &EvalArgs) -> anyhow::Result<()> {
 }
 
 fn demo(a: &DemoArgs) -> anyhow::Result<()> {
-    use host_vision::eval::{EvalOptions, run};
+    use host_vision::eval::EvalOptions;
     let scenario = ScenarioName::DesktopFast;
     println!(
         "demo: {scenario} ({} s), tracked by the acc and gyro models; the core runs on the simulated board behind a pty ({:?})",
@@ -434,16 +442,7 @@ fn demo(a: &DemoArgs) -> anyhow::Result<()> {
         two_features: false,
         overlay_every: 10,
     };
-    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
-    let report = run(&options, &mut |what, done, total| {
-        if bar.message() != what {
-            bar.set_message(what.to_string());
-            bar.reset();
-        }
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
+    let report = run_eval(&options)?;
     for row in &report.rows {
         println!("── {} model\n{}", row.model, row.summary);
     }
