@@ -202,12 +202,12 @@ fn a_forced_divergence_is_detected_and_tracking_resumes_by_itself() {
     assert!(err < 0.01, "{err}");
 }
 
-/// The paper's Fig. 6: with two features per frame the accelerometer keeps the tilt. Only the
-/// acc model's half is asserted: in this simulation the gyro model does not drift reliably
-/// (it depends on which two features are chosen) and the gravity model drifts too (see the
-/// closing note of issue 8); both are printed.
+/// The paper's Fig. 6: with two features per frame the accelerometer keeps the tilt: the acc
+/// and gravity models stay within a degree. The paper's gyro model drifted; ours does not (its
+/// tilt is printed): two registered features per frame still observe the synthetic gyro's
+/// bias, which is estimated at rest and walks slowly (see the closing note of issue 8).
 #[test]
-fn desktop_slow_with_two_features_the_acc_model_keeps_its_tilt() {
+fn desktop_slow_with_two_features_the_accelerometer_keeps_the_tilt() {
     let ds = dataset(ScenarioName::DesktopSlow, 30.0);
     let data = Dataset::open(&ds).unwrap();
     for m in ModelKind::ALL {
@@ -216,9 +216,13 @@ fn desktop_slow_with_two_features_the_acc_model_keeps_its_tilt() {
         let run = track(&o);
         let e = tilt_errors(&data, &run);
         let (early, late) = (mean_between(&e, 2.0, 7.0), mean_between(&e, 25.0, 30.0));
-        println!("{m:?}: tilt error 2-7 s {early:.2}°, 25-30 s {late:.2}°");
-        if m == ModelKind::Acc {
-            assert!(late < 0.5 && early < 0.5, "{early} {late}");
+        let worst = e.iter().map(|&(_, v)| v).fold(0.0, f64::max);
+        println!("{m:?}: tilt error 2-7 s {early:.2}°, 25-30 s {late:.2}°, worst {worst:.2}°");
+        assert!(run.summary.divergences.is_empty(), "{m:?}");
+        match m {
+            ModelKind::Acc => assert!(late < 0.5 && early < 0.5, "{early} {late}"),
+            ModelKind::Gravity => assert!(late < 1.0 && early < 1.0, "{early} {late}"),
+            ModelKind::Gyro => {}
         }
     }
 }
@@ -247,7 +251,7 @@ fn room_is_tracked_through_both_turns_the_shake_and_the_occlusion() {
 
 #[test]
 fn foyer_the_acc_model_tracks_throughout_and_the_others_lose_track() {
-    let ds = dataset(ScenarioName::Foyer, 25.0);
+    let ds = dataset(ScenarioName::Foyer, 30.0);
     for m in ModelKind::ALL {
         let run = track(&options(&ds, &format!("foyer-{m:?}"), m));
         let lost: Vec<String> = run

@@ -24,8 +24,11 @@ use crate::render::{Frame, RenderView};
 pub struct MapConfig {
     /// Extract new features when fewer than this many are predicted visible.
     pub min_visible: usize,
-    /// Features registered per frame.
+    /// Features registered per frame (candidates are tried until this many succeed, or
+    /// `max_candidates` were tried).
     pub subset_size: usize,
+    /// Most registrations tried per frame.
+    pub max_candidates: usize,
     /// Retire after this many failures in a row.
     pub max_consecutive_failures: u32,
     /// Retire when the success ratio is below this …
@@ -48,6 +51,7 @@ impl Default for MapConfig {
         Self {
             min_visible: 40,
             subset_size: 40,
+            max_candidates: 60,
             max_consecutive_failures: 3,
             min_success_ratio: 0.3,
             min_attempts: 10,
@@ -296,7 +300,19 @@ impl FeatureMap {
     /// [`FeatureStats::quality`], then lower id) per round; within a round cells with better
     /// candidates go first.
     pub fn select(&self, visible: &[Predicted], width: u32, height: u32) -> Vec<Predicted> {
-        let n = self.config.subset_size;
+        self.select_n(visible, width, height, self.config.subset_size)
+    }
+
+    /// As [`FeatureMap::select`], for `n` features: the order is the registration order, so a
+    /// caller that wants `subset_size` *registered* features can take candidates from a longer
+    /// list until enough succeeded.
+    pub fn select_n(
+        &self,
+        visible: &[Predicted],
+        width: u32,
+        height: u32,
+        n: usize,
+    ) -> Vec<Predicted> {
         if n == 0 || visible.is_empty() {
             return Vec::new();
         }

@@ -262,7 +262,16 @@ impl Vision {
             }
         }
         times.extract = t.elapsed().as_secs_f64();
-        let selected = self.map.select(&visible, w, h);
+        // Candidates in registration order; registration stops once `subset_size` succeeded
+        // (a failing feature does not cost the frame a correspondence).
+        let cfg = self.map.config();
+        let wanted = cfg.subset_size;
+        let selected = self.map.select_n(
+            &visible,
+            w,
+            h,
+            cfg.max_candidates.min(2 * wanted + 4).max(wanted),
+        );
 
         let mut features = Vec::with_capacity(selected.len());
         let mut correspondences = Vec::with_capacity(selected.len());
@@ -281,7 +290,11 @@ impl Vision {
             times.pyramids = t.elapsed().as_secs_f64();
 
             let t = Instant::now();
+            let mut succeeded = 0usize;
             for p in &selected {
+                if succeeded >= wanted {
+                    break;
+                }
                 let position = [p.pixel.x, p.pixel.y];
                 let result = register(
                     &template.image,
@@ -296,6 +309,7 @@ impl Vision {
                 };
                 let outcome = match result {
                     Ok(r) => {
+                        succeeded += 1;
                         let px = Vector2::new(r.position[0], r.position[1]);
                         error_sum += (px - p.pixel).norm();
                         error_count += 1;
