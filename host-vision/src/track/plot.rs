@@ -32,7 +32,27 @@ fn plot_err(path: &Path, e: impl std::fmt::Display) -> TrackError {
     }
 }
 
-/// Draws `series` as lines into an SVG file.
+/// Splits points into runs without gaps: a gap (frames without a value, e.g. without vision)
+/// is more than three times the median spacing, and is left blank rather than bridged.
+fn segments(points: &[(f64, f64)]) -> Vec<&[(f64, f64)]> {
+    let mut steps: Vec<f64> = points.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    steps.sort_by(f64::total_cmp);
+    let Some(&median) = steps.get(steps.len() / 2) else {
+        return vec![points];
+    };
+    let mut out = Vec::new();
+    let mut start = 0;
+    for i in 1..points.len() {
+        if points[i].0 - points[i - 1].0 > 3.0 * median {
+            out.push(&points[start..i]);
+            start = i;
+        }
+    }
+    out.push(&points[start..]);
+    out
+}
+
+/// Draws `series` as lines into an SVG file (gaps left blank).
 pub fn line_plot(
     path: &Path,
     title: &str,
@@ -71,14 +91,19 @@ pub fn line_plot(
         .map_err(|e| plot_err(path, e))?;
     for (i, s) in series.iter().enumerate() {
         let colour = COLOURS[i % COLOURS.len()];
-        chart
-            .draw_series(LineSeries::new(
-                s.points.iter().map(|&(x, y)| (x, y.min(y1))),
-                colour.stroke_width(1),
-            ))
-            .map_err(|e| plot_err(path, e))?
-            .label(s.name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+        for (k, run) in segments(&s.points).into_iter().enumerate() {
+            let drawn = chart
+                .draw_series(LineSeries::new(
+                    run.iter().map(|&(x, y)| (x, y.min(y1))),
+                    colour.stroke_width(1),
+                ))
+                .map_err(|e| plot_err(path, e))?;
+            if k == 0 {
+                drawn
+                    .label(s.name.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], colour));
+            }
+        }
     }
     chart
         .configure_series_labels()
