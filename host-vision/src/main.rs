@@ -237,7 +237,8 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
     bar.finish();
     let run = result?;
     println!("{}", run.summary);
-    if interrupt.load(Ordering::Relaxed) {
+    let interrupted = interrupt.load(Ordering::Relaxed);
+    if interrupted {
         println!("interrupted: wrote what was tracked");
     }
     println!("results in {}:", a.out.display());
@@ -258,6 +259,10 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
             "  {} ({overlays} overlay images)",
             a.out.join("overlays").display()
         );
+    }
+    if interrupted {
+        // The shell's convention for a run ended by Ctrl-C.
+        std::process::exit(130);
     }
     Ok(())
 }

@@ -334,6 +334,34 @@ fn bad_inputs_are_named() {
     );
 }
 
+#[test]
+fn an_interrupted_run_still_writes_what_was_tracked() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let o = options(&ds, "desktop-fast-interrupted", ModelKind::Acc);
+    let _ = std::fs::remove_dir_all(&o.out);
+    let flag = Arc::new(AtomicBool::new(false));
+    let stop = flag.clone();
+    // Ctrl-C after 3 s of data.
+    let run = track::run(&o, flag, &mut |done, _, _, _| {
+        if done >= 300 {
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    })
+    .unwrap();
+    assert!(run.summary.stopped_early);
+    assert!(
+        (2.9..3.6).contains(&run.summary.duration_s),
+        "{}",
+        run.summary.duration_s
+    );
+    for f in ["trajectory.tum", "frames.csv"] {
+        let text = std::fs::read_to_string(o.out.join(f)).unwrap();
+        assert!(text.lines().count() > 50, "{f}");
+    }
+    let summary = std::fs::read_to_string(o.out.join("summary.json")).unwrap();
+    assert!(summary.contains("\"stopped_early\": true"), "{summary}");
+}
+
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
     for e in std::fs::read_dir(from).unwrap() {
