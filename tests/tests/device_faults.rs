@@ -368,6 +368,68 @@ fn divergence_is_detected_and_the_core_reinitialises_and_recovers() {
     );
 }
 
+/// A short burst of wrong correspondences (0.2 s against a model moved by 30 cm) fires the
+/// residual monitor; vision was accepted a moment ago, so the core keeps its estimate and only
+/// restarts the covariance (soft re-initialisation, no still window) and tracks again as soon
+/// as the correspondences are right.
+#[test]
+fn a_short_divergence_after_good_vision_is_a_soft_reinitialisation() {
+    let mut sc = scenario(ModelKind::Acc);
+    sc.config.divergence.residual_threshold = 20.0;
+    let mut shifted = scenario(ModelKind::Acc);
+    shifted.config = sc.config;
+    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    let d = tracking(&sc, 8.0);
+    let before = d.out.statuses.len();
+    let mut bad = d.switch_scenario(&shifted);
+    while bad.k < (8.2 * 200.0) as usize {
+        bad.step();
+    }
+    let mut d = bad.switch_scenario(&sc);
+    while d.k < 10 * 200 {
+        d.step();
+    }
+    let after: Vec<_> = d.out.statuses[before..]
+        .iter()
+        .map(|s| (s.t_us as f64 * 1e-6, s.mode, s.reason))
+        .collect();
+    println!("{after:?}");
+    let diverged = after
+        .iter()
+        .position(|s| (s.1, s.2) == (Mode::Diverged, StatusReason::ResidualLowpass))
+        .expect("divergence detected");
+    // Straight back to dead reckoning from the kept estimate: no still window.
+    assert_eq!(
+        (
+            after[diverged + 1].1,
+            after[diverged + 2].1,
+            after[diverged + 2].2
+        ),
+        (
+            Mode::Reinitialising,
+            Mode::DeadReckoning,
+            StatusReason::InitComplete
+        ),
+        "{after:?}"
+    );
+    assert!(
+        !after.iter().any(|s| s.1 == Mode::Initialising),
+        "{after:?}"
+    );
+    // Tracking again within 0.3 s of the good correspondences coming back, and accurate.
+    let back = after
+        .iter()
+        .rev()
+        .find(|s| s.1 == Mode::Tracking)
+        .expect("tracking again");
+    assert!(back.0 < 8.5, "tracking again only at {:.2} s", back.0);
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    let (truth, _) = d.last.unwrap();
+    let p = d.device.filter().st.v3(fusion_core::state::POS);
+    let err = (Vector3::new(p[0], p[1], p[2]) - truth.p_w).norm();
+    assert!(err < 0.01, "position error {err}");
+}
+
 #[test]
 fn corrupted_bytes_are_reported_and_the_stream_goes_on() {
     let mut io = DeviceIo::<f32>::new();
