@@ -80,6 +80,15 @@ fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
             {
                 continue;
             }
+            // The host hung up (a socket closed with answers unread resets the connection).
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::ConnectionReset | io::ErrorKind::ConnectionAborted
+                ) =>
+            {
+                break;
+            }
             Err(e) => return Err(e),
         };
         bytes_in += n as u64;
@@ -89,7 +98,14 @@ fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
             match writer.write_all(&out).and_then(|_| writer.flush()) {
                 Ok(()) => bytes_out += out.len() as u64,
                 // The host hung up while answers were in flight: the session is over.
-                Err(e) if e.kind() == io::ErrorKind::BrokenPipe => break,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        io::ErrorKind::BrokenPipe | io::ErrorKind::ConnectionReset
+                    ) =>
+                {
+                    break;
+                }
                 Err(e) => return Err(e),
             }
         }

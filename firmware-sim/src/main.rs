@@ -7,10 +7,19 @@
 //! firmware-sim --link stdio               # as a child process
 //! ```
 
+use std::io::Write as _;
+
 use anyhow::Context as _;
 use clap::Parser;
 use firmware_sim::board::{self, Precision};
 use firmware_sim::transport;
+
+/// Prints a line on stderr; a closed stderr (the user's pipe is gone) is not worth a panic.
+macro_rules! note {
+    ($($arg:tt)*) => {{
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
 
 /// Runs the fusion core's device loop behind a byte transport, exactly as the firmware does
 /// behind its UART.
@@ -32,7 +41,7 @@ fn open(link: &str) -> anyhow::Result<transport::Duplex> {
     if link == "pty" {
         let (board_end, host_end) = transport::pty_pair()?;
         // The master stays here; the host opens the slave device by its path.
-        eprintln!("board: connect the host to serial:{}", host_end.name);
+        note!("board: connect the host to serial:{}", host_end.name);
         // Keep the slave open so that the pty survives until the host opens it.
         std::mem::forget(host_end);
         return Ok(board_end);
@@ -43,7 +52,7 @@ fn open(link: &str) -> anyhow::Result<transport::Duplex> {
     if let Some(addr) = link.strip_prefix("tcp:") {
         let listener =
             std::net::TcpListener::bind(addr).with_context(|| format!("listening on {addr}"))?;
-        eprintln!(
+        note!(
             "board: waiting for the host on tcp:{}",
             listener.local_addr()?
         );
@@ -70,7 +79,7 @@ fn main() -> anyhow::Result<()> {
         let name = link.name.clone();
         let report = board::serve(link, cli.precision)
             .with_context(|| format!("serving the host on {name}"))?;
-        eprintln!(
+        note!(
             "board: session on {name} ended: {} bytes in, {} out, {} IMU samples applied, {} correspondences accepted, {} gated, {} divergences",
             report.bytes_in,
             report.bytes_out,

@@ -1,0 +1,123 @@
+//! The simulated board as its own process, as a user runs it beside a host: `firmware-sim
+//! --link pty` opens a pty and says where; the host opens that device as a serial line and
+//! talks the protocol to the fusion core behind it. Also over TCP.
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use firmware_sim::transport::{self, Duplex};
+use protocol::io::{FrameReader, FrameWriter, RecvError};
+use protocol::{CoreToHost, Hello, HostToCore, Init, InitAttitude, Mode, PROTOCOL_VERSION};
+
+/// Starts the board and returns it with the first line it prints on stderr.
+fn start(link: &str) -> (Child, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
+        .args(["--link", link])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("start firmware-sim");
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    // Keep reading, so that the board's last words do not meet a closed pipe.
+    std::thread::spawn(move || std::io::copy(&mut err, &mut std::io::sink()));
+    (child, line.trim().to_string())
+}
+
+/// A short session: handshake, configuration, still IMU until the filter runs, one trigger.
+fn session(link: Duplex) {
+    let mut w = FrameWriter::new(link.writer);
+    let mut r = FrameReader::new(link.reader);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let mut recv = || loop {
+        assert!(Instant::now() < deadline, "no answer from the board");
+        match r.recv::<CoreToHost>() {
+            Ok(m) => return m,
+            Err(RecvError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {}
+            Err(RecvError::Io(e)) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(e) => panic!("{e:?}"),
+        }
+    };
+    w.send(&HostToCore::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    }))
+    .unwrap();
+    match recv() {
+        CoreToHost::HelloAck(a) => assert_eq!(a.capacities.scalar_bits, 32),
+        other => panic!("{other:?}"),
+    }
+    let mut config = protocol::samples::config();
+    config.still_samples = 5;
+    config.state_every = 0;
+    w.send(&HostToCore::Configure(config)).unwrap();
+    w.send(&HostToCore::Init(Init {
+        position: [0.0, 0.0, 1.0],
+        attitude: InitAttitude::Gravity,
+    }))
+    .unwrap();
+    for k in 1..=10u64 {
+        w.send(&HostToCore::Imu(protocol::ImuSample {
+            t_us: k * 10_000,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            trigger: k == 10,
+        }))
+        .unwrap();
+    }
+    let mut modes = Vec::new();
+    loop {
+        match recv() {
+            CoreToHost::Status(s) => modes.push(s.mode),
+            CoreToHost::PosePrediction(p) => {
+                assert_eq!(p.t_us, 100_000);
+                assert!((p.c_w[2] - 1.0).abs() < 0.1, "{:?}", p.c_w);
+                break;
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    assert_eq!(
+        modes,
+        [Mode::AwaitingInit, Mode::Initialising, Mode::DeadReckoning]
+    );
+}
+
+#[test]
+fn a_host_talks_to_the_board_process_over_its_pty() {
+    let (mut child, line) = start("pty");
+    let path = line
+        .rsplit_once("serial:")
+        .map(|(_, p)| p.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let link = transport::serial(&path, 921_600).expect("open the board's pty");
+    session(link);
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+#[test]
+fn a_host_talks_to_the_board_process_over_tcp() {
+    let (mut child, line) = start("tcp:127.0.0.1:0");
+    let addr = line
+        .rsplit_once("tcp:")
+        .map(|(_, a)| a.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let link = transport::tcp_connect(addr.as_str()).expect("connect to the board");
+    session(link);
+    // The session ends when the host hangs up; the board then exits by itself.
+    let status = child.wait().expect("board exits");
+    assert!(status.success(), "{status}");
+}
+
+#[test]
+fn a_bad_link_is_refused_with_a_clear_message() {
+    let out = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
+        .args(["--link", "carrier-pigeon"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("unknown --link `carrier-pigeon`"), "{err}");
+}
