@@ -12,7 +12,7 @@ use std::thread::JoinHandle;
 use fusion_core::device::{Counters, DeviceIo};
 use fusion_core::scalar::Scalar;
 
-use crate::transport::Duplex;
+use crate::transport::{self, Duplex};
 
 /// Floating-point width of the simulated core.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -70,16 +70,7 @@ fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
         let n = match reader.read(&mut buf) {
             Ok(0) => break,
             Ok(n) => n,
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::TimedOut
-                        | io::ErrorKind::WouldBlock
-                        | io::ErrorKind::Interrupted
-                ) =>
-            {
-                continue;
-            }
+            Err(e) if transport::is_poll_timeout(&e) => continue,
             // The host hung up (a socket closed with answers unread resets the connection).
             Err(e)
                 if matches!(
@@ -133,7 +124,7 @@ mod tests {
         let mut recv = || loop {
             match r.recv::<CoreToHost>() {
                 Ok(m) => return m,
-                Err(protocol::io::RecvError::Io(e)) if e.kind() == io::ErrorKind::TimedOut => {}
+                Err(protocol::io::RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
                 Err(e) => panic!("{e:?}"),
             }
         };

@@ -7,7 +7,7 @@ use std::io;
 use protocol::io::{FrameReader, FrameWriter, RecvError};
 use protocol::{CoreToHost, ErrorCode, HostToCore, handshake, samples};
 
-use crate::transport::Duplex;
+use crate::transport::{self, Duplex};
 
 /// Capacities the loop-back peer announces (those of the protocol itself).
 pub const CAPACITIES: protocol::Capacities = protocol::Capacities {
@@ -46,14 +46,7 @@ pub fn serve(link: Duplex) -> io::Result<PeerLog> {
                 writer.send(&CoreToHost::error(ErrorCode::Decode(e)))?;
                 continue;
             }
-            Err(RecvError::Io(e))
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
-                ) =>
-            {
-                continue;
-            }
+            Err(RecvError::Io(e)) if transport::is_poll_timeout(&e) => continue,
             Err(RecvError::Io(e)) => return Err(e),
             Err(RecvError::Closed { .. }) => return Ok(log),
         };

@@ -12,6 +12,15 @@ use serialport::{SerialPort, TTYPort};
 /// and shutdown flags.
 pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 
+/// Whether a read error only means "nothing arrived within [`POLL_INTERVAL`]" (or a signal
+/// interrupted the wait): the caller checks its deadlines and reads again.
+pub fn is_poll_timeout(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock | io::ErrorKind::Interrupted
+    )
+}
+
 /// Errors opening a transport.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {

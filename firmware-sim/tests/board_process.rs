@@ -35,8 +35,7 @@ fn session(link: Duplex) {
         assert!(Instant::now() < deadline, "no answer from the board");
         match r.recv::<CoreToHost>() {
             Ok(m) => return m,
-            Err(RecvError::Io(e)) if e.kind() == std::io::ErrorKind::TimedOut => {}
-            Err(RecvError::Io(e)) if e.kind() == std::io::ErrorKind::WouldBlock => {}
+            Err(RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
             Err(e) => panic!("{e:?}"),
         }
     };

@@ -109,12 +109,7 @@ impl Link {
         loop {
             match self.reader.recv::<CoreToHost>() {
                 Ok(msg) => return Ok(msg),
-                Err(RecvError::Io(e))
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::TimedOut | io::ErrorKind::WouldBlock
-                    ) =>
-                {
+                Err(RecvError::Io(e)) if firmware_sim::transport::is_poll_timeout(&e) => {
                     if start.elapsed() >= timeout {
                         return Err(LinkError::Timeout {
                             link: self.name.clone(),

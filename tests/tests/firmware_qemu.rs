@@ -110,11 +110,7 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
                 Ok(CoreToHost::HelloAck(_)) if !got.is_empty() => break,
                 Ok(m) => got.push(m),
                 Err(RecvError::Frame(_)) => decode_errors += 1,
-                Err(RecvError::Io(e))
-                    if matches!(
-                        e.kind(),
-                        std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock
-                    ) => {}
+                Err(RecvError::Io(e)) if firmware_sim::transport::is_poll_timeout(&e) => {}
                 Err(e) => panic!("firmware link: {e}"),
             }
         }

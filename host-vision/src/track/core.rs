@@ -154,14 +154,7 @@ impl CoreLink {
                     let item = match r.recv::<CoreToHost>() {
                         Ok(m) => Ok(Incoming::Message(m)),
                         Err(RecvError::Frame(e)) => Ok(Incoming::Rejected(e)),
-                        Err(RecvError::Io(e))
-                            if matches!(
-                                e.kind(),
-                                io::ErrorKind::TimedOut
-                                    | io::ErrorKind::WouldBlock
-                                    | io::ErrorKind::Interrupted
-                            ) =>
-                        {
+                        Err(RecvError::Io(e)) if transport::is_poll_timeout(&e) => {
                             if stop_reader.load(Ordering::Relaxed) {
                                 return;
                             }
