@@ -17,7 +17,7 @@ use firmware_sim::board::Precision;
 use firmware_sim::sim::scenario::ScenarioName;
 use host_vision::dataset::Dataset;
 use host_vision::synth::{FrameOptions, SynthOptions};
-use host_vision::track::vision::{FrameJob, StageTimes, Vision, VisionOptions};
+use host_vision::track::vision::{FrameJob, StageTimes, Vision, VisionOptions, prediction_pose};
 use host_vision::track::{CoreLink, Incoming, LinkSpec};
 use nalgebra::Vector3;
 use protocol::{
@@ -164,17 +164,11 @@ fn link(c: &mut Criterion) {
     });
     let p = last.expect("a prediction");
     // 40 points 2 m in front of the predicted camera, consistent with it.
-    let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-        p.q_cw[0] as f64,
-        p.q_cw[1] as f64,
-        p.q_cw[2] as f64,
-        p.q_cw[3] as f64,
-    ));
-    let c_w = Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64);
+    let pose = prediction_pose(&p).expect("a valid prediction");
     let items: Vec<Correspondence> = (0..40)
         .map(|i| {
             let p_c = Vector3::new((i % 8) as f64 * 0.2 - 0.7, (i / 8) as f64 * 0.2 - 0.4, 2.0);
-            let m_w = q.inverse() * p_c + c_w;
+            let m_w = pose.camera_to_world(&p_c);
             protocol::samples::correspondence(
                 [(p_c.x / p_c.z) as f32, (p_c.y / p_c.z) as f32],
                 [m_w.x as f32, m_w.y as f32, m_w.z as f32],

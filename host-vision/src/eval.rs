@@ -186,6 +186,11 @@ pub struct EvalOptions {
 /// Progress: `(what, done, total)`.
 pub type EvalProgress<'a> = &'a mut dyn FnMut(&str, u64, u64);
 
+/// Features per frame of the main runs (the map's default subset).
+fn default_features() -> usize {
+    crate::features::MapConfig::default().subset_size
+}
+
 fn model_name(m: ModelKind) -> String {
     format!("{m:?}").to_lowercase()
 }
@@ -199,7 +204,7 @@ pub fn run_one(
     options: &EvalOptions,
     progress: EvalProgress,
 ) -> Result<EvalRow, EvalError> {
-    let tag = if features == 40 {
+    let tag = if features == default_features() {
         model_name(model)
     } else {
         format!("{}-{features}features", model_name(model))
@@ -261,7 +266,7 @@ pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, 
                 &dataset,
                 scenario.as_str(),
                 model,
-                40,
+                default_features(),
                 options,
                 progress,
             )?);
@@ -288,7 +293,7 @@ fn write_plots(out: &Path, scenario: &str, report: &EvalReport) -> Result<(), Ev
     let series: Vec<Series> = report
         .rows
         .iter()
-        .filter(|r| r.scenario == scenario && r.features == 40)
+        .filter(|r| r.scenario == scenario && r.features == default_features())
         .map(|r| Series {
             name: format!("{} model", r.model),
             points: r.prediction_errors.clone(),
@@ -346,7 +351,7 @@ impl EvalReport {
         for sc in &scenarios {
             let cells: Vec<String> = models
                 .iter()
-                .map(|m| match self.cell(sc, 40, m) {
+                .map(|m| match self.cell(sc, default_features(), m) {
                     Some(r) => format!(
                         "{} ({:.0} %)",
                         r.summary

@@ -14,7 +14,7 @@ use firmware_sim::sim::scenario::ScenarioName;
 use host_vision::dataset::Dataset;
 use host_vision::eval::{ensure_dataset, options_for};
 use host_vision::track::{self, Faults, Pacing, TrackOptions, TrackRun};
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 use protocol::ModelKind;
 
 /// Synthesises `scenario` (first `duration` seconds) once per process.
@@ -72,14 +72,9 @@ fn tilt_errors(dataset: &Dataset, run: &TrackRun) -> Vec<(f64, f64)> {
         .iter()
         .filter_map(|s| {
             let (_, q_true) = dataset.groundtruth_at(stamp0 + s.t_us * 1000)?;
-            let q_sw = UnitQuaternion::from_quaternion(Quaternion::new(
-                s.q_sw[0] as f64,
-                s.q_sw[1] as f64,
-                s.q_sw[2] as f64,
-                s.q_sw[3] as f64,
-            ));
+            let (_, q_est) = track::state_pose(s);
             let up_true = q_true.inverse() * Vector3::z();
-            let up_est = q_sw * Vector3::z();
+            let up_est = q_est.inverse() * Vector3::z();
             Some((s.t_us as f64 * 1e-6, up_true.angle(&up_est).to_degrees()))
         })
         .collect()

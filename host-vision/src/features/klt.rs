@@ -240,6 +240,21 @@ struct Normal {
     sum_i2: f64,
 }
 
+impl Normal {
+    /// Why a window with fewer than `needed` usable pixels cannot be registered: it left the
+    /// image, or the mask and image leave too little of it.
+    fn shortfall(&self, needed: usize) -> KltFailure {
+        if self.outside > 0 {
+            KltFailure::OutOfImage
+        } else {
+            KltFailure::TooFewValidPixels {
+                valid: self.count,
+                needed,
+            }
+        }
+    }
+}
+
 /// Accumulates the normal equations for `α = [d₁, d₂, a, b]` with `a = 1/λ`, `b = −δ/λ`,
 /// i.e. the residual `ρ = J(m + d) − a I(m) − b = −(I − λJ − δ)/λ` (see the module
 /// documentation for why the residual is measured in live-image units).
@@ -446,14 +461,7 @@ pub fn register(
             let n = accumulate(&t, &ext, r, a, b);
             if n.count < needed {
                 if level == 0 {
-                    return Err(if n.outside > 0 {
-                        KltFailure::OutOfImage
-                    } else {
-                        KltFailure::TooFewValidPixels {
-                            valid: n.count,
-                            needed,
-                        }
-                    });
+                    return Err(n.shortfall(needed));
                 }
                 (dl, a, b, locked) = start;
                 break;
@@ -524,14 +532,7 @@ pub fn register(
     sample_target(j0, g[0] + d[0], g[1] + d[1], r, &mut ext);
     let n = accumulate(&t, &ext, r, a, b);
     if n.count < needed {
-        return Err(if n.outside > 0 {
-            KltFailure::OutOfImage
-        } else {
-            KltFailure::TooFewValidPixels {
-                valid: n.count,
-                needed,
-            }
-        });
+        return Err(n.shortfall(needed));
     }
     let inv = invert(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
     let count = n.count as f64;

@@ -75,8 +75,7 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
             gyro_bias_walk: (gyro_walk * 5.0) as f32,
             accel_bias_walk: (accel_walk * 5.0) as f32,
             gyro_meas: (gyro_density * rate.sqrt() * 1.5).max(2e-3) as f32,
-            accel_meas: match model {
-                _ if tuning.accel_noise.is_some() => tuning.accel_noise.unwrap_or_default(),
+            accel_meas: tuning.accel_noise.unwrap_or(match model {
                 // The gravity model's accelerometer noise absorbs the free acceleration. That
                 // "noise" is slow (the motion's own frequencies, ~1 s), not white: weighted as
                 // white at its size it drags the tilt along with every acceleration (on
@@ -84,7 +83,7 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
                 // 0.5°). Its white equivalent at 100 Hz is about √(τ f) ≈ 3× larger.
                 ModelKind::Gravity => (accel * 3.0).max(1.0),
                 _ => accel_sample.max(tuning.accel_noise_floor),
-            } as f32,
+            }) as f32,
         },
         init_sigma: InitSigma {
             position: tuning.init_position_sigma as f32,

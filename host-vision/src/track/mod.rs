@@ -251,11 +251,6 @@ pub struct TrackRun {
 /// Progress callback: `(imu samples done, total, frames analysed, current mode)`.
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize, Option<protocol::Mode>);
 
-/// A job for the vision worker, or the end.
-enum Job {
-    Frame(Box<FrameJob>),
-}
-
 /// Tracks a dataset. `interrupt` stops it early (Ctrl-C); what was tracked is still written.
 pub fn run(
     options: &TrackOptions,
@@ -285,7 +280,7 @@ pub fn run(
     })?;
 
     // The vision worker owns the renderer: created once, on its own thread.
-    let (job_tx, job_rx) = channel::<Job>();
+    let (job_tx, job_rx) = channel::<FrameJob>();
     let (res_tx, res_rx) = channel::<Result<FrameResult, TrackError>>();
     let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
     let camera = dataset.camera.camera;
@@ -314,14 +309,18 @@ pub fn run(
     };
     let outcome = session.drive(&mut link, &job_tx, &res_rx, &interrupt, progress);
     drop(job_tx);
-    let board = link.close();
+    let closed = link.close();
     let _ = worker.join();
-    // Whatever happened, write what was tracked.
-    let stopped_early = match &outcome {
-        Ok(completed) => !completed,
-        Err(_) => true,
+    // Whatever happened, write what was tracked. A board that failed at the end of an
+    // otherwise complete session fails the run too.
+    let outcome = match (outcome, closed) {
+        (Ok(completed), Ok(board)) => Ok((completed, board)),
+        (Ok(_), Err(e)) | (Err(e), _) => Err(e),
     };
-    let board = board.ok().flatten();
+    let (stopped_early, board) = match &outcome {
+        Ok((completed, board)) => (!completed, *board),
+        Err(_) => (true, None),
+    };
     let (frames, summary, written) = output::write_all(
         &dataset,
         options,
@@ -344,7 +343,7 @@ fn vision_worker(
     camera: crate::camera::Camera,
     model_path: PathBuf,
     options: VisionOptions,
-    jobs: Receiver<Job>,
+    jobs: Receiver<FrameJob>,
     results: Sender<Result<FrameResult, TrackError>>,
     ready: Sender<Result<Ready, TrackError>>,
 ) {
@@ -367,8 +366,9 @@ fn vision_worker(
             return;
         }
     };
-    while let Ok(Job::Frame(job)) = jobs.recv() {
-        if results.send(vision.process(*job)).is_err() {
+    // Ends when the session drops its sender.
+    while let Ok(job) = jobs.recv() {
+        if results.send(vision.process(job)).is_err() {
             return;
         }
     }
@@ -494,7 +494,7 @@ impl Session<'_> {
     fn drive(
         &mut self,
         link: &mut CoreLink,
-        jobs: &Sender<Job>,
+        jobs: &Sender<FrameJob>,
         results: &Receiver<Result<FrameResult, TrackError>>,
         interrupt: &AtomicBool,
         progress: Progress,
@@ -595,7 +595,7 @@ impl Session<'_> {
                         keep_image: every > 0 && f % every == 0,
                         omega_c,
                     };
-                    jobs.send(Job::Frame(Box::new(job)))
+                    jobs.send(job)
                         .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
                     pending.push_back(Pending {
                         frame_id: p.frame_id,
@@ -682,11 +682,6 @@ impl Session<'_> {
         Ok(())
     }
 
-    /// The filter model.
-    pub fn model(&self) -> ModelKind {
-        self.options.filter
-    }
-
     /// Seconds since the session started.
     pub fn elapsed(&self) -> f64 {
         self.wall.elapsed().as_secs_f64()
@@ -708,18 +703,19 @@ fn outlier(c: &mut Correspondence, rng: &mut StdRng) {
     }
 }
 
+/// IMU pose `(s_w, q_ws)` of a state report.
+pub fn state_pose(s: &StateReport) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let q = s.q_sw.map(f64::from);
+    let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+    (Vector3::from(s.s_w.map(f64::from)), q_sw.inverse())
+}
+
 /// Camera pose `(c_w, q_wc)` of a state report (DESIGN.md §3: `c_w = s_w + R(q_sw)ᵀ c_s`).
 pub fn camera_of_state(
     s: &StateReport,
     hand_eye: &crate::dataset::HandEye,
 ) -> (Vector3<f64>, UnitQuaternion<f64>) {
-    let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-        s.q_sw[0] as f64,
-        s.q_sw[1] as f64,
-        s.q_sw[2] as f64,
-        s.q_sw[3] as f64,
-    ));
-    let s_w = Vector3::new(s.s_w[0] as f64, s.s_w[1] as f64, s.s_w[2] as f64);
-    let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_sw.inverse());
+    let (s_w, q_ws) = state_pose(s);
+    let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_ws);
     (c_w, q_cw.inverse())
 }

@@ -11,7 +11,7 @@ use serde::Serialize;
 
 use firmware_sim::board::BoardReport;
 
-use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot};
+use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose};
 use crate::dataset::Dataset;
 
 /// One analysed frame.
@@ -267,23 +267,27 @@ fn wrap_deg(a: f64) -> f64 {
     a
 }
 
-/// Errors of one estimated IMU-rate state against the ground truth: camera position [m],
-/// IMU Euler angles [°] and attitude angle [°].
+/// Errors of one estimated IMU-rate state against the ground truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StateError {
+    /// Camera position [m].
+    pub position_m: f64,
+    /// Absolute IMU Euler angle errors (roll, pitch, yaw) [°].
+    pub euler_deg: [f64; 3],
+    /// Angle of the error rotation [°].
+    pub attitude_deg: f64,
+}
+
+/// [`StateError`] of a state report at `stamp`; `None` without ground truth there.
 pub fn state_errors(
     dataset: &Dataset,
     stamp: u64,
     s: &protocol::StateReport,
-) -> Option<(f64, [f64; 3], f64)> {
+) -> Option<StateError> {
     let (p_true, q_true) = dataset.groundtruth_at(stamp)?;
     let (c_true, _) = dataset.hand_eye.camera_pose(&p_true, &q_true);
     let (c_est, _) = camera_of_state(s, &dataset.hand_eye);
-    let q_ws_est = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-        s.q_sw[0] as f64,
-        s.q_sw[1] as f64,
-        s.q_sw[2] as f64,
-        s.q_sw[3] as f64,
-    ))
-    .inverse();
+    let (_, q_ws_est) = state_pose(s);
     let (r0, p0, y0) = q_true.euler_angles();
     let (r1, p1, y1) = q_ws_est.euler_angles();
     let euler = [
@@ -291,11 +295,11 @@ pub fn state_errors(
         wrap_deg((p1 - p0).to_degrees()).abs(),
         wrap_deg((y1 - y0).to_degrees()).abs(),
     ];
-    Some((
-        (c_est - c_true).norm(),
-        euler,
-        q_true.angle_to(&q_ws_est).to_degrees(),
-    ))
+    Some(StateError {
+        position_m: (c_est - c_true).norm(),
+        euler_deg: euler,
+        attitude_deg: q_true.angle_to(&q_ws_est).to_degrees(),
+    })
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -464,14 +468,21 @@ pub(super) fn write_all(
         }
     }
 
+    // Errors of every state against the ground truth (once: the accuracy and the plot).
+    let errors: Vec<(f64, StateError)> = log
+        .states
+        .iter()
+        .filter_map(|s| {
+            let e = state_errors(dataset, stamp_of(s.t_us), s)?;
+            Some((s.t_us as f64 * 1e-6, e))
+        })
+        .collect();
     // Accuracy from snap-on.
     let accuracy = snapped_on_at.and_then(|t0| {
         let mut acc = Accuracy::default();
         let mut sq = 0.0;
-        for s in log.states.iter().filter(|s| s.t_us as f64 * 1e-6 >= t0) {
-            let Some((pe, euler, att)) = state_errors(dataset, stamp_of(s.t_us), s) else {
-                continue;
-            };
+        for (_, e) in errors.iter().filter(|(t, _)| *t >= t0) {
+            let (pe, euler, att) = (e.position_m, e.euler_deg, e.attitude_deg);
             acc.samples += 1;
             acc.mean_position_m += pe;
             sq += pe * pe;
@@ -555,6 +566,15 @@ pub(super) fn write_all(
         dataset,
         session,
     )?);
-    written.extend(plot::write_track_plots(out, dataset, session, &rows)?);
+    let position_mm: Vec<(f64, f64)> = errors
+        .iter()
+        .map(|(t, e)| (*t, e.position_m * 1e3))
+        .collect();
+    written.extend(plot::write_track_plots(
+        out,
+        &summary.model,
+        &rows,
+        &position_mm,
+    )?);
     Ok((rows, summary, written))
 }

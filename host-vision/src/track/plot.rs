@@ -5,9 +5,8 @@ use std::path::{Path, PathBuf};
 
 use plotters::prelude::*;
 
-use super::output::{FrameRow, state_errors};
-use super::{Session, TrackError};
-use crate::dataset::Dataset;
+use super::TrackError;
+use super::output::FrameRow;
 
 /// One named series of `(t, value)`.
 #[derive(Debug, Clone)]
@@ -115,19 +114,19 @@ pub fn line_plot(
     Ok(())
 }
 
-/// Prediction error per frame and camera position error over time, for one run.
+/// Prediction error per frame and, with ground truth, the camera position error `(t, mm)`
+/// over time, for one run of `model`.
 pub fn write_track_plots(
     out: &Path,
-    dataset: &Dataset,
-    session: &Session,
+    model: &str,
     rows: &[FrameRow],
+    position_mm: &[(f64, f64)],
 ) -> Result<Vec<PathBuf>, TrackError> {
     let dir = out.join("plots");
     std::fs::create_dir_all(&dir).map_err(|source| TrackError::Output {
         path: dir.clone(),
         source,
     })?;
-    let model = format!("{:?}", session.model()).to_lowercase();
     let mut written = Vec::new();
     let pred = Series {
         name: format!("{model} model"),
@@ -145,20 +144,10 @@ pub fn write_track_plots(
         Some(30.0),
     )?;
     written.push(path);
-    if dataset.groundtruth.is_some() {
-        let stamp0 = dataset.imu[0].stamp;
+    if !position_mm.is_empty() {
         let pos = Series {
             name: format!("{model} model"),
-            points: session
-                .log
-                .states
-                .iter()
-                .step_by(2)
-                .filter_map(|s| {
-                    let (pe, _, _) = state_errors(dataset, stamp0 + s.t_us * 1000, s)?;
-                    Some((s.t_us as f64 * 1e-6, pe * 1e3))
-                })
-                .collect(),
+            points: position_mm.to_vec(),
         };
         let path = dir.join("position_error.svg");
         line_plot(
