@@ -1,6 +1,7 @@
 //! Project commands, run as `cargo xtask <command>`:
 //!
-//! - `demo`: the main job (today: the protocol loop-back self-test over a pty pair);
+//! - `demo`: the main job: synthesise the default scenario (cached) and track it through the
+//!   simulated board over a pty serial link (`host-vision demo`);
 //! - `test`: every check CI runs: format, lints, tests, and the no_std crates built for the
 //!   Cortex-M4F target;
 //! - `setup`: only the machine set-up both of the above start with.
@@ -70,7 +71,45 @@ fn cargo() -> Command {
     // Mesa's Vulkan device-select layer warns about XDG_RUNTIME_DIR on headless machines.
     cmd.current_dir(workspace_root())
         .env("NODEVICE_SELECT", "1");
+    // A CI build is never rebuilt incrementally: the incremental caches only cost disk there.
+    if env::var_os("CI").is_some() && env::var_os("CARGO_INCREMENTAL").is_none() {
+        cmd.env("CARGO_INCREMENTAL", "0");
+    }
     cmd
+}
+
+/// Free space a cold `cargo xtask test` needs for its build products (measured: 3.3 GB).
+const TEST_DISK_NEED_GB: u64 = 6;
+
+/// Warns up front when the disk holding `target/` is nearly full, rather than letting a build
+/// fail an hour later with `No space left on device`.
+fn check_disk(need_gb: u64) {
+    let dir = env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target"));
+    let probe = if dir.exists() { dir } else { workspace_root() };
+    let Some(out) = output("df", &["-Pk", &probe.to_string_lossy()]) else {
+        return;
+    };
+    // POSIX `df -P`: the second line's fourth column is the free space in KiB.
+    let free_kib = out
+        .lines()
+        .nth(1)
+        .and_then(|l| l.split_whitespace().nth(3))
+        .and_then(|f| f.parse::<u64>().ok());
+    if let Some(free_kib) = free_kib {
+        let free_gb = free_kib / 1_000_000;
+        println!(
+            "xtask: {free_gb} GB free on the disk of {}",
+            probe.display()
+        );
+        if free_gb < need_gb {
+            println!(
+                "xtask: warning: a cold build needs about {need_gb} GB; free some space \
+                 (old target directories) if the build fails with `No space left on device`"
+            );
+        }
+    }
 }
 
 /// Runs a command, echoing it; fails with its exit status.
@@ -216,6 +255,7 @@ fn demo(extra: &[String]) -> Result<(), String> {
 
 fn test() -> Result<(), String> {
     let start = Instant::now();
+    check_disk(TEST_DISK_NEED_GB);
     let mut fmt = cargo();
     fmt.args(["fmt", "--all", "--check"]);
     run(fmt)?;
