@@ -310,9 +310,32 @@ struct SynthArgs {
     /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
     #[arg(long)]
     ideal: bool,
+    /// Gyro white-noise density [rad/s/√Hz] (default: the MT9-class 1e-3).
+    #[arg(long, value_parser = parse_density)]
+    gyro_noise: Option<f64>,
+    /// Gyro bias random walk [rad/s²/√Hz] (default: 2e-5).
+    #[arg(long, value_parser = parse_density)]
+    gyro_walk: Option<f64>,
+    /// Accelerometer white-noise density [m/s²/√Hz] (default: 2e-3).
+    #[arg(long, value_parser = parse_density)]
+    accel_noise: Option<f64>,
+    /// Accelerometer bias random walk [m/s³/√Hz] (default: 1e-4).
+    #[arg(long, value_parser = parse_density)]
+    accel_walk: Option<f64>,
     /// Replace a dataset already in the output folder.
     #[arg(long)]
     overwrite: bool,
+}
+
+fn parse_density(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "a noise density must be finite and non-negative, got `{s}`"
+        ))
+    }
 }
 
 fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
@@ -346,11 +369,22 @@ fn synth(a: &SynthArgs) -> anyhow::Result<()> {
         frames.read_noise = 0.0;
         frames.shot_noise = 0.0;
     }
+    let overridden = [a.gyro_noise, a.gyro_walk, a.accel_noise, a.accel_walk];
+    let imu_noise = overridden.iter().any(Option::is_some).then(|| {
+        let d = firmware_sim::sim::imu::ImuNoise::MT9;
+        firmware_sim::sim::imu::ImuNoise {
+            gyro_density: a.gyro_noise.unwrap_or(d.gyro_density),
+            gyro_walk: a.gyro_walk.unwrap_or(d.gyro_walk),
+            accel_density: a.accel_noise.unwrap_or(d.accel_density),
+            accel_walk: a.accel_walk.unwrap_or(d.accel_walk),
+        }
+    });
     let options = SynthOptions {
         seed: a.seed,
         duration: a.duration,
         rates: Some((a.imu_rate, a.camera_every)),
         ideal_imu: a.ideal,
+        imu_noise,
         frames,
         textures: TextureOptions {
             scale: a.texture_scale,

@@ -4,6 +4,7 @@
 
 use std::sync::Arc;
 
+use firmware_sim::sim::imu::ImuNoise;
 use firmware_sim::sim::scenario::{Scenario, ScenarioName, Surface, vertical_quad};
 use firmware_sim::sim::trajectory::Trajectory;
 use host_vision::camera::read_euroc_sensor_yaml;
@@ -152,6 +153,11 @@ fn a_short_dataset_has_the_euroc_layout_and_is_deterministic() {
     let mut o = SynthOptions::new(ScenarioName::DesktopFast, out.clone());
     o.duration = Some(0.5);
     o.seed = 7;
+    // An IMU noise override reaches the calibration the tracker reads.
+    o.imu_noise = Some(ImuNoise {
+        gyro_walk: 3e-5,
+        ..ImuNoise::MT9
+    });
     o.frames = FrameOptions {
         subframes: 2,
         max_subframes: 3,
@@ -189,7 +195,8 @@ fn a_short_dataset_has_the_euroc_layout_and_is_deterministic() {
     assert_eq!(calib.rate_hz, Some(25.0));
     let imu_yaml = std::fs::read_to_string(mav0.join("imu0/sensor.yaml")).unwrap();
     assert!(
-        imu_yaml.contains("gyroscope_noise_density: 1e-3"),
+        imu_yaml.contains("gyroscope_noise_density: 1e-3")
+            && imu_yaml.contains("gyroscope_random_walk: 3e-5"),
         "{imu_yaml}"
     );
     let manifest: serde_json::Value =
@@ -276,6 +283,13 @@ fn bad_arguments_give_clear_errors() {
     o.frames.supersample = 9;
     let err = run(&o, &mut |_, _| {}).unwrap_err().to_string();
     assert!(err.contains("supersample"), "{err}");
+    o.frames.supersample = 2;
+    o.imu_noise = Some(ImuNoise {
+        gyro_walk: f64::NAN,
+        ..ImuNoise::MT9
+    });
+    let err = run(&o, &mut |_, _| {}).unwrap_err().to_string();
+    assert!(err.contains("IMU noise") && err.contains("NaN"), "{err}");
     // Nothing was written by the failed runs.
     assert!(!dir.path().join("ok").exists());
 }

@@ -23,6 +23,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use firmware_sim::sim::imu::ImuNoise;
 use firmware_sim::sim::scenario::euroc::{self, DatasetError};
 use firmware_sim::sim::scenario::{Peaks, Scenario, ScenarioError, ScenarioName, T0_NS};
 use rand::SeedableRng;
@@ -37,6 +38,9 @@ use crate::render::RenderError;
 /// Why a dataset could not be made.
 #[derive(Debug, thiserror::Error)]
 pub enum SynthError {
+    /// An IMU noise density is negative or not finite.
+    #[error("IMU noise densities must be finite and non-negative, got {0:?}")]
+    ImuNoise(ImuNoise),
     /// A file or folder could not be written.
     #[error("{path}: {source}")]
     Io {
@@ -110,6 +114,8 @@ pub struct SynthOptions {
     pub rates: Option<(f64, u32)>,
     /// IMU without noise, biases, vibration or clipping.
     pub ideal_imu: bool,
+    /// IMU noise densities instead of the scenario's MT9-class ones (ignored with `ideal_imu`).
+    pub imu_noise: Option<ImuNoise>,
     /// Frames.
     pub frames: FrameOptions,
     /// Textures.
@@ -128,6 +134,7 @@ impl SynthOptions {
             duration: None,
             rates: None,
             ideal_imu: false,
+            imu_noise: None,
             frames: FrameOptions::new(320, 240),
             textures: TextureOptions::generated(),
             overwrite: false,
@@ -142,6 +149,18 @@ impl SynthOptions {
         }
         if let Some((hz, every)) = self.rates {
             sc = sc.with_rates(hz, every)?;
+        }
+        if let Some(noise) = self.imu_noise {
+            let all = [
+                noise.gyro_density,
+                noise.accel_density,
+                noise.gyro_walk,
+                noise.accel_walk,
+            ];
+            if !all.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                return Err(SynthError::ImuNoise(noise));
+            }
+            sc.imu.noise = noise;
         }
         if self.ideal_imu {
             sc.imu = sc.imu.without_noise();
