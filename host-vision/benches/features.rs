@@ -12,7 +12,7 @@ use host_vision::features::fast;
 use host_vision::features::gray::{GrayF32, Mask};
 use host_vision::features::grid::{self, GridConfig};
 use host_vision::features::klt::{self, KltConfig};
-use host_vision::features::pyramid::{Pyramid, TemplatePyramid};
+use host_vision::features::pyramid::TemplatePyramid;
 use image::GrayImage;
 
 fn frame() -> GrayImage {
@@ -50,11 +50,18 @@ fn features(c: &mut Criterion) {
     let cfg = KltConfig::default();
     let base = GrayF32::from_gray8(&img).unwrap();
     c.bench_function("pyramid_build_752x480_4_levels", |b| {
-        b.iter(|| Pyramid::build(black_box(base.clone()), cfg.levels))
+        b.iter(|| cfg.target_pyramid(black_box(base.clone())))
     });
     let mask = Mask::full(base.width(), base.height()).unwrap();
     c.bench_function("template_prepare_752x480_blur1_4_levels", |b| {
-        b.iter(|| TemplatePyramid::build(black_box(&base), mask.clone(), cfg.levels, 1.0))
+        b.iter(|| {
+            TemplatePyramid::build(
+                black_box(&base),
+                mask.clone(),
+                cfg.levels,
+                cfg.template_sigma(1.0),
+            )
+        })
     });
 
     // Live image: the frame shifted by (7, −3) px (integer, cheap to make), contrast 0.7,
@@ -72,8 +79,8 @@ fn features(c: &mut Criterion) {
             (v - 25.0) / 0.7
         })
         .collect();
-    let target = Pyramid::build(GrayF32::new(w, h, live).unwrap(), cfg.levels);
-    let tmpl = TemplatePyramid::build(&base, mask, cfg.levels, 1.0).unwrap();
+    let target = cfg.target_pyramid(GrayF32::new(w, h, live).unwrap());
+    let tmpl = TemplatePyramid::build(&base, mask, cfg.levels, cfg.template_sigma(1.0)).unwrap();
     let points: Vec<[f64; 2]> = grid::extract(
         &img,
         None,

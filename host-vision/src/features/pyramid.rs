@@ -127,8 +127,17 @@ fn convolve_separable(img: &GrayF32, kernel: &[f32]) -> GrayF32 {
 /// Gaussian blur with standard deviation `sigma` (px), kernel radius `ceil(3σ)`; `sigma ≤ 0`
 /// or non-finite returns a copy.
 pub fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
+    match gaussian_kernel(sigma) {
+        Some(kernel) => convolve_separable(img, &kernel),
+        None => img.clone(),
+    }
+}
+
+/// The normalised half kernel of [`gaussian_blur`] (`kernel[0]` is the centre tap, radius
+/// `ceil(3σ)`); `None` for `sigma ≤ 0` or non-finite.
+pub fn gaussian_kernel(sigma: f32) -> Option<Vec<f32>> {
     if !(sigma.is_finite() && sigma > 0.0) {
-        return img.clone();
+        return None;
     }
     let r = (3.0 * sigma).ceil().max(1.0) as usize;
     let mut kernel: Vec<f32> = (0..=r)
@@ -136,7 +145,7 @@ pub fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
         .collect();
     let sum = kernel[0] + 2.0 * kernel[1..].iter().sum::<f32>();
     kernel.iter_mut().for_each(|v| *v /= sum);
-    convolve_separable(img, &kernel)
+    Some(kernel)
 }
 
 /// The blur of the rendered image against aliasing (DESIGN.md §5): the rendering has hard,
@@ -163,16 +172,35 @@ pub fn pyr_down(img: &GrayF32) -> GrayF32 {
     GrayF32::new(w2, h2, out).unwrap_or_else(|_| img.clone())
 }
 
-/// A Gaussian pyramid; level 0 is the input.
+/// A Gaussian pyramid; level 0 is the input, or the input smoothed (see
+/// [`Pyramid::build_smoothed`]).
 #[derive(Debug, Clone)]
 pub struct Pyramid {
     levels: Vec<GrayF32>,
+    smoothing: f32,
 }
 
 impl Pyramid {
     /// Builds up to `levels` levels (at least 1), stopping before a level would be smaller
     /// than [`MIN_LEVEL_SIDE`] on a side.
     pub fn build(base: GrayF32, levels: usize) -> Self {
+        Self::build_smoothed(base, levels, 0.0)
+    }
+
+    /// As [`Pyramid::build`], with level 0 the input blurred by a Gaussian of `sigma` px
+    /// (none for `sigma ≤ 0`). The pyramid remembers `sigma`: the registration's covariance
+    /// accounts for the noise correlation the blur introduces.
+    pub fn build_smoothed(base: GrayF32, levels: usize, sigma: f32) -> Self {
+        let smoothing = if sigma.is_finite() && sigma > 0.0 {
+            sigma
+        } else {
+            0.0
+        };
+        let base = if smoothing > 0.0 {
+            gaussian_blur(&base, smoothing)
+        } else {
+            base
+        };
         let mut out = vec![base];
         while out.len() < levels.max(1) {
             let last = &out[out.len() - 1];
@@ -184,7 +212,15 @@ impl Pyramid {
             let next = pyr_down(last);
             out.push(next);
         }
-        Self { levels: out }
+        Self {
+            levels: out,
+            smoothing,
+        }
+    }
+
+    /// The Gaussian σ (px) level 0 was smoothed with; 0 for none.
+    pub fn smoothing(&self) -> f32 {
+        self.smoothing
     }
 
     /// Number of levels built.

@@ -13,8 +13,7 @@ use protocol::{Correspondence, PosePrediction};
 use crate::camera::{Camera, CameraPose, UndistortMap};
 use crate::features::correspondence::correspondence;
 use crate::features::{
-    FeatureMap, GrayF32, KltConfig, KltFailure, MapConfig, Mask, Outcome, Pyramid, TemplatePyramid,
-    register,
+    FeatureMap, GrayF32, KltConfig, KltFailure, MapConfig, Mask, Outcome, TemplatePyramid, register,
 };
 use crate::model::Model;
 use crate::render::{RenderView, Renderer};
@@ -284,9 +283,9 @@ impl Vision {
                 &GrayF32::from_gray8(&rendering.gray)?,
                 Mask::from_gray8(&rendering.mask)?,
                 klt.levels,
-                self.options.blur_sigma,
+                klt.template_sigma(self.options.blur_sigma),
             )?;
-            let target = Pyramid::build(GrayF32::from_gray8(&live)?, klt.levels);
+            let target = klt.target_pyramid(GrayF32::from_gray8(&live)?);
             times.pyramids = t.elapsed().as_secs_f64();
 
             let t = Instant::now();
