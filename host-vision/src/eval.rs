@@ -147,9 +147,23 @@ pub struct EvalRow {
 }
 
 impl EvalRow {
-    /// Times the core declared a divergence (where the model lost track).
-    pub fn lost_at(&self) -> Vec<f64> {
+    /// Times the core declared a divergence.
+    pub fn diverged_at(&self) -> Vec<f64> {
         self.summary.divergences.iter().map(|e| e.t).collect()
+    }
+
+    /// Where the model lost track: the starts of the host's track losses and the core's
+    /// divergences, in time order (a divergence inside a loss counts once).
+    pub fn lost_at(&self) -> Vec<f64> {
+        let losses = &self.summary.track_losses;
+        let mut t: Vec<f64> = losses.iter().map(|l| l.start).collect();
+        t.extend(
+            self.diverged_at()
+                .into_iter()
+                .filter(|&d| !losses.iter().any(|l| (l.start..=l.end).contains(&d))),
+        );
+        t.sort_by(f64::total_cmp);
+        t
     }
 }
 
@@ -370,9 +384,9 @@ impl EvalReport {
         );
         let _ = writeln!(
             s,
-            "| sequence | features | model | position mean [mm] | position max [mm] | Euler errors roll, pitch, yaw [°] | divergences (lost track at [s]) |"
+            "| sequence | features | model | position mean [mm] | position max [mm] | Euler errors roll, pitch, yaw [°] | divergences | lost track at [s] |"
         );
-        let _ = writeln!(s, "|---|---:|---|---:|---:|---|---|");
+        let _ = writeln!(s, "|---|---:|---|---:|---:|---|---:|---|");
         for r in &self.rows {
             let (mean, max, euler) = match &r.summary.accuracy {
                 Some(a) => (
@@ -385,21 +399,21 @@ impl EvalReport {
                 ),
                 None => ("n/a".into(), "n/a".into(), "n/a".into()),
             };
+            let diverged = r.summary.divergences.len();
             let lost = r.lost_at();
             let lost = if lost.is_empty() {
-                "0".to_string()
+                "never".to_string()
             } else {
                 let shown: Vec<String> = lost.iter().take(5).map(|t| format!("{t:.1}")).collect();
                 format!(
-                    "{} ({}{})",
-                    lost.len(),
+                    "{}{}",
                     shown.join(", "),
                     if lost.len() > 5 { ", …" } else { "" }
                 )
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {mean} | {max} | {euler} | {lost} |",
+                "| {} | {} | {} | {mean} | {max} | {euler} | {diverged} | {lost} |",
                 r.scenario, r.features, r.model
             );
         }

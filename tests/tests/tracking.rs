@@ -197,14 +197,16 @@ fn a_forced_divergence_is_detected_and_tracking_resumes_by_itself() {
     assert!(err < 0.01, "{err}");
 }
 
-/// The paper's Fig. 6: with two features per frame the accelerometer keeps the tilt: the acc
-/// and gravity models stay within a degree. The paper's gyro model drifted; ours does not (its
-/// tilt is printed): two registered features per frame still observe the synthetic gyro's
-/// bias, which is estimated at rest and walks slowly (see the closing note of issue 8).
+/// The paper's Fig. 6: with two features per frame the gyro model's attitude drifts while the
+/// accelerometer keeps the gravity and acc models' tilt. On this seed the gyro model's tilt
+/// error grows from 0.67° to 2.19°, gravity's stays at 0.7-0.8° and acc's at 0.15-0.28°. Other
+/// seeds show the gyro drift and the acc model's stability as well, but the gravity model's
+/// tilt there drifts nearly as much as the gyro model's (closing note of issue 8).
 #[test]
-fn desktop_slow_with_two_features_the_accelerometer_keeps_the_tilt() {
+fn desktop_slow_with_two_features_the_gyro_model_drifts_and_the_accelerometer_keeps_the_tilt() {
     let ds = dataset(ScenarioName::DesktopSlow, 30.0);
     let data = Dataset::open(&ds).unwrap();
+    let mut late_tilt = std::collections::BTreeMap::new();
     for m in ModelKind::ALL {
         let mut o = options(&ds, &format!("desktop-slow-2features-{m:?}"), m);
         o.vision.map.subset_size = 2;
@@ -217,9 +219,16 @@ fn desktop_slow_with_two_features_the_accelerometer_keeps_the_tilt() {
         match m {
             ModelKind::Acc => assert!(late < 0.5 && early < 0.5, "{early} {late}"),
             ModelKind::Gravity => assert!(late < 1.0 && early < 1.0, "{early} {late}"),
-            ModelKind::Gyro => {}
+            // Drifts: the error grows, and ends above a degree.
+            ModelKind::Gyro => assert!(late > 1.0 && late > 2.0 * early, "{early} {late}"),
         }
+        late_tilt.insert(format!("{m:?}"), late);
     }
+    assert!(
+        late_tilt["Gyro"] > 2.0 * late_tilt["Gravity"],
+        "{late_tilt:?}"
+    );
+    assert!(late_tilt["Gyro"] > 4.0 * late_tilt["Acc"], "{late_tilt:?}");
 }
 
 #[test]
@@ -249,15 +258,26 @@ fn foyer_the_acc_model_tracks_throughout_and_the_others_lose_track() {
     let ds = dataset(ScenarioName::Foyer, 30.0);
     for m in ModelKind::ALL {
         let run = track(&options(&ds, &format!("foyer-{m:?}"), m));
-        let lost: Vec<String> = run
+        let diverged: Vec<String> = run
             .summary
             .divergences
             .iter()
             .map(|e| format!("{:.2} s ({})", e.t, e.reason))
             .collect();
-        println!("foyer {m:?}: lost track at {lost:?}");
+        // Where the host saw the prediction lose the model (a drift the KLT's pyramid recovers
+        // from never shows as a divergence).
+        let lost: Vec<String> = run
+            .summary
+            .track_losses
+            .iter()
+            .map(|l| format!("{:.2}-{:.2} s", l.start, l.end))
+            .collect();
+        println!("foyer {m:?}: lost track at {lost:?}; divergences at {diverged:?}");
         if m == ModelKind::Acc {
-            assert!(lost.is_empty(), "{lost:?}");
+            assert!(
+                lost.is_empty() && diverged.is_empty(),
+                "{lost:?} {diverged:?}"
+            );
             let px = mean_px(&run);
             assert!(px <= 1.42, "mean prediction error {px:.3} px");
         } else {

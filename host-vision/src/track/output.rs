@@ -15,7 +15,7 @@ use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot, s
 use crate::dataset::Dataset;
 
 /// One analysed frame.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Default, Serialize)]
 pub struct FrameRow {
     /// Index in the dataset.
     pub index: usize,
@@ -81,6 +81,70 @@ pub struct Event {
     pub reason: String,
 }
 
+/// A stretch where the host saw that the prediction had lost the model: features predicted in
+/// view did not register, or registered far from where they were predicted.
+#[derive(Debug, Clone, Copy, Serialize, PartialEq)]
+pub struct TrackLoss {
+    /// First frame off track [s].
+    pub start: f64,
+    /// First frame back on track [s], or the last frame if tracking never came back.
+    pub end: f64,
+    /// Whether tracking came back (by registration or after a re-initialisation).
+    pub recovered: bool,
+}
+
+/// Features tried below which a frame says nothing about the prediction (model hardly in view).
+const LOSS_MIN_TRIED: usize = 10;
+/// Fewer registered features than this, out of [`LOSS_MIN_TRIED`] or more: off track.
+const LOSS_MIN_REGISTERED: usize = 3;
+/// Mean prediction error [px] above which a frame is off track (the paper's models stay near
+/// 1 px; the KLT's pyramid still registers features predicted tens of px off).
+const LOSS_PREDICTION_PX: f64 = 10.0;
+/// Consecutive frames off track that make a loss (single frames are glitches).
+const LOSS_MIN_FRAMES: usize = 2;
+
+/// Where the prediction lost the model, from what the host sees (no ground truth needed): a
+/// frame with the model in view ([`LOSS_MIN_TRIED`] features tried) is off track when fewer
+/// than [`LOSS_MIN_REGISTERED`] register or their mean prediction error exceeds
+/// [`LOSS_PREDICTION_PX`], and on track otherwise; frames without the model in view change
+/// nothing. A drift the KLT's pyramid recovers from shows here and never as a divergence.
+pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
+    let mut out = Vec::new();
+    let mut open: Option<(f64, usize)> = None;
+    for r in rows.iter().filter(|r| r.t >= from) {
+        if r.tried < LOSS_MIN_TRIED {
+            continue;
+        }
+        let off = r.registered < LOSS_MIN_REGISTERED
+            || r.prediction_error_px.is_none_or(|e| e > LOSS_PREDICTION_PX);
+        match (off, open) {
+            (true, Some((start, n))) => open = Some((start, n + 1)),
+            (true, None) => open = Some((r.t, 1)),
+            (false, Some((start, n))) => {
+                if n >= LOSS_MIN_FRAMES {
+                    out.push(TrackLoss {
+                        start,
+                        end: r.t,
+                        recovered: true,
+                    });
+                }
+                open = None;
+            }
+            (false, None) => {}
+        }
+    }
+    if let (Some((start, n)), Some(last)) = (open, rows.last())
+        && n >= LOSS_MIN_FRAMES
+    {
+        out.push(TrackLoss {
+            start,
+            end: last.t,
+            recovered: false,
+        });
+    }
+    out
+}
+
 /// Summary of a run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -118,6 +182,8 @@ pub struct Summary {
     pub divergences: Vec<Event>,
     /// Stretches after snap-on without vision (dead reckoning), `[start, end]` [s].
     pub without_vision: Vec<[f64; 2]>,
+    /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
+    pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
     pub mean_frame_ms: f64,
     /// Wall-clock time of the run [s].
@@ -178,6 +244,26 @@ impl fmt::Display for Summary {
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
             writeln!(f, "  {:8.2} s  {} ({})", e.t, e.mode, e.reason)?;
+        }
+        if !self.track_losses.is_empty() {
+            let shown: Vec<String> = self
+                .track_losses
+                .iter()
+                .map(|l| {
+                    format!(
+                        "{:.2}-{:.2} s{}",
+                        l.start,
+                        l.end,
+                        if l.recovered { "" } else { " (not recovered)" }
+                    )
+                })
+                .collect();
+            writeln!(
+                f,
+                "lost track   {} times (model in view, features not registering or far off): {}",
+                self.track_losses.len(),
+                shown.join(", ")
+            )?;
         }
         if !self.without_vision.is_empty() {
             let total: f64 = self.without_vision.iter().map(|w| w[1] - w[0]).sum();
@@ -527,6 +613,7 @@ pub(super) fn write_all(
         snapped_on_at,
         divergences,
         without_vision,
+        track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0
         } else {
@@ -577,4 +664,59 @@ pub(super) fn write_all(
         &position_mm,
     )?);
     Ok((rows, summary, written))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(t: f64, tried: usize, registered: usize, error_px: Option<f64>) -> FrameRow {
+        FrameRow {
+            t,
+            tried,
+            registered,
+            prediction_error_px: error_px,
+            ..FrameRow::default()
+        }
+    }
+
+    #[test]
+    fn track_losses_need_the_model_in_view_and_two_frames_off() {
+        let rows = vec![
+            row(0.00, 40, 40, Some(0.5)),
+            // One frame far off: a glitch.
+            row(0.04, 40, 30, Some(12.0)),
+            row(0.08, 40, 40, Some(0.5)),
+            // Model out of view: nothing to say.
+            row(0.12, 0, 0, None),
+            row(0.16, 4, 0, None),
+            // In view, nothing registers, then registered far off, then back.
+            row(0.20, 30, 0, None),
+            row(0.24, 30, 1, Some(20.0)),
+            row(0.28, 30, 25, Some(14.0)),
+            row(0.32, 30, 30, Some(1.0)),
+            // Lost to the end.
+            row(0.36, 30, 2, Some(1.0)),
+            row(0.40, 0, 0, None),
+            row(0.44, 30, 0, None),
+        ];
+        let losses = track_losses(&rows, 0.0);
+        assert_eq!(
+            losses,
+            vec![
+                TrackLoss {
+                    start: 0.20,
+                    end: 0.32,
+                    recovered: true
+                },
+                TrackLoss {
+                    start: 0.36,
+                    end: 0.44,
+                    recovered: false
+                },
+            ]
+        );
+        // Before snap-on nothing counts.
+        assert_eq!(track_losses(&rows, 0.34).len(), 1);
+    }
 }
