@@ -95,19 +95,26 @@ pub struct TrackLoss {
 
 /// Features tried below which a frame says nothing about the prediction (model hardly in view).
 const LOSS_MIN_TRIED: usize = 10;
-/// Fewer registered features than this, out of [`LOSS_MIN_TRIED`] or more: off track.
-const LOSS_MIN_REGISTERED: usize = 3;
 /// Mean prediction error [px] above which a frame is off track (the paper's models stay near
 /// 1 px; the KLT's pyramid still registers features predicted tens of px off).
 const LOSS_PREDICTION_PX: f64 = 10.0;
+/// With at least this many features tried, fewer than [`LOSS_MIN_SHARE`] of them registering
+/// is off track too. Fewer tried say too little: a model leaving the view during a fast turn
+/// loses its border features to motion blur while the prediction is still good.
+const LOSS_MIN_TRIED_FOR_SHARE: usize = 20;
+/// See [`LOSS_MIN_TRIED_FOR_SHARE`].
+const LOSS_MIN_SHARE: f64 = 0.1;
+/// Registered features (within [`LOSS_PREDICTION_PX`]) that put a frame back on track.
+const LOSS_MIN_REGISTERED: usize = 3;
 /// Consecutive frames off track that make a loss (single frames are glitches).
 const LOSS_MIN_FRAMES: usize = 2;
 
-/// Where the prediction lost the model, from what the host sees (no ground truth needed): a
-/// frame with the model in view ([`LOSS_MIN_TRIED`] features tried) is off track when fewer
-/// than [`LOSS_MIN_REGISTERED`] register or their mean prediction error exceeds
-/// [`LOSS_PREDICTION_PX`], and on track otherwise; frames without the model in view change
-/// nothing. A drift the KLT's pyramid recovers from shows here and never as a divergence.
+/// Where the prediction lost the model, from what the host sees (no ground truth needed).
+/// Frames with the model in view ([`LOSS_MIN_TRIED`] features tried) are judged: off track
+/// when registered features lie more than [`LOSS_PREDICTION_PX`] from their prediction on
+/// average, or when fewer than a tenth of [`LOSS_MIN_TRIED_FOR_SHARE`] or more register; on
+/// track with [`LOSS_MIN_REGISTERED`] registered within that error. Other frames change
+/// nothing. A drift that the KLT's pyramid recovers from shows here and never as a divergence.
 pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
     let mut out = Vec::new();
     let mut open: Option<(f64, usize)> = None;
@@ -115,22 +122,25 @@ pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
         if r.tried < LOSS_MIN_TRIED {
             continue;
         }
-        let off = r.registered < LOSS_MIN_REGISTERED
-            || r.prediction_error_px.is_none_or(|e| e > LOSS_PREDICTION_PX);
-        match (off, open) {
-            (true, Some((start, n))) => open = Some((start, n + 1)),
-            (true, None) => open = Some((r.t, 1)),
-            (false, Some((start, n))) => {
-                if n >= LOSS_MIN_FRAMES {
-                    out.push(TrackLoss {
-                        start,
-                        end: r.t,
-                        recovered: true,
-                    });
-                }
-                open = None;
-            }
-            (false, None) => {}
+        let far = r.registered > 0
+            && r.prediction_error_px
+                .is_some_and(|e| e > LOSS_PREDICTION_PX);
+        let few = r.tried >= LOSS_MIN_TRIED_FOR_SHARE
+            && (r.registered as f64) < LOSS_MIN_SHARE * r.tried as f64;
+        let on = r.registered >= LOSS_MIN_REGISTERED
+            && r.prediction_error_px
+                .is_some_and(|e| e <= LOSS_PREDICTION_PX);
+        if far || few {
+            open = Some(open.map_or((r.t, 1), |(start, n)| (start, n + 1)));
+        } else if on
+            && let Some((start, n)) = open.take()
+            && n >= LOSS_MIN_FRAMES
+        {
+            out.push(TrackLoss {
+                start,
+                end: r.t,
+                recovered: true,
+            });
         }
     }
     if let (Some((start, n)), Some(last)) = (open, rows.last())
@@ -687,9 +697,10 @@ mod tests {
             // One frame far off: a glitch.
             row(0.04, 40, 30, Some(12.0)),
             row(0.08, 40, 40, Some(0.5)),
-            // Model out of view: nothing to say.
+            // Model out of view, or leaving it with few features tried: nothing to say.
             row(0.12, 0, 0, None),
-            row(0.16, 4, 0, None),
+            row(0.16, 16, 1, Some(2.0)),
+            row(0.18, 12, 0, None),
             // In view, nothing registers, then registered far off, then back.
             row(0.20, 30, 0, None),
             row(0.24, 30, 1, Some(20.0)),
