@@ -71,15 +71,8 @@ fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
             Ok(0) => break,
             Ok(n) => n,
             Err(e) if transport::is_poll_timeout(&e) => continue,
-            // The host hung up (a socket closed with answers unread resets the connection).
-            Err(e)
-                if matches!(
-                    e.kind(),
-                    io::ErrorKind::ConnectionReset | io::ErrorKind::ConnectionAborted
-                ) =>
-            {
-                break;
-            }
+            // The host hung up.
+            Err(e) if transport::is_hang_up(&e) => break,
             Err(e) => return Err(e),
         };
         bytes_in += n as u64;
@@ -88,15 +81,8 @@ fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
         if !out.is_empty() {
             match writer.write_all(&out).and_then(|_| writer.flush()) {
                 Ok(()) => bytes_out += out.len() as u64,
-                // The host hung up while answers were in flight: the session is over.
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::BrokenPipe | io::ErrorKind::ConnectionReset
-                    ) =>
-                {
-                    break;
-                }
+                // The host hung up while answers were in flight.
+                Err(e) if transport::is_hang_up(&e) => break,
                 Err(e) => return Err(e),
             }
         }

@@ -21,6 +21,17 @@ pub fn is_poll_timeout(e: &io::Error) -> bool {
     )
 }
 
+/// Whether an I/O error means the peer hung up (a socket closed with data unread resets the
+/// connection; writing to a closed pipe breaks it): the session is over, not failed.
+pub fn is_hang_up(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::ConnectionReset
+            | io::ErrorKind::ConnectionAborted
+            | io::ErrorKind::BrokenPipe
+    )
+}
+
 /// Errors opening a transport.
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {

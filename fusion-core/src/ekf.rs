@@ -76,6 +76,15 @@ pub enum UpdateError {
 /// pass reads all `M` entries of a row at once.
 pub type Gains<T, const M: usize> = [[T; M]; N];
 
+/// The first `n` columns of the symmetric `P`, as fixed-size arrays (column `i` is also row
+/// `i`): [`Gains`] are built from whole columns, on the measurement's structure.
+pub fn p_columns<T: Scalar>(p: &Cov<T>, n: usize) -> impl Iterator<Item = &[T; N]> {
+    p.as_slice()
+        .chunks_exact(N)
+        .take(n)
+        .filter_map(|col| <&[T; N]>::try_from(col).ok())
+}
+
 /// `S = H U + R`, with `U = P Hᵀ` from [`Gains`] and `H` from sparse rows.
 #[allow(clippy::needless_range_loop)] // triangle index loops
 pub fn innovation_cov<T: Scalar, const M: usize>(

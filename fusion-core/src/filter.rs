@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, Matrix3x4, Vector3};
 use protocol::{ModelKind, StatusReason};
 
 use crate::divergence::Monitor;
-use crate::ekf::{Gains, Ldl, SparseRow, UpdateError, innovation_cov};
+use crate::ekf::{Gains, Ldl, SparseRow, UpdateError, innovation_cov, p_columns};
 use crate::models::{accel, gyro, motion};
 use crate::params::Params;
 use crate::scalar::Scalar;
@@ -154,14 +154,7 @@ fn imu_update<T: Scalar>(
     // U = P Hᵀ from whole columns of the symmetric P, on the rows' structure: eq. 9 is
     // ∂/∂ω = ∂/∂b_ω = I, eq. 13 / 16 the blocks of `accel::jacobian` and ∂/∂b_a = I.
     let mut u: Gains<T, M> = [[T::zero(); M]; N];
-    for (ui, col) in u
-        .iter_mut()
-        .zip(st.p.as_slice().chunks_exact(N))
-        .take(prm.n)
-    {
-        let Ok(col) = <&[T; N]>::try_from(col) else {
-            continue;
-        };
+    for (ui, col) in u.iter_mut().zip(p_columns(&st.p, prm.n)) {
         for k in 0..3 {
             ui[k] = col[OMEGA + k] + col[GYRO_BIAS + k];
         }

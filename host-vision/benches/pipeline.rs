@@ -121,6 +121,19 @@ fn recv_until<F: FnMut(&CoreToHost) -> bool>(link: &CoreLink, mut done: F) {
     }
 }
 
+/// The next pose prediction from the core.
+fn next_prediction(link: &CoreLink) -> PosePrediction {
+    let mut pred = None;
+    recv_until(link, |m| match m {
+        CoreToHost::PosePrediction(p) => {
+            pred = Some(*p);
+            true
+        }
+        _ => false,
+    });
+    pred.expect("a prediction")
+}
+
 fn link(c: &mut Criterion) {
     let mut link = CoreLink::open(&LinkSpec::Sim(Precision::F32)).expect("pty pair");
     link.send(&HostToCore::Hello(protocol::Hello {
@@ -154,15 +167,7 @@ fn link(c: &mut Criterion) {
         link.send(&imu(false)).unwrap();
     }
     link.send(&imu(true)).unwrap();
-    let mut last = None;
-    recv_until(&link, |m| match m {
-        CoreToHost::PosePrediction(p) => {
-            last = Some(*p);
-            true
-        }
-        _ => false,
-    });
-    let p = last.expect("a prediction");
+    let p = next_prediction(&link);
     // 40 points 2 m in front of the predicted camera, consistent with it.
     let pose = prediction_pose(&p).expect("a valid prediction");
     let items: Vec<Correspondence> = (0..40)
@@ -180,17 +185,9 @@ fn link(c: &mut Criterion) {
         b.iter(|| {
             let start = std::time::Instant::now();
             link.send(&imu(true)).unwrap();
-            let mut pred = None;
-            recv_until(&link, |m| match m {
-                CoreToHost::PosePrediction(p) => {
-                    pred = Some(*p);
-                    true
-                }
-                _ => false,
-            });
+            let p = next_prediction(&link);
             to_prediction += start.elapsed();
             count += 1;
-            let p = pred.unwrap();
             let parts: Vec<Correspondences> = Correspondences::split(p.frame_id, p.t_us, &items)
                 .unwrap()
                 .collect();

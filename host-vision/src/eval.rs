@@ -147,19 +147,16 @@ pub struct EvalRow {
 }
 
 impl EvalRow {
-    /// Times the core declared a divergence.
-    pub fn diverged_at(&self) -> Vec<f64> {
-        self.summary.divergences.iter().map(|e| e.t).collect()
-    }
-
     /// Where the model lost track: the starts of the host's track losses and the core's
     /// divergences, in time order (a divergence inside a loss counts once).
     pub fn lost_at(&self) -> Vec<f64> {
         let losses = &self.summary.track_losses;
         let mut t: Vec<f64> = losses.iter().map(|l| l.start).collect();
         t.extend(
-            self.diverged_at()
-                .into_iter()
+            self.summary
+                .divergences
+                .iter()
+                .map(|e| e.t)
                 .filter(|&d| !losses.iter().any(|l| (l.start..=l.end).contains(&d))),
         );
         t.sort_by(f64::total_cmp);

@@ -200,7 +200,7 @@ fn a_forced_divergence_is_detected_and_tracking_resumes_by_itself() {
 /// The paper's Fig. 6: with two features per frame the gyro model's attitude drifts while the
 /// accelerometer keeps the gravity and acc models' tilt. On this seed the gyro model's tilt
 /// error grows from 0.67° to 2.19°, gravity's stays at 0.3-0.6° and acc's at 0.15-0.28°. Seeds
-/// 1 and 2 give gyro 0.74° / 1.95°, gravity 0.45° / 0.62°, acc below 0.4° at 25-30 s (closing
+/// 1 and 2 give gyro 0.68° / 1.95°, gravity 0.45° / 0.62°, acc below 0.4° at 27-30 s (closing
 /// note of issue 8).
 #[test]
 fn desktop_slow_with_two_features_the_gyro_model_drifts_and_the_accelerometer_keeps_the_tilt() {

@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix2x4, Matrix3, Vector2, Vector3};
 
-use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov};
+use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov, p_columns};
 use crate::params::Params;
 use crate::quat;
 use crate::scalar::Scalar;
@@ -157,14 +157,7 @@ pub(crate) fn update_generic<T: Scalar>(
     let inf = T::c(f64::INFINITY);
     // U = P Hᵀ from whole columns of the symmetric P, on the two blocks of H.
     let mut u: Gains<T, 2> = [[T::zero(); 2]; N];
-    for (ui, col) in u
-        .iter_mut()
-        .zip(st.p.as_slice().chunks_exact(N))
-        .take(prm.n)
-    {
-        let Ok(col) = <&[T; N]>::try_from(col) else {
-            continue;
-        };
+    for (ui, col) in u.iter_mut().zip(p_columns(&st.p, prm.n)) {
         for (k, uk) in ui.iter_mut().enumerate() {
             let mut a = T::zero();
             for c in 0..3 {

@@ -684,38 +684,37 @@ fn interpolated_noise(
         }
     }
     if kernel.len() > 1 {
-        // u ⊛ G, separably: rows into a (us + 2R) wide field, then columns.
-        let n = us + kernel.len() - 1;
-        let mut rows = vec![Vector4::<f64>::zeros(); us * n];
-        for y in 0..us {
-            for x in 0..us {
-                let v = u[y * us + x];
-                if v == Vector4::zeros() {
-                    continue;
-                }
-                for (k, gk) in kernel.iter().enumerate() {
-                    rows[y * n + x + k] += v * *gk;
-                }
-            }
-        }
-        let mut full = vec![Vector4::<f64>::zeros(); n * n];
-        for y in 0..us {
-            for x in 0..n {
-                let v = rows[y * n + x];
-                if v == Vector4::zeros() {
-                    continue;
-                }
-                for (k, gk) in kernel.iter().enumerate() {
-                    full[(y + k) * n + x] += v * *gk;
-                }
-            }
-        }
-        u = full;
+        // u ⊛ G, separably: rows, then (transposed) columns; M does not depend on the order.
+        let columns = convolve_lines_transposed(&u, us, &kernel);
+        u = convolve_lines_transposed(&columns, us + kernel.len() - 1, &kernel);
     }
     let m = u
         .iter()
         .fold(Matrix4::zeros(), |acc, v| acc + v * v.transpose());
     (c, m)
+}
+
+/// Convolves each of the `lines` equal lines of `src` with the full 1-D `kernel` and returns
+/// the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes convolve
+/// a field along both axes and restore its orientation.
+fn convolve_lines_transposed(
+    src: &[Vector4<f64>],
+    lines: usize,
+    kernel: &[f64],
+) -> Vec<Vector4<f64>> {
+    let len = src.len() / lines.max(1);
+    let mut out = vec![Vector4::<f64>::zeros(); (len + kernel.len() - 1) * lines];
+    for (l, line) in src.chunks_exact(len.max(1)).enumerate() {
+        for (i, v) in line.iter().enumerate() {
+            if *v == Vector4::zeros() {
+                continue;
+            }
+            for (k, gk) in kernel.iter().enumerate() {
+                out[(i + k) * lines + l] += v * *gk;
+            }
+        }
+    }
+    out
 }
 
 /// `λ = σ_I / σ_J`, `δ = Ī − λ J̄` over the pixels valid in both windows (the paper's

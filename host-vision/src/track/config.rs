@@ -80,9 +80,9 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
                 // "noise" is slow (the motion's own frequencies, ~1 s), not white: weighted as
                 // white at its size it drags the tilt along with every acceleration. Its white
                 // equivalent at 100 Hz is about rms · √(τ f), several times the peak. Measured
-                // on desktop-slow with two features (tilt error at 25-30 s, seeds 0/1/2):
-                // 1.5 m/s² gave 2.6/3.9/4.3°, 3× the peak (2.9 m/s²) 0.8/1.4/1.7°, 6× the
-                // peak 0.25/0.45/0.61°, where the gyro model reaches 2.2/0.7/2.0°.
+                // on desktop-slow with two features (tilt error over the last 3-5 s of 30,
+                // seeds 0/1/2): 1.5 m/s² gave 2.6/3.9/4.3°, 3× the peak (2.9 m/s²)
+                // 0.8/1.4/1.7°, 6× the peak 0.25/0.45/0.61°, the gyro model 2.2/0.7/2.0°.
                 ModelKind::Gravity => (accel * 6.0).max(1.0),
                 _ => accel_sample.max(tuning.accel_noise_floor),
             }) as f32,
