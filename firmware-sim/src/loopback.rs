@@ -15,6 +15,7 @@ pub const CAPACITIES: protocol::Capacities = protocol::Capacities {
     max_correspondences_per_message: protocol::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
     max_correspondences_per_frame: protocol::MAX_CORRESPONDENCES_PER_FRAME as u16,
     delay_buffer_samples: 0,
+    max_pending_frames: 0,
     scalar_bits: 64,
 };
 

@@ -10,7 +10,7 @@ use protocol::{
     UpdateReport, encode_frame, handshake, sym_index,
 };
 
-use crate::delay::{DelayLine, IMU_BUFFER, Missing};
+use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing};
 use crate::divergence::Monitor;
 use crate::filter::{Filter, ImuSample};
 use crate::init::{StillWindow, initialise};
@@ -28,17 +28,23 @@ pub const MAX_GAP_US: u64 = 1_000_000;
 /// and re-initialises.
 pub const CLOCK_JUMP_CONFIRM: u8 = 3;
 
-/// Camera triggers without accepted correspondences after which the mode is dead reckoning.
+/// Camera periods (of IMU time, so that it holds when triggers stop) without accepted
+/// correspondences after which the mode is dead reckoning.
 pub const NO_VISION_FRAMES: u16 = 3;
 
 /// A divergence within this time [µs] of the last accepted vision update, with a finite
 /// state, is answered by a soft re-initialisation: the estimate is kept (it was anchored by
 /// vision a moment ago and dead-reckoned since) and the covariance reset to the initial one,
 /// so vision snaps on again at once even while the device moves. Later, or when the state is
-/// not finite, the full re-initialisation (still window, last good position) follows.
+/// not finite, the full re-initialisation (still window, the anchor's position and yaw)
+/// follows. The same window bounds how long the anchor's yaw is trusted to the tilt σ: a
+/// hand-held device turns by more than that within a fraction of a second, so an older yaw
+/// restarts with the configured yaw σ, as if none were known.
 pub const SOFT_RESET_WINDOW_US: u64 = 500_000;
 
-/// Inputs refused or dropped, by reason.
+/// Inputs refused or dropped, by reason. Every counter saturates at `u32::MAX` (it never
+/// wraps, so a saturated counter still reads "at least this many"); all go through
+/// [`Counters::bump`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Counters {
     /// Frames the decoder rejected.
@@ -88,6 +94,13 @@ impl Counters {
         divergences: 0,
         clock_jumps: 0,
     };
+
+    /// Counts one event: saturating, so that no input can overflow a counter (a host can
+    /// send junk frames at line rate for years).
+    #[inline]
+    pub fn bump(counter: &mut u32) {
+        *counter = counter.saturating_add(1);
+    }
 }
 
 /// Where the device is in its life cycle. An explicit tag (first variant 0) keeps the
@@ -100,6 +113,8 @@ enum Phase<T: Scalar> {
     Initialising {
         position: Vector3<T>,
         attitude: InitAttitude,
+        /// Whether the yaw (if given) is known to the tilt σ, or only to the yaw σ.
+        yaw_known: bool,
         window: StillWindow<T>,
     },
     Running,
@@ -111,6 +126,34 @@ enum Phase<T: Scalar> {
 struct ClockCandidate {
     last_us: u64,
     count: u8,
+}
+
+/// Where a full re-initialisation restarts from: the pose of the last accepted vision update,
+/// or, before any, the one the last `Init` gave.
+#[derive(Clone, Copy, Debug)]
+struct Anchor<T: Scalar> {
+    position: Vector3<T>,
+    /// Yaw of the sensor in the world [rad], if known (not after a `Gravity` init without
+    /// vision since).
+    yaw: Option<T>,
+    /// Set by accepted vision (not by `Init`).
+    from_vision: bool,
+    /// IMU time since it was set [µs], saturating; `u64::MAX` (unknown) after a clock jump.
+    age_us: u64,
+}
+
+impl<T: Scalar> Anchor<T> {
+    const NONE: Anchor<T> = Anchor {
+        position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
+        yaw: None,
+        from_vision: false,
+        age_us: u64::MAX,
+    };
+
+    /// Whether vision anchored the estimate within [`SOFT_RESET_WINDOW_US`].
+    fn recent_vision(&self) -> bool {
+        self.from_vision && self.age_us <= SOFT_RESET_WINDOW_US
+    }
 }
 
 /// The fusion core's device loop.
@@ -126,13 +169,9 @@ pub struct Device<T: Scalar> {
     monitor: Monitor<T>,
     last_t_us: Option<u64>,
     clock_candidate: Option<ClockCandidate>,
-    frames_without_vision: u16,
-    /// Position and orientation at the last frame with accepted correspondences.
-    last_good: Option<(Vector3<T>, Quat<T>)>,
-    /// Trigger time of that frame [µs].
-    last_good_us: Option<u64>,
-    /// Position given by the last `Init` (fallback for re-initialisation).
-    init_position: Vector3<T>,
+    anchor: Anchor<T>,
+    /// IMU time since the covariance was last checked [µs].
+    unchecked_us: u64,
     since_state: u16,
     counters: Counters,
 }
@@ -161,10 +200,8 @@ impl<T: Scalar> Device<T> {
             monitor: Monitor::new(),
             last_t_us: None,
             clock_candidate: None,
-            frames_without_vision: 0,
-            last_good: None,
-            last_good_us: None,
-            init_position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
+            anchor: Anchor::NONE,
+            unchecked_us: 0,
             since_state: 0,
             counters: Counters::ZERO,
         }
@@ -177,6 +214,7 @@ impl<T: Scalar> Device<T> {
             max_correspondences_per_message: MAX_CORRESPONDENCES_PER_MESSAGE as u16,
             max_correspondences_per_frame: MAX_CORRESPONDENCES_PER_FRAME as u16,
             delay_buffer_samples: IMU_BUFFER as u16,
+            max_pending_frames: MAX_PENDING_FRAMES as u16,
             scalar_bits: T::BITS,
         }
     }
@@ -203,14 +241,14 @@ impl<T: Scalar> Device<T> {
 
     /// Reports a frame the decoder rejected.
     pub fn decode_error(&mut self, e: DecodeError, out: Out) {
-        self.counters.decode_errors += 1;
+        Counters::bump(&mut self.counters.decode_errors);
         out(CoreToHost::error(ErrorCode::Decode(e)));
     }
 
     /// Handles one message.
     pub fn handle(&mut self, msg: &HostToCore, out: Out) {
         if let Err(field) = msg.validate() {
-            self.counters.invalid_messages += 1;
+            Counters::bump(&mut self.counters.invalid_messages);
             out(CoreToHost::error(ErrorCode::Invalid(field)));
             return;
         }
@@ -225,7 +263,7 @@ impl<T: Scalar> Device<T> {
                 out(answer);
             }
             _ if !self.greeted => {
-                self.counters.out_of_order += 1;
+                Counters::bump(&mut self.counters.out_of_order);
                 out(CoreToHost::error(ErrorCode::NoHandshake));
             }
             HostToCore::Configure(c) => self.configure(c, out),
@@ -247,7 +285,7 @@ impl<T: Scalar> Device<T> {
         self.phase = phase;
         self.delay.clear();
         self.monitor = Monitor::default();
-        self.frames_without_vision = 0;
+        self.unchecked_us = 0;
         self.since_state = 0;
     }
 
@@ -263,15 +301,14 @@ impl<T: Scalar> Device<T> {
     fn configure(&mut self, c: &Config, out: Out) {
         self.config = Some(*c);
         self.prm = Some(Params::from_config(c));
-        self.last_good = None;
-        self.last_good_us = None;
+        self.anchor = Anchor::NONE;
         self.restart_phase(Phase::AwaitingInit);
         self.set_mode(Mode::AwaitingInit, StatusReason::Configured, out);
     }
 
     fn init(&mut self, i: &Init, out: Out) {
         if self.prm.is_none() {
-            self.counters.out_of_order += 1;
+            Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
             return;
         }
@@ -280,12 +317,30 @@ impl<T: Scalar> Device<T> {
             T::from_wire(i.position[1]),
             T::from_wire(i.position[2]),
         );
-        self.init_position = p;
-        self.last_good = None;
-        self.last_good_us = None;
+        // A later full re-initialisation without vision since restarts from what was given.
+        let yaw = match i.attitude {
+            InitAttitude::Gravity => None,
+            InitAttitude::GravityAndYaw(yaw) => Some(T::from_wire(yaw)),
+            InitAttitude::Full(q) => {
+                let f = T::from_wire;
+                Some(quat::yaw_of(&quat::conj(&Quat::new(
+                    f(q[0]),
+                    f(q[1]),
+                    f(q[2]),
+                    f(q[3]),
+                ))))
+            }
+        };
+        self.anchor = Anchor {
+            position: p,
+            yaw,
+            from_vision: false,
+            age_us: 0,
+        };
         self.restart_phase(Phase::Initialising {
             position: p,
             attitude: i.attitude,
+            yaw_known: true,
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Initialising, StatusReason::HostRequest, out);
@@ -307,14 +362,14 @@ impl<T: Scalar> Device<T> {
         };
         if count >= CLOCK_JUMP_CONFIRM {
             self.clock_candidate = None;
-            self.counters.clock_jumps += 1;
+            Counters::bump(&mut self.counters.clock_jumps);
             return Ok(true);
         }
         self.clock_candidate = Some(ClockCandidate {
             last_us: t_us,
             count,
         });
-        self.counters.imu_time_rejected += 1;
+        Counters::bump(&mut self.counters.imu_time_rejected);
         let code = if t_us <= last {
             ErrorCode::TimestampNotIncreasing {
                 last_us: last,
@@ -332,7 +387,7 @@ impl<T: Scalar> Device<T> {
 
     fn imu(&mut self, wire: &protocol::ImuSample, out: Out) {
         let Some(prm) = self.prm else {
-            self.counters.out_of_order += 1;
+            Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
             return;
         };
@@ -340,6 +395,18 @@ impl<T: Scalar> Device<T> {
             Ok(j) => j,
             Err(()) => return,
         };
+        // IMU time since the last sample; after a clock jump the time between the two clocks
+        // is unknown, and so is the anchor's age.
+        let dt = match self.last_t_us {
+            Some(last) if !jumped => wire.t_us.saturating_sub(last),
+            _ => 0,
+        };
+        self.anchor.age_us = if jumped {
+            u64::MAX
+        } else {
+            self.anchor.age_us.saturating_add(dt)
+        };
+        self.unchecked_us = self.unchecked_us.saturating_add(dt);
         self.last_t_us = Some(wire.t_us);
         if jumped && matches!(self.phase, Phase::Running) {
             self.reinitialise(StatusReason::TimeJump, &prm, out);
@@ -350,10 +417,18 @@ impl<T: Scalar> Device<T> {
             Phase::Initialising {
                 position,
                 attitude,
+                yaw_known,
                 window,
             } => {
                 if window.add(&sample.gyro, &sample.accel, prm.still_samples) {
-                    initialise(&mut self.filter.st, &prm, position, attitude, window);
+                    initialise(
+                        &mut self.filter.st,
+                        &prm,
+                        position,
+                        attitude,
+                        *yaw_known,
+                        window,
+                    );
                     self.filter.t_us = sample.t_us;
                     self.filter.quat_norm_error = T::zero();
                     self.restart_phase(Phase::Running);
@@ -374,20 +449,26 @@ impl<T: Scalar> Device<T> {
             self.diverged(reason, prm, out);
             return;
         }
-        self.counters.imu_applied += 1;
+        Counters::bump(&mut self.counters.imu_applied);
         self.delay.push(*sample);
-        if trigger && let Some(reason) = Monitor::frame(&self.filter.st, prm) {
-            self.diverged(reason, prm, out);
-            return;
+        // Test 2 at each trigger, and at least once per camera period if triggers stop.
+        if trigger || self.unchecked_us >= prm.camera_period_us {
+            self.unchecked_us = 0;
+            if let Some(reason) = Monitor::frame(&self.filter.st, prm) {
+                self.diverged(reason, prm, out);
+                return;
+            }
         }
         if trigger {
             let frame_id = self.delay.snapshot(&self.filter);
-            self.counters.predictions += 1;
+            Counters::bump(&mut self.counters.predictions);
             out(CoreToHost::PosePrediction(self.prediction(frame_id)));
-            self.frames_without_vision = self.frames_without_vision.saturating_add(1);
-            if self.frames_without_vision >= NO_VISION_FRAMES && self.mode == Mode::Tracking {
-                self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
-            }
+        }
+        let no_vision_us = prm
+            .camera_period_us
+            .saturating_mul(u64::from(NO_VISION_FRAMES));
+        if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us {
+            self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
         }
         let every = self.config.map_or(0, |c| c.state_every);
         if every > 0 {
@@ -476,7 +557,7 @@ impl<T: Scalar> Device<T> {
             prediction_error: 0.0,
         };
         let (Some(prm), Phase::Running) = (self.prm, &self.phase) else {
-            self.counters.parts_refused += 1;
+            Counters::bump(&mut self.counters.parts_refused);
             report.outcome = UpdateOutcome::NotRunning;
             out(CoreToHost::UpdateReport(report));
             return;
@@ -502,7 +583,7 @@ impl<T: Scalar> Device<T> {
         let snap = match snap {
             Ok(s) => s,
             Err(outcome) => {
-                self.counters.parts_refused += 1;
+                Counters::bump(&mut self.counters.parts_refused);
                 report.outcome = outcome;
                 out(CoreToHost::UpdateReport(report));
                 return;
@@ -521,20 +602,23 @@ impl<T: Scalar> Device<T> {
             // Capacity equals the message's, so this cannot fail.
             let _ = report.residuals.push(s_i.to_wire());
             match result {
-                Ok(()) => {
+                Ok(radial) => {
                     report.accepted += 1;
-                    self.counters.accepted += 1;
+                    Counters::bump(&mut self.counters.accepted);
+                    if radial > prm.quat_norm_threshold {
+                        diverged.get_or_insert(StatusReason::QuaternionNorm);
+                    }
                 }
                 Err(why) => {
                     report.rejected += 1;
-                    match why {
-                        Rejection::Gated => self.counters.gated += 1,
-                        Rejection::BehindCamera => self.counters.behind_camera += 1,
-                        Rejection::Singular => self.counters.singular += 1,
-                    }
+                    Counters::bump(match why {
+                        Rejection::Gated => &mut self.counters.gated,
+                        Rejection::BehindCamera => &mut self.counters.behind_camera,
+                        Rejection::Singular => &mut self.counters.singular,
+                    });
                 }
             }
-            if let Some(reason) = self.monitor.residual(s_i, &prm) {
+            if let Some(reason) = self.monitor.residual(c.frame_id, s_i, &prm) {
                 diverged.get_or_insert(reason);
             }
         }
@@ -543,11 +627,14 @@ impl<T: Scalar> Device<T> {
         snap.dirty |= report.accepted > 0;
         let complete = snap.parts_done.count_ones() as u8 >= c.parts;
         let needs_flush = complete && snap.dirty;
+        if complete && let Some(reason) = self.monitor.close_frame(&prm) {
+            diverged.get_or_insert(reason);
+        }
         let good = (snap.filter.st.v3(POS), snap.filter.st.q());
         if error_count > 0 {
             report.prediction_error = (error_sum / T::c(error_count as f64)).to_wire();
         }
-        self.counters.parts_applied += 1;
+        Counters::bump(&mut self.counters.parts_applied);
         let frame_id = c.frame_id;
         out(CoreToHost::UpdateReport(report.clone()));
 
@@ -559,9 +646,12 @@ impl<T: Scalar> Device<T> {
             return;
         }
         if report.accepted > 0 {
-            self.frames_without_vision = 0;
-            self.last_good = Some(good);
-            self.last_good_us = Some(c.trigger_us);
+            self.anchor = Anchor {
+                position: good.0,
+                yaw: Some(quat::yaw_of(&quat::conj(&good.1))),
+                from_vision: true,
+                age_us: 0,
+            };
             if self.mode != Mode::Tracking {
                 self.set_mode(Mode::Tracking, StatusReason::VisionAccepted, out);
             }
@@ -569,12 +659,9 @@ impl<T: Scalar> Device<T> {
     }
 
     fn diverged(&mut self, reason: StatusReason, prm: &Params<T>, out: Out) {
-        self.counters.divergences += 1;
+        Counters::bump(&mut self.counters.divergences);
         self.set_mode(Mode::Diverged, reason, out);
-        let recent = match (self.last_good_us, self.last_t_us) {
-            (Some(good), Some(now)) => now.saturating_sub(good) <= SOFT_RESET_WINDOW_US,
-            _ => false,
-        };
+        let recent = self.anchor.recent_vision();
         let sane = !matches!(
             reason,
             StatusReason::NonFiniteState | StatusReason::QuaternionNorm
@@ -594,21 +681,19 @@ impl<T: Scalar> Device<T> {
         self.reinitialise(reason, prm, out);
     }
 
-    /// Restarts from the last good position (or the `Init` position), keeping the last good
-    /// yaw, with roll and pitch from a new still window.
+    /// Restarts from the anchor: the last good position and yaw, or those `Init` gave, with
+    /// roll and pitch from a new still window. The yaw keeps the tilt σ only while the anchor
+    /// is recent ([`SOFT_RESET_WINDOW_US`]); older, it restarts with the configured yaw σ.
     fn reinitialise(&mut self, reason: StatusReason, _prm: &Params<T>, out: Out) {
-        let (position, yaw) = match self.last_good {
-            Some((p, q)) => (p, quat::yaw_of(&quat::conj(&q))),
-            None => (self.init_position, T::zero()),
-        };
-        let attitude = if self.last_good.is_some() {
-            InitAttitude::GravityAndYaw(yaw.to_wire())
-        } else {
-            InitAttitude::Gravity
+        let a = self.anchor;
+        let attitude = match a.yaw {
+            Some(yaw) => InitAttitude::GravityAndYaw(yaw.to_wire()),
+            None => InitAttitude::Gravity,
         };
         self.restart_phase(Phase::Initialising {
-            position,
+            position: a.position,
             attitude,
+            yaw_known: a.age_us <= SOFT_RESET_WINDOW_US,
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Reinitialising, reason, out);
@@ -665,6 +750,59 @@ mod tests {
     use super::*;
     use crate::state::State;
     use core::mem::size_of;
+
+    /// Defect 10 of issue 12: the counters were incremented with `+= 1`, which panics on
+    /// overflow where overflow checks are on (this test profile), and `decode_errors` can be
+    /// driven at line rate with 2-byte junk frames. Every counter goes through `bump`: 2³² + 1
+    /// increments through it do not panic and saturate, and each counter saturates across the
+    /// overflow boundary.
+    #[test]
+    fn counters_saturate_after_2_pow_32_increments() {
+        let mut c = Counters::default();
+        for _ in 0..=u64::from(u32::MAX) {
+            Counters::bump(std::hint::black_box(&mut c.decode_errors));
+        }
+        assert_eq!(c.decode_errors, u32::MAX);
+        let fields: [fn(&mut Counters) -> &mut u32; 14] = [
+            |c| &mut c.decode_errors,
+            |c| &mut c.invalid_messages,
+            |c| &mut c.out_of_order,
+            |c| &mut c.imu_time_rejected,
+            |c| &mut c.imu_applied,
+            |c| &mut c.predictions,
+            |c| &mut c.parts_applied,
+            |c| &mut c.parts_refused,
+            |c| &mut c.accepted,
+            |c| &mut c.gated,
+            |c| &mut c.behind_camera,
+            |c| &mut c.singular,
+            |c| &mut c.divergences,
+            |c| &mut c.clock_jumps,
+        ];
+        for field in fields {
+            let mut c = Counters::default();
+            *field(&mut c) = u32::MAX - 2;
+            for _ in 0..5 {
+                Counters::bump(field(&mut c));
+            }
+            assert_eq!(*field(&mut c), u32::MAX);
+            // Only that field moved.
+            *field(&mut c) = 0;
+            assert_eq!(c, Counters::default());
+        }
+    }
+
+    /// A junk frame's counter goes through the device's own path: it saturates there too.
+    #[test]
+    fn decode_errors_saturate_through_the_device() {
+        let mut d = Device::<f32>::new();
+        d.counters.decode_errors = u32::MAX - 1;
+        let mut errors = 0;
+        for _ in 0..3 {
+            d.decode_error(DecodeError::Crc, &mut |_| errors += 1);
+        }
+        assert_eq!((d.counters.decode_errors, errors), (u32::MAX, 3));
+    }
 
     /// The whole device, and its parts, in bytes (the firmware keeps it in a `static`).
     #[test]

@@ -105,9 +105,14 @@ impl<T: Scalar> Filter<T> {
             );
         }
         self.t_us = s.t_us;
-        self.quat_norm_error = worst;
         // A singular innovation here means a broken covariance: the monitor reports it below.
         let updated = imu_update(&mut self.st, prm, s);
+        if let Ok(radial) = updated
+            && radial > worst
+        {
+            worst = radial;
+        }
+        self.quat_norm_error = worst;
         match Monitor::step(&self.st, worst, prm) {
             Some(reason) => Err(reason),
             None if updated.is_err() => Err(StatusReason::NonFiniteState),
@@ -119,12 +124,13 @@ impl<T: Scalar> Filter<T> {
 /// The gyro (eq. 9) and, except in the gyro model, accelerometer (eq. 13 / 16) readings of one
 /// sample as one measurement with uncorrelated noise (3 or 6 axes), linearised at the prior;
 /// applied as the equivalent sequence of scalar updates ([`Ldl::apply`]). The gyro model's
-/// accelerometer rows are left zero: the factorisation stops before them.
+/// accelerometer rows are left zero: the factorisation stops before them. Returns the update's
+/// radial quaternion error ([`crate::ekf::radial_step`]).
 fn imu_update<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     s: &ImuSample<T>,
-) -> Result<(), UpdateError> {
+) -> Result<T, UpdateError> {
     const M: usize = 6;
     let with_accel = prm.model != ModelKind::Gyro;
     let mut rows = [SparseRow::default(); M];
@@ -172,11 +178,11 @@ fn imu_update<T: Scalar>(
         }
     }
     let f = Ldl::new(&innovation_cov(&rows, &u, &r), &y);
-    f.apply(st, prm.n, &mut u);
+    let radial = f.apply(st, prm.n, &mut u);
     if f.rank < if with_accel { M } else { 3 } {
         Err(UpdateError::Singular)
     } else {
-        Ok(())
+        Ok(radial)
     }
 }
 
@@ -221,7 +227,10 @@ mod tests {
             let k = p * h.transpose() * (h * p * h.transpose() + r).try_inverse().unwrap();
             let ikh = Cov::<f64>::identity() - k * h;
             let p_ref = ikh * p * ikh.transpose() + k * r * k.transpose();
-            let x_ref = st.x + k * y;
+            let mut x_ref = st.x + k * y;
+            // The update renormalises the quaternion after its step.
+            let q_ref = x_ref.fixed_rows::<4>(QUAT).normalize();
+            x_ref.fixed_rows_mut::<4>(QUAT).copy_from(&q_ref);
             imu_update(&mut st, &prm, &s).unwrap();
             assert_relative_eq!(st.x, x_ref, epsilon = 1e-10);
             assert_relative_eq!(st.p, p_ref, epsilon = 1e-10);

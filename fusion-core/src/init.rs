@@ -71,32 +71,35 @@ pub fn initial_state<T: Scalar>(
     window: &StillWindow<T>,
 ) -> State<T> {
     let mut st = State::zeroed();
-    initialise(&mut st, prm, position, attitude, window);
+    initialise(&mut st, prm, position, attitude, true, window);
     st
 }
 
 /// [`initial_state`] written in place (the firmware's stack has no room for a second state).
+/// A given yaw has the tilt σ when `yaw_known`, else the yaw σ (a stale yaw at
+/// re-initialisation: the best guess, but no better known than none).
 pub fn initialise<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     position: &Vector3<T>,
     attitude: &InitAttitude,
+    yaw_known: bool,
     window: &StillWindow<T>,
 ) {
     let sig = &prm.init_sigma;
     let f = T::from_wire;
+    let given = if yaw_known { f(sig.tilt) } else { f(sig.yaw) };
     let (q, yaw_sigma) = match *attitude {
         InitAttitude::Gravity => (
             attitude_from_gravity(&window.mean_accel(), T::zero()),
             f(sig.yaw),
         ),
-        InitAttitude::GravityAndYaw(yaw) => (
-            attitude_from_gravity(&window.mean_accel(), f(yaw)),
-            f(sig.tilt),
-        ),
+        InitAttitude::GravityAndYaw(yaw) => {
+            (attitude_from_gravity(&window.mean_accel(), f(yaw)), given)
+        }
         InitAttitude::Full(q) => (
             Quat::new(f(q[0]), f(q[1]), f(q[2]), f(q[3])).normalize(),
-            f(sig.tilt),
+            given,
         ),
     };
     st.x.fill(T::zero());
@@ -169,6 +172,24 @@ mod tests {
             epsilon = 1e-9
         );
         assert_relative_eq!(quat::yaw_of(&quat::conj(&est)), 0.0, epsilon = 1e-12);
+    }
+
+    /// The protocol validates the covariance threshold against the initial covariance's norm
+    /// (defect 7 of issue 12) with a closed form: it must be the norm this module builds.
+    #[test]
+    fn protocol_initial_covariance_norm_is_the_one_built_here() {
+        let mut w = StillWindow::default();
+        w.add(&Vector3::zeros(), &Vector3::new(0.3, -0.2, 9.8), 1);
+        for model in ModelKind::ALL {
+            let prm = params::<f64>(model);
+            // A yaw σ above the tilt σ (the closed form takes the larger).
+            assert!(prm.init_sigma.yaw > prm.init_sigma.tilt);
+            let st = initial_state(&prm, &Vector3::zeros(), &InitAttitude::Gravity, &w);
+            let built = st.cov_frobenius().powi(2);
+            let closed =
+                protocol::validate::initial_covariance_frobenius_sq(model, &prm.init_sigma) as f64;
+            assert_relative_eq!(built, closed, max_relative = 1e-5);
+        }
     }
 
     #[test]

@@ -40,6 +40,8 @@ pub struct Params<T: Scalar> {
     pub quat_norm_threshold: T,
     /// Nominal IMU period [µs].
     pub imu_period_us: u64,
+    /// Nominal camera period [µs].
+    pub camera_period_us: u64,
     /// Samples averaged for roll and pitch.
     pub still_samples: u16,
 }
@@ -65,6 +67,7 @@ impl<T: Scalar> Params<T> {
             cov_threshold: T::from_wire(c.divergence.covariance_frobenius),
             quat_norm_threshold: T::from_wire(c.divergence.quaternion_norm),
             imu_period_us: (1e6 / c.imu_rate_hz as f64) as u64,
+            camera_period_us: (1e6 / c.camera_rate_hz as f64) as u64,
             still_samples: c.still_samples,
         }
     }

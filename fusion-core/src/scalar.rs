@@ -28,7 +28,7 @@ pub trait Kernels: Sized {
         st: &mut State<Self>,
         prm: &Params<Self>,
         obs: &Observation<Self>,
-    ) -> (Self, Result<(), Rejection>)
+    ) -> (Self, Result<Self, Rejection>)
     where
         Self: Scalar;
 }
@@ -49,7 +49,7 @@ macro_rules! kernels {
                 st: &mut State<Self>,
                 prm: &Params<Self>,
                 obs: &Observation<Self>,
-            ) -> (Self, Result<(), Rejection>) {
+            ) -> (Self, Result<Self, Rejection>) {
                 correspondence::update_generic(st, prm, obs)
             }
         }

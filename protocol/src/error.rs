@@ -64,15 +64,18 @@ impl core::error::Error for EncodeError {}
 /// The field of a host message that failed validation.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum InvalidField {
-    /// A noise parameter is negative or not finite.
+    /// A noise parameter is out of range: negative, not finite, with a square that is not a
+    /// normal f32, or a measurement noise (of the gyroscope, and of the accelerometer in the
+    /// models that use it) that is zero.
     NoiseParams,
-    /// An initial standard deviation is not positive or not finite.
+    /// An initial standard deviation is not positive, or its square is not a normal f32.
     InitSigma,
     /// The hand-eye rotation is not a unit quaternion, or a value is not finite.
     HandEye,
     /// The outlier gate is not positive or not finite.
     Gate,
-    /// A divergence threshold is out of range (λ outside (0,1), or a threshold ≤ 0).
+    /// A divergence threshold is out of range (λ outside
+    /// [[`crate::validate::MIN_RESIDUAL_LOWPASS`], 1), or a threshold ≤ 0).
     Divergence,
     /// A rate is not positive and finite.
     Rate,
@@ -94,21 +97,35 @@ pub enum InvalidField {
         /// Index within the message.
         index: u8,
     },
-    /// Correspondence `index` has a covariance that is not positive semi-definite.
+    /// Correspondence `index` has a model-point covariance that is not positive
+    /// semi-definite, or an image-point covariance that is not positive definite.
     CorrespondenceCovariance {
         /// Index within the message.
         index: u8,
     },
+    /// `divergence.covariance_frobenius` is below
+    /// [`crate::validate::COVARIANCE_THRESHOLD_MARGIN`] times the norm of the initial
+    /// covariance that `init_sigma` gives: the test would fire right after every
+    /// initialisation.
+    CovarianceThreshold,
 }
 
 impl fmt::Display for InvalidField {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            InvalidField::NoiseParams => f.write_str("noise parameter negative or not finite"),
-            InvalidField::InitSigma => f.write_str("initial sigma not positive or not finite"),
+            InvalidField::NoiseParams => f.write_str(
+                "noise parameter out of range (negative, not finite, square not a normal f32, \
+                 or a measurement noise of zero)",
+            ),
+            InvalidField::InitSigma => {
+                f.write_str("initial sigma not positive, or its square not a normal f32")
+            }
             InvalidField::HandEye => f.write_str("hand-eye rotation not a unit quaternion"),
             InvalidField::Gate => f.write_str("outlier gate not positive"),
-            InvalidField::Divergence => f.write_str("divergence threshold out of range"),
+            InvalidField::Divergence => f.write_str(
+                "divergence parameter out of range (residual low-pass outside [2/3, 1), or a \
+                 threshold not positive)",
+            ),
             InvalidField::Rate => f.write_str("rate not positive"),
             InvalidField::StillSamples => f.write_str("still window is empty"),
             InvalidField::InitPosition => f.write_str("init position not finite"),
@@ -122,9 +139,14 @@ impl fmt::Display for InvalidField {
             InvalidField::CorrespondenceCovariance { index } => {
                 write!(
                     f,
-                    "correspondence {index} covariance not positive semi-definite"
+                    "correspondence {index} covariance invalid (image point's not positive \
+                     definite, or model point's not positive semi-definite)"
                 )
             }
+            InvalidField::CovarianceThreshold => f.write_str(
+                "divergence covariance threshold below twice the initial covariance's norm \
+                 (from init_sigma): it would fire after every initialisation",
+            ),
         }
     }
 }

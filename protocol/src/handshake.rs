@@ -32,7 +32,7 @@ impl Version {
 }
 
 /// The version this crate implements.
-pub const PROTOCOL_VERSION: Version = Version { major: 1, minor: 0 };
+pub const PROTOCOL_VERSION: Version = Version { major: 2, minor: 0 };
 
 /// The core's answer to a `Hello` from a host speaking `host`.
 pub fn answer_hello(host: Version, model: Option<ModelKind>, capacities: Capacities) -> CoreToHost {
@@ -111,6 +111,7 @@ mod tests {
         max_correspondences_per_message: 16,
         max_correspondences_per_frame: 64,
         delay_buffer_samples: 32,
+        max_pending_frames: 4,
         scalar_bits: 32,
     };
 

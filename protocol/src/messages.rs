@@ -339,10 +339,37 @@ pub struct Capacities {
     pub max_correspondences_per_message: u16,
     /// Most correspondences per camera frame the core applies.
     pub max_correspondences_per_frame: u16,
-    /// IMU samples kept for delayed correspondences (sets the longest accepted latency).
+    /// IMU samples kept for delayed correspondences (one bound of the longest accepted
+    /// latency: see [`Capacities::max_latency_us`]).
     pub delay_buffer_samples: u16,
+    /// Camera frames kept awaiting their correspondences at once (the other bound).
+    pub max_pending_frames: u16,
     /// Bits of the filter's floating-point scalar (32 on the MCU, 64 on the PC).
     pub scalar_bits: u8,
+}
+
+impl Capacities {
+    /// The longest correspondence latency [µs], from a frame's trigger to the arrival of its
+    /// last part, that the core can still apply at these rates (0 for rates that are not
+    /// positive). A frame's snapshot is dropped at the trigger `max_pending_frames` frames
+    /// later, so its parts must arrive by the IMU sample before it; and the IMU samples after
+    /// the trigger must still be buffered, so no later than `delay_buffer_samples` samples.
+    /// A host checks its latency against this at the handshake.
+    pub fn max_latency_us(&self, imu_rate_hz: f32, camera_rate_hz: f32) -> u64 {
+        let rates_ok = imu_rate_hz.is_finite()
+            && camera_rate_hz.is_finite()
+            && imu_rate_hz > 0.0
+            && camera_rate_hz > 0.0;
+        if !rates_ok {
+            return 0;
+        }
+        let imu_period = 1e6 / f64::from(imu_rate_hz);
+        let camera_period = 1e6 / f64::from(camera_rate_hz);
+        let by_frames = f64::from(self.max_pending_frames) * camera_period - imu_period;
+        let by_samples = f64::from(self.delay_buffer_samples) * imu_period;
+        // Finite; the cast saturates for absurdly slow rates.
+        by_frames.min(by_samples).max(0.0) as u64
+    }
 }
 
 /// Answer to a compatible `Hello`.

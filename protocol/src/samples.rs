@@ -129,6 +129,7 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 9] {
                     max_correspondences_per_message: crate::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
                     max_correspondences_per_frame: 64,
                     delay_buffer_samples: 32,
+                    max_pending_frames: 4,
                     scalar_bits: 32,
                 },
             }),

@@ -4,7 +4,8 @@
 use crate::error::InvalidField;
 use crate::limits::MAX_PARTS_PER_FRAME;
 use crate::messages::{
-    Config, Correspondence, Correspondences, HostToCore, Init, InitAttitude, Sym2, Sym3,
+    Config, Correspondence, Correspondences, HostToCore, Init, InitAttitude, InitSigma, ModelKind,
+    Sym2, Sym3,
 };
 
 /// How far a quaternion's norm may be from 1 and still count as a unit quaternion. Generous
@@ -20,6 +21,17 @@ pub const MAX_ACCEL_M_S2: f32 = 2000.0;
 
 /// Relative tolerance of the semi-definiteness checks of covariances (f32 rounding).
 const PSD_TOLERANCE: f32 = 1e-5;
+
+/// Smallest residual low-pass factor λ (the paper's `0 ≪ λ < 1`). Each frame's mean residual
+/// is capped at twice the threshold, so from `g` below half the threshold one frame moves `g`
+/// to at most `λ/2 + 2(1−λ)` thresholds: below one exactly when `λ ≥ 2/3`, so that no single
+/// frame can fire the test.
+pub const MIN_RESIDUAL_LOWPASS: f32 = 2.0 / 3.0;
+
+/// How far the covariance threshold must lie above the norm of the initial covariance: the
+/// filter dead-reckons from the initial covariance until vision snaps on, and the test must
+/// leave it room to do so.
+pub const COVARIANCE_THRESHOLD_MARGIN: f32 = 2.0;
 
 pub(crate) fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
     match msg {
@@ -63,17 +75,48 @@ pub fn is_unit_quaternion(q: &[f32; 4]) -> bool {
     all_finite(q) && (n2 - 1.0).abs() <= 2.0 * UNIT_QUATERNION_TOLERANCE
 }
 
+/// Whether `x > 0` has a square that is a normal, finite f32 (from about 1.1e-19 to 1.8e19):
+/// the filter works with variances, and a square that underflows to zero or overflows to
+/// infinity in the core's f32 silently changes the model.
+fn square_normal(x: f32) -> bool {
+    let sq = x * x;
+    positive(x) && sq.is_finite() && sq.is_normal()
+}
+
+/// Squared Frobenius norm of the initial covariance that `init_sigma` gives for `model` (the diagonal
+/// blocks of the active states; the orientation block has eigenvalues `σ²/4` for tilt, tilt
+/// and yaw, as fusion-core's `init::reset_covariance` builds it, taking the larger of the yaw
+/// and tilt σ since either may apply; its radial part is negligible).
+pub fn initial_covariance_frobenius_sq(model: ModelKind, s: &InitSigma) -> f32 {
+    let sq = |x: f32| x * x;
+    let mut blocks: [(f32, f32); 6] = [
+        (s.position, 3.0),
+        (s.velocity, 3.0),
+        (s.angular_velocity, 3.0),
+        (s.gyro_bias, 3.0),
+        (s.accel_bias, 0.0),
+        (s.acceleration, 0.0),
+    ];
+    if model != ModelKind::Gyro {
+        blocks[4].1 = 3.0;
+    }
+    if model == ModelKind::Acc {
+        blocks[5].1 = 3.0;
+    }
+    let diagonal: f32 = blocks.iter().map(|&(sigma, n)| n * sq(sq(sigma))).sum();
+    let yaw = s.yaw.max(s.tilt);
+    let orientation = 2.0 * sq(sq(s.tilt) / 4.0) + sq(sq(yaw) / 4.0);
+    diagonal + orientation
+}
+
 fn config(c: &Config) -> Result<(), InvalidField> {
     let n = &c.noise;
-    let noises = [
-        n.motion,
-        n.angular,
-        n.gyro_bias_walk,
-        n.accel_bias_walk,
-        n.gyro_meas,
-        n.accel_meas,
-    ];
-    if !noises.iter().all(|&x| non_negative(x)) || !positive(n.gyro_meas) {
+    // Process noises may be zero (a constant bias, say); measurement noises may not.
+    let process = [n.motion, n.angular, n.gyro_bias_walk, n.accel_bias_walk];
+    let process_ok = process.iter().all(|&x| x == 0.0 || square_normal(x));
+    let accel_ok =
+        (c.model == ModelKind::Gyro && non_negative(n.accel_meas)) || square_normal(n.accel_meas);
+    if !process_ok || !square_normal(n.gyro_meas) || !accel_ok {
         return Err(InvalidField::NoiseParams);
     }
     let s = &c.init_sigma;
@@ -87,7 +130,7 @@ fn config(c: &Config) -> Result<(), InvalidField> {
         s.gyro_bias,
         s.accel_bias,
     ];
-    if !sigmas.iter().all(|&x| positive(x)) {
+    if !sigmas.iter().all(|&x| square_normal(x)) {
         return Err(InvalidField::InitSigma);
     }
     if !is_unit_quaternion(&c.hand_eye.q_cs) || !all_finite(&c.hand_eye.c_s) {
@@ -97,14 +140,20 @@ fn config(c: &Config) -> Result<(), InvalidField> {
         return Err(InvalidField::Gate);
     }
     let d = &c.divergence;
-    let lambda_ok =
-        d.residual_lowpass.is_finite() && d.residual_lowpass > 0.0 && d.residual_lowpass < 1.0;
+    let lambda_ok = d.residual_lowpass.is_finite()
+        && d.residual_lowpass >= MIN_RESIDUAL_LOWPASS
+        && d.residual_lowpass < 1.0;
     if !lambda_ok
         || !positive(d.residual_threshold)
         || !positive(d.covariance_frobenius)
         || !positive(d.quaternion_norm)
     {
         return Err(InvalidField::Divergence);
+    }
+    let margin = COVARIANCE_THRESHOLD_MARGIN * COVARIANCE_THRESHOLD_MARGIN;
+    let threshold_sq = d.covariance_frobenius * d.covariance_frobenius;
+    if threshold_sq < margin * initial_covariance_frobenius_sq(c.model, s) {
+        return Err(InvalidField::CovarianceThreshold);
     }
     if !positive(c.imu_rate_hz) || !positive(c.camera_rate_hz) {
         return Err(InvalidField::Rate);
@@ -148,7 +197,7 @@ fn correspondence(c: &Correspondence, index: u8) -> Result<(), InvalidField> {
     {
         return Err(InvalidField::CorrespondenceNotFinite { index });
     }
-    if psd2(&c.cov_n) && psd3(&c.cov_w) {
+    if pd2(&c.cov_n) && psd3(&c.cov_w) {
         Ok(())
     } else {
         Err(InvalidField::CorrespondenceCovariance { index })
@@ -161,6 +210,16 @@ pub fn psd2(m: &Sym2) -> bool {
     let scale = a.abs().max(d.abs());
     let tol = PSD_TOLERANCE * scale;
     a >= -tol && d >= -tol && a * d - b * b >= -tol * scale
+}
+
+/// Whether a packed symmetric 2×2 matrix is positive definite, well enough conditioned for
+/// f32 (condition number below about `1 / PSD_TOLERANCE`) and with a normal determinant. An
+/// image point's covariance must be: with a zero one (and an exact model point) the
+/// innovation covariance can be singular.
+pub fn pd2(m: &Sym2) -> bool {
+    let [a, b, d] = *m;
+    let det = a * d - b * b;
+    a > 0.0 && d > 0.0 && det.is_normal() && det > PSD_TOLERANCE * a.max(d) * a.max(d)
 }
 
 /// Whether a packed symmetric 3×3 matrix is positive semi-definite (within f32 rounding):
@@ -193,6 +252,12 @@ mod tests {
         assert!(!psd3(&[1.0, 0.0, 0.0, 1.0, 0.0, -1.0]));
         // All 2×2 minors fine, determinant negative.
         assert!(!psd3(&[1.0, 0.9, 0.9, 1.0, -0.9, 1.0]));
+        // Image points need a definite covariance.
+        assert!(pd2(&[1e-8, 0.0, 2e-8]));
+        assert!(!pd2(&[0.0, 0.0, 0.0]));
+        assert!(!pd2(&[1.0, 1.0, 1.0]));
+        assert!(!pd2(&[1.0, 0.0, 1e-9])); // condition number 1e9
+        assert!(!pd2(&[1e-20, 0.0, 1e-20])); // determinant not a normal f32
     }
 
     use crate::messages::*;
@@ -236,6 +301,26 @@ mod tests {
         assert_eq!(
             configure(|c| c.noise.gyro_meas = 0.0),
             Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            configure(|c| c.noise.accel_meas = 0.0),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            configure(|c| c.noise.gyro_meas = 1e-20),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            configure(|c| c.init_sigma.position = 1e20),
+            Err(InvalidField::InitSigma)
+        );
+        assert_eq!(
+            configure(|c| c.divergence.residual_lowpass = 0.5),
+            Err(InvalidField::Divergence)
+        );
+        assert_eq!(
+            configure(|c| c.divergence.covariance_frobenius = 3.0),
+            Err(InvalidField::CovarianceThreshold)
         );
         assert_eq!(
             configure(|c| c.init_sigma.yaw = 0.0),
@@ -300,6 +385,12 @@ mod tests {
         assert_eq!(
             corr(0, 1, bad),
             Err(InvalidField::CorrespondenceNotFinite { index: 1 })
+        );
+        let mut bad = ok;
+        bad.cov_n = [0.0; 3];
+        assert_eq!(
+            corr(0, 1, bad),
+            Err(InvalidField::CorrespondenceCovariance { index: 1 })
         );
         let mut bad = ok;
         bad.cov_n = [1.0, 2.0, 1.0];

@@ -185,6 +185,7 @@ fn invalid_field() -> impl Strategy<Value = InvalidField> {
         Just(InvalidField::CorrespondencePart),
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceNotFinite { index }),
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceCovariance { index }),
+        Just(InvalidField::CovarianceThreshold),
     ]
 }
 
@@ -218,7 +219,7 @@ fn core_message() -> impl Strategy<Value = CoreToHost> {
         (
             version(),
             proptest::option::of(model()),
-            any::<[u16; 4]>(),
+            any::<[u16; 5]>(),
             any::<u8>()
         )
             .prop_map(|(version, model, c, scalar_bits)| {
@@ -230,6 +231,7 @@ fn core_message() -> impl Strategy<Value = CoreToHost> {
                         max_correspondences_per_message: c[1],
                         max_correspondences_per_frame: c[2],
                         delay_buffer_samples: c[3],
+                        max_pending_frames: c[4],
                         scalar_bits,
                     },
                 })

@@ -90,6 +90,7 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                     max_correspondences_per_message: u16::MAX,
                     max_correspondences_per_frame: u16::MAX,
                     delay_buffer_samples: u16::MAX,
+                    max_pending_frames: u16::MAX,
                     scalar_bits: u8::MAX,
                 },
             }),

@@ -132,14 +132,15 @@ pub fn linearise<T: Scalar>(
 }
 
 /// Applies one correspondence unless it is behind the camera, singular, or gated out.
-/// Returns the normalised residual `s_i = zᵀ S⁻¹ z` (infinite when it cannot be computed).
+/// Returns the normalised residual `s_i = zᵀ S⁻¹ z` (infinite when it cannot be computed) and,
+/// when applied, the step's radial quaternion error ([`crate::ekf::radial_step`]).
 ///
 /// The covariance must be symmetric (every update and time update keeps it so).
 pub fn update<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
-) -> (T, Result<(), Rejection>) {
+) -> (T, Result<T, Rejection>) {
     T::correspondence_update(st, prm, obs)
 }
 
@@ -148,7 +149,7 @@ pub(crate) fn update_generic<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
-) -> (T, Result<(), Rejection>) {
+) -> (T, Result<T, Rejection>) {
     let (d_s, d_q, r, depth, h) = blocks(st, &prm.hand_eye, obs);
     // Written so that a NaN depth is rejected too.
     if depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
@@ -180,8 +181,8 @@ pub(crate) fn update_generic<T: Scalar>(
     if f.nis > prm.gate {
         return (f.nis, Err(Rejection::Gated));
     }
-    f.apply(st, prm.n, &mut u);
-    (f.nis, Ok(()))
+    let radial = f.apply(st, prm.n, &mut u);
+    (f.nis, Ok(radial))
 }
 
 #[cfg(test)]
