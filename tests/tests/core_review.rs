@@ -98,7 +98,10 @@ fn defect_02_reinitialisation_keeps_the_yaw_that_init_gave() {
         divergences(&out),
         mean.to_degrees()
     );
-    assert!(divergences(&out) > 0, "the blind stretch must force re-initialisations");
+    assert!(
+        divergences(&out) > 0,
+        "the blind stretch must force re-initialisations"
+    );
     assert_eq!(after, 0, "divergences after vision returned");
     assert!(mean.to_degrees() < 1.0);
     assert_eq!(last.0, Mode::Tracking);
@@ -368,7 +371,9 @@ fn defect_06_an_image_point_without_covariance_is_refused() {
     exact_model[0].cov_w = [0.0; 6];
     let answers = send(&mut d, &exact_model);
     assert!(
-        answers.iter().any(|a| matches!(a, CoreToHost::UpdateReport(r)
+        answers
+            .iter()
+            .any(|a| matches!(a, CoreToHost::UpdateReport(r)
             if r.outcome == UpdateOutcome::Applied && r.accepted == 3)),
         "{answers:?}"
     );
@@ -446,7 +451,11 @@ fn defect_08_one_frame_of_outliers_does_not_fire_the_residual_monitor() {
             step_answering(&mut d, false);
         }
         assert!(gated >= 20, "the outlier frame was gated ({gated})");
-        assert_eq!(divergences(&d.out), 0, "λ {lambda}: one outlier frame fired");
+        assert_eq!(
+            divergences(&d.out),
+            0,
+            "λ {lambda}: one outlier frame fired"
+        );
         // A second of nothing but outliers is a divergence.
         for _ in 0..sc.imu_rate_hz as usize {
             step_answering(&mut d, true);
@@ -483,7 +492,13 @@ fn defect_09_the_advertised_latency_limit_is_the_real_one() {
     };
     let at_limit = (limit_us / 5_000) as usize;
     let (applied, too_old) = run_at(at_limit);
-    assert!(applied > 100 && too_old == 0, "{applied} applied, {too_old} too old");
+    assert!(
+        applied > 100 && too_old == 0,
+        "{applied} applied, {too_old} too old"
+    );
     let (applied, too_old) = run_at(at_limit + 1);
-    assert!(applied < 5 && too_old > 100, "{applied} applied, {too_old} too old");
+    assert!(
+        applied < 5 && too_old > 100,
+        "{applied} applied, {too_old} too old"
+    );
 }
