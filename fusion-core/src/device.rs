@@ -143,11 +143,13 @@ struct Anchor<T: Scalar> {
 }
 
 impl<T: Scalar> Anchor<T> {
+    /// No anchor before the first `Init` (all zero bytes, so that the firmware's `static`
+    /// device stays in `.bss`; it is never restarted from).
     const NONE: Anchor<T> = Anchor {
         position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
         yaw: None,
         from_vision: false,
-        age_us: u64::MAX,
+        age_us: 0,
     };
 
     /// Whether vision anchored the estimate within [`SOFT_RESET_WINDOW_US`].

@@ -2,7 +2,7 @@
 //! hand-eye from the camera's `T_BS`, and the process noise tuned per model as the paper did
 //! (the constant-velocity models need a much larger motion noise than the acc model).
 
-use protocol::{Config, DivergenceParams, InitSigma, ModelKind, NoiseParams};
+use protocol::{Config, DivergenceParams, InitSigma, ModelKind, NoiseParams, validate};
 
 use crate::dataset::Dataset;
 
@@ -67,6 +67,27 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
         // White acceleration for the constant-velocity models.
         _ => (accel * 1.5).max(0.5),
     };
+    let init_sigma = InitSigma {
+        position: tuning.init_position_sigma as f32,
+        velocity: 0.05,
+        acceleration: 0.5,
+        tilt: 0.03,
+        yaw: 0.05,
+        angular_velocity: 0.1,
+        gyro_bias: 0.01,
+        accel_bias: 0.1,
+    };
+    // Dead reckoning with a large motion noise grows the covariance fast: leave room for a few
+    // frames without vision, and stay at twice the floor the core validates (a multiple of the
+    // initial covariance's norm, which a large --init-position-sigma raises).
+    let initial = f64::from(validate::initial_covariance_frobenius_sq(
+        model,
+        &init_sigma,
+    ))
+    .sqrt();
+    let covariance_threshold = (2.0 * motion * motion)
+        .max(10.0)
+        .max(2.0 * f64::from(validate::COVARIANCE_THRESHOLD_MARGIN) * initial);
     Config {
         model,
         noise: NoiseParams {
@@ -87,24 +108,13 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
                 _ => accel_sample.max(tuning.accel_noise_floor),
             }) as f32,
         },
-        init_sigma: InitSigma {
-            position: tuning.init_position_sigma as f32,
-            velocity: 0.05,
-            acceleration: 0.5,
-            tilt: 0.03,
-            yaw: 0.05,
-            angular_velocity: 0.1,
-            gyro_bias: 0.01,
-            accel_bias: 0.1,
-        },
+        init_sigma,
         hand_eye: dataset.hand_eye.to_wire(),
         gate: tuning.gate as f32,
         divergence: DivergenceParams {
             residual_lowpass: 0.95,
             residual_threshold: 50.0,
-            // Dead reckoning with a large motion noise grows the covariance fast: leave room
-            // for a few frames without vision.
-            covariance_frobenius: (2.0 * motion * motion).max(10.0) as f32,
+            covariance_frobenius: covariance_threshold as f32,
             quaternion_norm: 0.01,
         },
         imu_rate_hz: rate as f32,
