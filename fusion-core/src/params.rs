@@ -34,6 +34,8 @@ pub struct Params<T: Scalar> {
     pub lowpass: T,
     /// Threshold on the low-passed residual.
     pub residual_threshold: T,
+    /// Cap on each residual fed to the monitor ([`crate::divergence`]).
+    pub residual_cap: T,
     /// Threshold on ‖P‖_F.
     pub cov_threshold: T,
     /// Threshold on |‖q‖ − 1|.
@@ -47,6 +49,12 @@ pub struct Params<T: Scalar> {
 }
 
 impl<T: Scalar> Params<T> {
+    /// The residual monitor's cap `c = τ(2−λ) / (2(1−λ))` for threshold `τ` and low-pass `λ`
+    /// (see [`crate::divergence`]).
+    pub fn residual_cap_of(threshold: T, lowpass: T) -> T {
+        threshold * (T::c(2.0) - lowpass) / (T::c(2.0) * (T::one() - lowpass))
+    }
+
     /// From a validated `Config`.
     pub fn from_config(c: &Config) -> Self {
         let sq = |s: f32| T::from_wire(s) * T::from_wire(s);
@@ -64,6 +72,10 @@ impl<T: Scalar> Params<T> {
             gate: T::from_wire(c.gate),
             lowpass: T::from_wire(c.divergence.residual_lowpass),
             residual_threshold: T::from_wire(c.divergence.residual_threshold),
+            residual_cap: Self::residual_cap_of(
+                T::from_wire(c.divergence.residual_threshold),
+                T::from_wire(c.divergence.residual_lowpass),
+            ),
             cov_threshold: T::from_wire(c.divergence.covariance_frobenius),
             quat_norm_threshold: T::from_wire(c.divergence.quaternion_norm),
             imu_period_us: (1e6 / c.imu_rate_hz as f64) as u64,

@@ -74,8 +74,7 @@ pub enum InvalidField {
     HandEye,
     /// The outlier gate is not positive or not finite.
     Gate,
-    /// A divergence threshold is out of range (λ outside
-    /// [[`crate::validate::MIN_RESIDUAL_LOWPASS`], 1), or a threshold ≤ 0).
+    /// A divergence threshold is out of range (λ outside (0, 1), or a threshold ≤ 0).
     Divergence,
     /// A rate is not positive and finite.
     Rate,
@@ -123,7 +122,7 @@ impl fmt::Display for InvalidField {
             InvalidField::HandEye => f.write_str("hand-eye rotation not a unit quaternion"),
             InvalidField::Gate => f.write_str("outlier gate not positive"),
             InvalidField::Divergence => f.write_str(
-                "divergence parameter out of range (residual low-pass outside [2/3, 1), or a \
+                "divergence parameter out of range (residual low-pass outside (0, 1), or a \
                  threshold not positive)",
             ),
             InvalidField::Rate => f.write_str("rate not positive"),

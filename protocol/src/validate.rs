@@ -22,12 +22,6 @@ pub const MAX_ACCEL_M_S2: f32 = 2000.0;
 /// Relative tolerance of the semi-definiteness checks of covariances (f32 rounding).
 const PSD_TOLERANCE: f32 = 1e-5;
 
-/// Smallest residual low-pass factor λ (the paper's `0 ≪ λ < 1`). Each frame's mean residual
-/// is capped at twice the threshold, so from `g` below half the threshold one frame moves `g`
-/// to at most `λ/2 + 2(1−λ)` thresholds: below one exactly when `λ ≥ 2/3`, so that no single
-/// frame can fire the test.
-pub const MIN_RESIDUAL_LOWPASS: f32 = 2.0 / 3.0;
-
 /// How far the covariance threshold must lie above the norm of the initial covariance: the
 /// filter dead-reckons from the initial covariance until vision snaps on, and the test must
 /// leave it room to do so.
@@ -140,9 +134,8 @@ fn config(c: &Config) -> Result<(), InvalidField> {
         return Err(InvalidField::Gate);
     }
     let d = &c.divergence;
-    let lambda_ok = d.residual_lowpass.is_finite()
-        && d.residual_lowpass >= MIN_RESIDUAL_LOWPASS
-        && d.residual_lowpass < 1.0;
+    let lambda_ok =
+        d.residual_lowpass.is_finite() && d.residual_lowpass > 0.0 && d.residual_lowpass < 1.0;
     if !lambda_ok
         || !positive(d.residual_threshold)
         || !positive(d.covariance_frobenius)
@@ -313,10 +306,6 @@ mod tests {
         assert_eq!(
             configure(|c| c.init_sigma.position = 1e20),
             Err(InvalidField::InitSigma)
-        );
-        assert_eq!(
-            configure(|c| c.divergence.residual_lowpass = 0.5),
-            Err(InvalidField::Divergence)
         );
         assert_eq!(
             configure(|c| c.divergence.covariance_frobenius = 3.0),

@@ -430,17 +430,17 @@ impl Session<'_> {
         (self.dataset.imu[k].stamp - self.dataset.imu[0].stamp) / 1000
     }
 
-    fn handshake(&mut self, link: &mut CoreLink) -> Result<(), TrackError> {
+    fn handshake(&mut self, link: &mut CoreLink) -> Result<protocol::HelloAck, TrackError> {
         link.send(&HostToCore::Hello(protocol::Hello {
             version: PROTOCOL_VERSION,
         }))?;
         loop {
             match link.recv(self.options.timeout)? {
                 Incoming::Message(m @ (CoreToHost::HelloAck(_) | CoreToHost::Error(_))) => {
-                    protocol::handshake::check_answer(&m)
+                    let ack = protocol::handshake::check_answer(&m)
                         .map_err(|e| TrackError::Core(format!("handshake: {e}")))?;
                     self.log.acks += 1;
-                    return Ok(());
+                    return Ok(ack);
                 }
                 other => self.log.take(other),
             }
@@ -499,8 +499,24 @@ impl Session<'_> {
         interrupt: &AtomicBool,
         progress: Progress,
     ) -> Result<bool, TrackError> {
-        self.handshake(link)?;
+        let ack = self.handshake(link)?;
         let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
+        // The core keeps a frame's snapshot only so long: later correspondences are refused.
+        let limit_us = ack
+            .capacities
+            .max_latency_us(config.imu_rate_hz, config.camera_rate_hz);
+        if self.options.latency * 1e6 > limit_us as f64 {
+            return Err(TrackError::Option(format!(
+                "--latency {} s is longer than the core can wait for a frame's correspondences: \
+                 {:.3} s at {} Hz IMU and {} Hz camera ({} frames, {} IMU samples kept)",
+                self.options.latency,
+                limit_us as f64 * 1e-6,
+                config.imu_rate_hz,
+                config.camera_rate_hz,
+                ack.capacities.max_pending_frames,
+                ack.capacities.delay_buffer_samples,
+            )));
+        }
         link.send(&HostToCore::Configure(config))?;
         link.send(&HostToCore::Init(self.init_message()?))?;
         self.barrier(link)?;
