@@ -1,194 +1,52 @@
 //! `host-vision`: the vision host's command line.
 
-use std::path::PathBuf;
+mod args;
+mod console;
+mod progress;
 
-use clap::{Parser, Subcommand};
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Parser as _;
 use firmware_sim::sim::scenario::ScenarioName;
 
-/// Vision host of the visual-inertial tracker.
-#[derive(Parser, Debug)]
-#[command(version, about)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
+use args::{Cli, Command, DemoArgs, EvalArgs, SynthArgs, TrackArgs};
+use console::{Failure, exit, note, say};
+use progress::Bar;
+
+/// The bar of `track`: IMU samples streamed.
+const TRACK_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len} IMU samples, ETA {eta}";
+/// The bar of `synth`: frames rendered.
+const SYNTH_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len} frames, ETA {eta}";
+/// The bar of `eval` and `demo`: the current step.
+const EVAL_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len}, {elapsed}";
+
+/// What a command ends with, when it did not fail.
+enum Done {
+    /// Everything done.
+    Complete,
+    /// `track` ran, but the core never accepted a correspondence.
+    NeverTracked,
+    /// Ctrl-C: what was done is written.
+    Interrupted,
 }
 
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Protocol loop-back self-test over a pty pair (a real serial line in one process).
-    Selftest {
-        /// IMU samples to stream through the link.
-        #[arg(long, default_value_t = 2000)]
-        imu_samples: usize,
-    },
-    /// Writes a synthetic EuRoC-format dataset of one of the paper's test cases.
-    Synth(Box<SynthArgs>),
-    /// Tracks a EuRoC-layout dataset with the fusion core at the other end of a link.
-    Track(Box<TrackArgs>),
-    /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
-    Eval(Box<EvalArgs>),
-    /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
-    /// gyro models over the simulated serial link, prints the summary and where the images are.
-    Demo(Box<DemoArgs>),
-}
-
-/// Options of `demo`.
-#[derive(clap::Args, Debug)]
-struct DemoArgs {
-    /// Output folder.
-    #[arg(long, default_value = "target/demo/out")]
-    out: PathBuf,
-    /// Where the synthetic dataset is cached.
-    #[arg(long, default_value = "target/demo/datasets")]
-    cache: PathBuf,
-    /// Seconds of the sequence.
-    #[arg(long, default_value_t = 15.0)]
-    duration: f64,
-    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
-    #[arg(long, default_value = "sim")]
-    link: host_vision::track::LinkSpec,
-}
-
-/// Options of `eval`.
-#[derive(clap::Args, Debug)]
-struct EvalArgs {
-    /// Output folder (eval.md, eval.json, plots, and each run's outputs).
-    #[arg(long, default_value = "eval-out")]
-    out: PathBuf,
-    /// Where synthetic datasets are cached.
-    #[arg(long, default_value = "datasets")]
-    cache: PathBuf,
-    /// Scenarios (repeatable; default: all four).
-    #[arg(long = "scenario", value_enum)]
-    scenarios: Vec<ScenarioName>,
-    /// Models (repeatable; default: gyro, gravity, acc).
-    #[arg(long = "filter", value_enum)]
-    filters: Vec<FilterArg>,
-    /// Shorter scenarios [s] (default: their nominal lengths).
-    #[arg(long)]
-    duration: Option<f64>,
-    /// Seed of the synthetic sensors.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
-    #[arg(long, default_value = "sim")]
-    link: host_vision::track::LinkSpec,
-    /// Skip the two-feature run on desktop-slow (the paper's Fig. 6).
-    #[arg(long)]
-    no_two_features: bool,
-    /// Overlay images every N frames (0: none).
-    #[arg(long, default_value_t = 0)]
-    overlay_every: usize,
-}
-
-/// Options of `track`.
-#[derive(clap::Args, Debug)]
-struct TrackArgs {
-    /// Dataset folder (holding mav0/).
-    #[arg(long)]
-    dataset: PathBuf,
-    /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/).
-    #[arg(long)]
-    out: PathBuf,
-    /// Model file (.obj, .gltf, .glb); default: the dataset's model/scene.obj.
-    #[arg(long)]
-    model: Option<PathBuf>,
-    /// The core: sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE.
-    #[arg(long, default_value = "sim")]
-    link: host_vision::track::LinkSpec,
-    /// Filter model.
-    #[arg(long, value_enum, default_value = "acc")]
-    filter: FilterArg,
-    /// IMU pacing.
-    #[arg(long, value_enum, default_value = "lock-step")]
-    pacing: host_vision::track::Pacing,
-    /// Trigger-to-correspondences latency in lock-step mode [s] (below one frame period, so
-    /// that each prediction has the previous frame's update).
-    #[arg(long, default_value_t = 0.03)]
-    latency: f64,
-    /// Features registered per frame.
-    #[arg(long, default_value_t = 40)]
-    features: usize,
-    /// Track only the first N seconds.
-    #[arg(long)]
-    duration: Option<f64>,
-    /// Start position of the IMU `x,y,z` [m] (default: from the ground truth).
-    #[arg(long, value_parser = parse_vec3)]
-    start_position: Option<[f64; 3]>,
-    /// Start yaw of the IMU [deg] (default: from the ground truth).
-    #[arg(long)]
-    start_yaw: Option<f64>,
-    /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
-    /// synthetic dataset's manifest, else 10).
-    #[arg(long)]
-    expected_accel: Option<f64>,
-    /// Accelerometer measurement noise [m/s²] (default: per model).
-    #[arg(long)]
-    accel_noise: Option<f64>,
-    /// Angular-acceleration noise density [rad/s²/√Hz].
-    #[arg(long, default_value_t = 10.0)]
-    angular_noise: f64,
-    /// Write an overlay image every N frames (0: none).
-    #[arg(long, default_value_t = 25)]
-    overlay_every: usize,
-    /// Replace this fraction of correspondences by outliers (robustness tests).
-    #[arg(long, default_value_t = 0.0)]
-    outliers: f64,
-    /// Corrupt all correspondences for 0.3 s from this time [s] (forces a divergence).
-    #[arg(long)]
-    corrupt_at: Option<f64>,
-}
-
-/// Filter model on the command line.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum FilterArg {
-    Gyro,
-    Gravity,
-    Acc,
-}
-
-impl From<FilterArg> for protocol::ModelKind {
-    fn from(f: FilterArg) -> Self {
-        match f {
-            FilterArg::Gyro => protocol::ModelKind::Gyro,
-            FilterArg::Gravity => protocol::ModelKind::Gravity,
-            FilterArg::Acc => protocol::ModelKind::Acc,
+/// A flag set by Ctrl-C. A second Ctrl-C ends the process at once, as usual.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    let interrupt = Arc::new(AtomicBool::new(false));
+    let flag = interrupt.clone();
+    let _ = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::Relaxed) {
+            std::process::exit(exit::INTERRUPTED.into());
         }
-    }
+    });
+    interrupt
 }
 
-fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("`{p}`: {e}")))
-        .collect::<Result<_, _>>()?;
-    match v[..] {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
-        _ => Err(format!("expected three finite numbers x,y,z, got `{s}`")),
-    }
-}
-
-fn progress_bar(template: &str) -> anyhow::Result<indicatif::ProgressBar> {
-    use anyhow::Context as _;
-    let bar = indicatif::ProgressBar::new(0);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(template)
-            .context("progress bar template")?
-            .progress_chars("=> "),
-    );
-    Ok(bar)
-}
-
-fn track(a: &TrackArgs) -> anyhow::Result<()> {
+fn track(a: &TrackArgs) -> Result<Done, Failure> {
     use host_vision::track::{self, Faults, Start};
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
-    if !(0.0..=1.0).contains(&a.outliers) {
-        anyhow::bail!(
-            "--outliers must be a fraction in [0, 1], got {}",
-            a.outliers
-        );
-    }
     let mut o = host_vision::eval::options_for(&a.dataset, a.out.clone());
     o.model = a.model.clone();
     o.link = a.link.clone();
@@ -197,6 +55,7 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
     o.latency = a.latency;
     o.vision.map.subset_size = a.features;
     o.duration = a.duration;
+    o.overwrite = a.overwrite;
     o.start = Start {
         position: a.start_position,
         yaw: a.start_yaw.map(f64::to_radians),
@@ -205,7 +64,7 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
         o.tuning.expected_accel = accel;
     }
     o.tuning.angular_noise = a.angular_noise;
-    o.tuning.accel_noise = a.accel_noise;
+    o.tuning.accel_noise = a.accel_meas_noise;
     o.overlay_every = a.overlay_every;
     o.faults = Faults {
         outlier_fraction: a.outliers,
@@ -213,152 +72,61 @@ fn track(a: &TrackArgs) -> anyhow::Result<()> {
         corrupt_seconds: 0.3,
         seed: 1,
     };
-    let interrupt = Arc::new(AtomicBool::new(false));
-    {
-        let flag = interrupt.clone();
-        // A second Ctrl-C kills the process as usual.
-        let _ = ctrlc::set_handler(move || {
-            if flag.swap(true, Ordering::Relaxed) {
-                std::process::exit(130);
-            }
-        });
-    }
-    let bar =
-        progress_bar("{msg} [{bar:40}] {pos}/{len} IMU samples, {elapsed} elapsed, ETA {eta}")?;
+    let interrupt = interrupt_flag();
+    let mut bar = Bar::new(TRACK_BAR);
     let name = format!("track {:?}", o.filter).to_lowercase();
     let result = track::run(&o, interrupt.clone(), &mut |done, total, frames, mode| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-        bar.set_message(format!(
-            "{name}: {frames} frames, {}",
-            mode.map(|m| format!("{m:?}")).unwrap_or_default()
-        ));
+        let mode = mode.map(|m| format!(", {m:?}")).unwrap_or_default();
+        bar.update(
+            &format!("{name}: {frames} frames{mode}"),
+            done as u64,
+            total as u64,
+        );
     });
     bar.finish();
     let run = result?;
-    println!("{}", run.summary);
+    say!("{}", run.summary);
     let interrupted = interrupt.load(Ordering::Relaxed);
     if interrupted {
-        println!("interrupted: wrote what was tracked");
+        say!("interrupted: wrote what was tracked");
     }
-    println!("results in {}:", a.out.display());
-    for p in run
-        .written
-        .iter()
-        .filter(|p| !p.starts_with(a.out.join("overlays")))
-    {
-        println!("  {}", p.display());
-    }
-    let overlays = run
-        .written
-        .iter()
-        .filter(|p| p.starts_with(a.out.join("overlays")))
-        .count();
-    if overlays > 0 {
-        println!(
-            "  {} ({overlays} overlay images)",
-            a.out.join("overlays").display()
-        );
-    }
+    list_outputs(&a.out, &run.written);
     if interrupted {
-        // The shell's convention for a run ended by Ctrl-C.
-        std::process::exit(130);
+        return Ok(Done::Interrupted);
     }
-    Ok(())
+    if run.summary.snapped_on_at.is_none() {
+        note!(
+            "tracking never started: the core accepted none of the {} correspondences sent over {} frames; check the start pose (--start-position, --start-yaw), the model and the calibration",
+            run.summary.correspondences_sent,
+            run.summary.frames
+        );
+        return Ok(Done::NeverTracked);
+    }
+    Ok(Done::Complete)
 }
 
-/// Options of `synth`.
-#[derive(clap::Args, Debug)]
-struct SynthArgs {
-    /// Test case.
-    #[arg(long, value_enum)]
-    scenario: ScenarioName,
-    /// Output folder (created; must not already hold a dataset unless --overwrite).
-    #[arg(long)]
-    out: PathBuf,
-    /// Seed of sensor noise, biases and vibration.
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    /// Image size WxH.
-    #[arg(long, default_value = "320x240", value_parser = parse_resolution)]
-    resolution: (u32, u32),
-    /// Duration in seconds (default: the scenario's).
-    #[arg(long)]
-    duration: Option<f64>,
-    /// IMU rate in Hz.
-    #[arg(long, default_value_t = 100.0)]
-    imu_rate: f64,
-    /// One camera frame every N IMU samples.
-    #[arg(long, default_value_t = 4)]
-    camera_every: u32,
-    /// Fewest sub-frames averaged over the exposure (with --max-subframes 1: 1 means no
-    /// motion blur).
-    #[arg(long, default_value_t = 4)]
-    subframes: u32,
-    /// Most sub-frames (fast frames get about one per pixel of image motion).
-    #[arg(long, default_value_t = 32)]
-    max_subframes: u32,
-    /// Render supersampling per axis (1-4).
-    #[arg(long, default_value_t = 2)]
-    supersample: u32,
-    /// Texel density factor of the generated textures.
-    #[arg(long, default_value_t = 1.0)]
-    texture_scale: f64,
-    /// Image for the modelled surfaces instead of generated textures (repeatable).
-    #[arg(long = "texture")]
-    textures: Vec<PathBuf>,
-    /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
-    #[arg(long)]
-    ideal: bool,
-    /// Gyro white-noise density [rad/s/√Hz] (default: the MT9-class 1e-3).
-    #[arg(long, value_parser = parse_density)]
-    gyro_noise: Option<f64>,
-    /// Gyro bias random walk [rad/s²/√Hz] (default: 2e-5).
-    #[arg(long, value_parser = parse_density)]
-    gyro_walk: Option<f64>,
-    /// Accelerometer white-noise density [m/s²/√Hz] (default: 2e-3).
-    #[arg(long, value_parser = parse_density)]
-    accel_noise: Option<f64>,
-    /// Accelerometer bias random walk [m/s³/√Hz] (default: 1e-4).
-    #[arg(long, value_parser = parse_density)]
-    accel_walk: Option<f64>,
-    /// Replace a dataset already in the output folder.
-    #[arg(long)]
-    overwrite: bool,
-}
-
-fn parse_density(s: &str) -> Result<f64, String> {
-    let v: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
-    if v.is_finite() && v >= 0.0 {
-        Ok(v)
-    } else {
-        Err(format!(
-            "a noise density must be finite and non-negative, got `{s}`"
-        ))
+/// Lists the files written, the overlay images as their folder and count.
+fn list_outputs(out: &Path, written: &[std::path::PathBuf]) {
+    let overlays = out.join("overlays");
+    say!("results in {}:", out.display());
+    for p in written.iter().filter(|p| !p.starts_with(&overlays)) {
+        say!("  {}", p.display());
+    }
+    let n = written.iter().filter(|p| p.starts_with(&overlays)).count();
+    if n > 0 {
+        let images = if n == 1 { "image" } else { "images" };
+        say!("  {} ({n} overlay {images})", overlays.display());
     }
 }
 
-fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected WxH, e.g. 320x240, got `{s}`"))?;
-    let parse = |v: &str| {
-        v.trim()
-            .parse::<u32>()
-            .map_err(|e| format!("`{v}` in `{s}`: {e}"))
-    };
-    let (w, h) = (parse(w)?, parse(h)?);
-    if !(16..=4096).contains(&w) || !(16..=4096).contains(&h) {
-        return Err(format!("each side must be 16..=4096 pixels, got {w}x{h}"));
-    }
-    Ok((w, h))
-}
-
-fn synth(a: &SynthArgs) -> anyhow::Result<()> {
+fn synth(a: &SynthArgs) -> Result<Done, Failure> {
     use anyhow::Context as _;
     use host_vision::synth::{FrameOptions, SynthOptions, TextureOptions, run};
     if !(a.texture_scale.is_finite() && a.texture_scale > 0.0 && a.texture_scale <= 4.0) {
-        anyhow::bail!("--texture-scale must be in (0, 4], got {}", a.texture_scale);
+        return Err(Failure {
+            error: anyhow::anyhow!("--texture-scale must be in (0, 4], got {}", a.texture_scale),
+            code: exit::USAGE,
+        });
     }
     let mut frames = FrameOptions::new(a.resolution.0, a.resolution.1);
     frames.subframes = a.subframes;
@@ -394,44 +162,57 @@ fn synth(a: &SynthArgs) -> anyhow::Result<()> {
         overwrite: a.overwrite,
         ..SynthOptions::new(a.scenario, a.out.clone())
     };
-    let bar = indicatif::ProgressBar::new(0);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{msg} [{bar:40}] {pos}/{len} frames, {elapsed} elapsed, ETA {eta}",
-        )
-        .context("progress bar template")?
-        .progress_chars("=> "),
-    );
-    bar.set_message(format!("synth {}", a.scenario));
-    let report = run(&options, &mut |done, total| {
-        bar.set_length(total);
-        bar.set_position(done);
-    })
-    .with_context(|| format!("generating {} into {}", a.scenario, a.out.display()))?;
+    let mut bar = Bar::new(SYNTH_BAR);
+    let label = format!("synth {}", a.scenario);
+    let report = run(&options, &mut |done, total| bar.update(&label, done, total))
+        .with_context(|| format!("generating {} into {}", a.scenario, a.out.display()))?;
     bar.finish();
-    println!("{report}");
-    println!("dataset written to {}", a.out.display());
-    Ok(())
+    say!("{report}");
+    say!("dataset written to {}", a.out.display());
+    Ok(Done::Complete)
 }
 
-/// Runs an evaluation with one progress bar per step (synthesis, each tracking run).
+/// Runs an evaluation with one progress bar per step (synthesis, each tracking run) and a
+/// line per finished run (also without a terminal, where the bar is not drawn).
 fn run_eval(
     options: &host_vision::eval::EvalOptions,
 ) -> anyhow::Result<host_vision::eval::EvalReport> {
-    let bar = progress_bar("{msg:32} [{bar:40}] {pos}/{len}, {elapsed} elapsed")?;
-    let report = host_vision::eval::run(options, &mut |what, done, total| {
-        if bar.message() != what {
-            bar.set_message(what.to_string());
-            bar.reset();
+    use host_vision::eval::EvalEvent;
+    let mut bar = Bar::new(EVAL_BAR);
+    let report = host_vision::eval::run(options, &mut |event| match event {
+        EvalEvent::Step { what, done, total } => bar.update(what, done, total),
+        EvalEvent::RunDone(row) => {
+            let s = &row.summary;
+            let px = s
+                .mean_prediction_error_px
+                .map_or("n/a".into(), |v| format!("{v:.2} px"));
+            let snap = s.snapped_on_at.map_or("never snapped on".into(), |t| {
+                format!("snapped on at {t:.2} s")
+            });
+            bar.say(&format!(
+                "done: {} {} model{}: prediction error {px}, {snap}, {} divergences, {:.1} s{}",
+                row.scenario,
+                row.model,
+                if row.features == 2 {
+                    " (2 features)"
+                } else {
+                    ""
+                },
+                s.divergences.len(),
+                s.wall_s,
+                if s.stopped_early {
+                    " (stopped early)"
+                } else {
+                    ""
+                },
+            ));
         }
-        bar.set_length(total);
-        bar.set_position(done);
-    })?;
-    bar.finish_and_clear();
-    Ok(report)
+    });
+    bar.clear();
+    Ok(report?)
 }
 
-fn eval(a: &EvalArgs) -> anyhow::Result<()> {
+fn eval(a: &EvalArgs) -> Result<Done, Failure> {
     use host_vision::eval::EvalOptions;
     let options = EvalOptions {
         scenarios: if a.scenarios.is_empty() {
@@ -451,24 +232,35 @@ fn eval(a: &EvalArgs) -> anyhow::Result<()> {
         link: a.link.clone(),
         two_features: !a.no_two_features,
         overlay_every: a.overlay_every,
+        overwrite: a.overwrite,
+        interrupt: interrupt_flag(),
     };
     let report = run_eval(&options)?;
-    println!("{}", report.markdown());
-    println!(
+    if report.rows.is_empty() {
+        say!("interrupted before any run finished: nothing written");
+        return Ok(Done::Interrupted);
+    }
+    say!("{}", report.markdown());
+    say!(
         "written: {} and {}, plots and each run's outputs in {}",
         a.out.join("eval.md").display(),
         a.out.join("eval.json").display(),
         a.out.display()
     );
-    Ok(())
+    if report.interrupted {
+        say!("interrupted: wrote the runs done");
+        return Ok(Done::Interrupted);
+    }
+    Ok(Done::Complete)
 }
 
-fn demo(a: &DemoArgs) -> anyhow::Result<()> {
+fn demo(a: &DemoArgs) -> Result<Done, Failure> {
     use host_vision::eval::EvalOptions;
     let scenario = ScenarioName::DesktopFast;
-    println!(
-        "demo: {scenario} ({} s), tracked by the acc and gyro models; the core runs on the simulated board behind a pty ({:?})",
-        a.duration, a.link
+    say!(
+        "demo: {scenario} ({} s), tracked by the acc and gyro models; the core: {}",
+        a.duration,
+        a.link
     );
     let options = EvalOptions {
         scenarios: vec![scenario],
@@ -480,47 +272,79 @@ fn demo(a: &DemoArgs) -> anyhow::Result<()> {
         link: a.link.clone(),
         two_features: false,
         overlay_every: 10,
+        overwrite: a.overwrite,
+        interrupt: interrupt_flag(),
     };
     let report = run_eval(&options)?;
-    for row in &report.rows {
-        println!("── {} model\n{}", row.model, row.summary);
+    if report.rows.is_empty() {
+        say!("interrupted before any run finished: nothing written");
+        return Ok(Done::Interrupted);
     }
-    println!("{}", report.markdown());
+    for row in &report.rows {
+        say!("── {} model\n{}", row.model, row.summary);
+    }
+    say!("{}", report.markdown());
+    if report.interrupted {
+        say!("interrupted: wrote the runs done, in {}", a.out.display());
+        return Ok(Done::Interrupted);
+    }
     let acc = a.out.join(scenario.as_str()).join("acc");
-    println!("look at:");
-    println!(
+    say!("look at:");
+    say!(
         "  {}   overlays: registered features (green), failed (red), the model's axes",
         acc.join("overlays").display()
     );
-    println!(
+    say!(
         "  {}   prediction error of both models (the paper's Fig. 5)",
         a.out
             .join(format!("{scenario}_prediction_error.svg"))
             .display()
     );
-    println!(
+    say!(
         "  {}   camera position error against ground truth",
         acc.join("plots/position_error.svg").display()
     );
-    println!(
+    say!(
         "  {}   camera trajectory (TUM, for evo; ground truth beside it)",
         acc.join("trajectory.tum").display()
     );
-    println!("  {}   the table above", a.out.join("eval.md").display());
-    Ok(())
+    say!("  {}   the table above", a.out.join("eval.md").display());
+    Ok(Done::Complete)
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
-        Command::Selftest { imu_samples } => {
-            let report = host_vision::selftest::run_over_pty(imu_samples)?;
-            println!("{report}");
-            println!("self-test passed");
-        }
-        Command::Synth(args) => synth(&args)?,
-        Command::Track(args) => track(&args)?,
-        Command::Eval(args) => eval(&args)?,
-        Command::Demo(args) => demo(&args)?,
+fn selftest(imu_samples: usize) -> Result<Done, Failure> {
+    let report = host_vision::selftest::run_over_pty(imu_samples)?;
+    say!("{report}");
+    say!("self-test passed");
+    Ok(Done::Complete)
+}
+
+/// Mesa's Vulkan and EGL drivers print "XDG_RUNTIME_DIR is invalid or not set" on headless
+/// machines, where it is harmless; give them a private folder instead.
+#[allow(unsafe_code)]
+fn set_runtime_dir() {
+    let usable = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| Path::new(&d).is_dir());
+    if !usable {
+        let dir = std::env::temp_dir();
+        // SAFETY: called first thing in `main`, before any other thread exists, so no one
+        // reads the environment concurrently.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir) };
     }
-    Ok(())
+}
+
+fn main() -> ExitCode {
+    set_runtime_dir();
+    let done = match Cli::parse().command {
+        Command::Selftest { imu_samples } => selftest(imu_samples),
+        Command::Synth(args) => synth(&args),
+        Command::Track(args) => track(&args),
+        Command::Eval(args) => eval(&args),
+        Command::Demo(args) => demo(&args),
+    };
+    match done {
+        Ok(Done::Complete) => ExitCode::SUCCESS,
+        Ok(Done::NeverTracked) => ExitCode::from(exit::NEVER_TRACKED),
+        Ok(Done::Interrupted) => ExitCode::from(exit::INTERRUPTED),
+        Err(f) => console::report(f),
+    }
 }
