@@ -26,24 +26,26 @@ macro_rules! note {
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Cli {
-    /// Transport: `pty`, `tcp:ADDR` (listen), `serial:PATH[@BAUD]` or `stdio`.
+    /// Transport: `pty` (a new pty; its device path, printed, is the host's serial:PATH),
+    /// `tcp:HOST:PORT` (listens for one host), `serial:PATH[@BAUD]` (BAUD defaults to 921600)
+    /// or `stdio`.
     #[arg(long, default_value = "pty")]
     link: String,
     /// Scalar type of the core.
     #[arg(long, value_enum, default_value = "f32")]
     precision: Precision,
-    /// Serve sessions until killed (default: one session).
+    /// Serve sessions until killed (default: one session, which ends when the host closes the
+    /// link; the board then prints its report and exits). With pty, each session has a new
+    /// device.
     #[arg(long)]
     forever: bool,
 }
 
 fn open(link: &str) -> anyhow::Result<transport::Duplex> {
     if link == "pty" {
-        let (board_end, host_end) = transport::pty_pair()?;
-        // The master stays here; the host opens the slave device by its path.
-        note!("board: connect the host to serial:{}", host_end.name);
-        // Keep the slave open so that the pty survives until the host opens it.
-        std::mem::forget(host_end);
+        // The session ends when the host closes the device.
+        let (board_end, path) = transport::pty_for_peer()?;
+        note!("board: connect the host to serial:{path}");
         return Ok(board_end);
     }
     if link == "stdio" {

@@ -131,6 +131,38 @@ pub fn pty_pair() -> Result<(Duplex, Duplex), TransportError> {
     Ok((host, board))
 }
 
+/// Opens a pty for a host in another process, which opens the device by its path as a serial
+/// line: `(board end, device path)`. The session ends when that host closes the device. A pty
+/// whose device no process holds reads as hung up, so the board holds the device itself until
+/// the host's first bytes arrive (the host has it open then), and lets go of it after that:
+/// the host's close is then the end of the stream, and a second host finds no device.
+pub fn pty_for_peer() -> Result<(Duplex, String), TransportError> {
+    let (master, slave) = TTYPort::pair().map_err(TransportError::Pty)?;
+    let path = slave.name().unwrap_or_else(|| "pty".into());
+    let mut board = tty_duplex(master, path.clone()).map_err(TransportError::Pty)?;
+    board.reader = Box::new(HoldUntilData {
+        reader: board.reader,
+        held: Some(slave),
+    });
+    Ok((board, path))
+}
+
+/// Keeps the pty's device open until the first bytes come through (see [`pty_for_peer`]).
+struct HoldUntilData {
+    reader: Box<dyn Read + Send>,
+    held: Option<TTYPort>,
+}
+
+impl Read for HoldUntilData {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        let n = self.reader.read(buf)?;
+        if n > 0 {
+            self.held = None;
+        }
+        Ok(n)
+    }
+}
+
 /// Opens a serial device (hardware board, or a pty made by another program).
 pub fn serial(path: &str, baud: u32) -> Result<Duplex, TransportError> {
     let err = |source| TransportError::Serial {
@@ -167,7 +199,8 @@ fn tcp_duplex(
 
 /// Connects to a TCP peer.
 pub fn tcp_connect(addr: impl ToSocketAddrs + std::fmt::Debug) -> Result<Duplex, TransportError> {
-    let name = format!("{addr:?}");
+    // Debug, as `ToSocketAddrs` has no Display; a plain address loses its quotes.
+    let name = format!("{addr:?}").trim_matches('"').to_string();
     let stream = TcpStream::connect(&addr).map_err(|source| TransportError::Tcp {
         what: "connect to",
         addr: name.clone(),

@@ -10,8 +10,8 @@ use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
 use protocol::{CoreToHost, Hello, HostToCore, Init, InitAttitude, Mode, PROTOCOL_VERSION};
 
-/// Starts the board and returns it with the first line it prints on stderr.
-fn start(link: &str) -> (Child, String) {
+/// Starts the board and returns it with the first line it prints on stderr, and the rest.
+fn start(link: &str) -> (Child, String, std::thread::JoinHandle<String>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
         .args(["--link", link])
         .stderr(Stdio::piped())
@@ -22,8 +22,23 @@ fn start(link: &str) -> (Child, String) {
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
     // Keep reading, so that the board's last words do not meet a closed pipe.
-    std::thread::spawn(move || std::io::copy(&mut err, &mut std::io::sink()));
-    (child, line.trim().to_string())
+    let rest = std::thread::spawn(move || std::io::read_to_string(&mut err).unwrap_or_default());
+    (child, line.trim().to_string(), rest)
+}
+
+/// Waits for the board to exit by itself (a guard against a hang, not a speed requirement).
+fn wait_for_exit(child: &mut Child) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("the board did not end its session after the host hung up");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// A short session: handshake, configuration, still IMU until the filter runs, one trigger.
@@ -83,22 +98,66 @@ fn session(link: Duplex) {
     );
 }
 
+/// `firmware-sim --link pty` serves one session: when the host closes the device, the board
+/// prints its report and exits, and a second host finds no device (issue 13, point 3).
 #[test]
-fn a_host_talks_to_the_board_process_over_its_pty() {
-    let (mut child, line) = start("pty");
+fn a_host_talks_to_the_board_process_over_its_pty_and_the_session_ends_with_it() {
+    let (mut child, line, rest) = start("pty");
     let path = line
         .rsplit_once("serial:")
         .map(|(_, p)| p.to_string())
         .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
     let link = transport::serial(&path, 921_600).expect("open the board's pty");
     session(link);
-    let _ = child.kill();
-    let _ = child.wait();
+    let status = wait_for_exit(&mut child);
+    assert!(status.success(), "{status}");
+    let report = rest.join().unwrap();
+    assert!(
+        report.starts_with(&format!("board: session on {path} ended: "))
+            && report.contains(", 5 IMU samples applied,"),
+        "{report}"
+    );
+    let again = transport::serial(&path, 921_600);
+    assert!(again.is_err(), "a second host reached the ended session");
+}
+
+/// The README's `firmware-sim` commands name only flags its `--help` has.
+#[test]
+fn readme_names_only_real_flags() {
+    let out = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
+        .arg("--help")
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    let readme = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"),
+    )
+    .unwrap();
+    let mut checked = 0;
+    for line in readme.lines() {
+        for (_, rest) in line
+            .match_indices("firmware-sim ")
+            .map(|(i, m)| line.split_at(i + m.len()))
+        {
+            let code = rest.split(['#', '`']).next().unwrap_or("");
+            for flag in code
+                .split(|c: char| !(c.is_ascii_alphanumeric() || c == '-'))
+                .filter(|w| w.starts_with("--") && w.len() > 2)
+            {
+                assert!(
+                    help.contains(&format!("{flag} ")),
+                    "README: `firmware-sim {flag}` is not in its --help:\n{help}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 1, "no firmware-sim command found in the README");
 }
 
 #[test]
 fn a_host_talks_to_the_board_process_over_tcp() {
-    let (mut child, line) = start("tcp:127.0.0.1:0");
+    let (mut child, line, _) = start("tcp:127.0.0.1:0");
     let addr = line
         .rsplit_once("tcp:")
         .map(|(_, a)| a.to_string())

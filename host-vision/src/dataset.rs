@@ -149,6 +149,18 @@ struct ImuYaml {
 impl Dataset {
     /// Opens `root` (the folder holding `mav0/`).
     pub fn open(root: &Path) -> Result<Self, DatasetError> {
+        if root.is_file() {
+            return Err(DatasetError::Invalid {
+                path: root.to_owned(),
+                what: "is a file, not a dataset folder (the folder holding mav0/)".into(),
+            });
+        }
+        if !root.exists() {
+            return Err(DatasetError::Missing {
+                path: root.to_owned(),
+                what: "dataset folder",
+            });
+        }
         let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
         let imu_csv = require(mav0.join("imu0/data.csv"), "IMU samples")?;
         let cam_dir = require(mav0.join("cam0"), "camera folder")?;
@@ -347,8 +359,23 @@ mod tests {
     #[test]
     fn missing_folder_is_named() {
         let err = Dataset::open(Path::new("/nonexistent/dataset")).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "/nonexistent/dataset: missing (dataset folder)"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let err = Dataset::open(dir.path()).unwrap_err().to_string();
         assert!(
-            err.to_string().contains("/nonexistent/dataset/mav0"),
+            err.ends_with("/mav0: missing (EuRoC folder mav0/)"),
+            "{err}"
+        );
+        let file = dir.path().join("manifest.json");
+        std::fs::write(&file, "{}").unwrap();
+        let err = Dataset::open(&file).unwrap_err().to_string();
+        assert!(
+            err.ends_with(
+                "manifest.json: is a file, not a dataset folder (the folder holding mav0/)"
+            ),
             "{err}"
         );
     }

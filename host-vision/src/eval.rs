@@ -7,12 +7,13 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use firmware_sim::sim::scenario::ScenarioName;
 use protocol::ModelKind;
 use serde::Serialize;
 
+use crate::out_folder::OutFolder;
 use crate::synth::{SynthError, SynthOptions};
 use crate::track::plot::{Series, line_plot};
 use crate::track::{self, CoreTuning, LinkSpec, Summary, TrackError, TrackOptions};
@@ -40,6 +41,9 @@ pub enum EvalError {
         #[source]
         source: Box<TrackError>,
     },
+    /// The output folder cannot be used.
+    #[error(transparent)]
+    OutFolder(#[from] crate::out_folder::OutFolderError),
     /// Writing the report.
     #[error("{path}: {source}")]
     Output {
@@ -101,6 +105,18 @@ pub fn ensure_dataset(
     seed: u64,
     progress: &mut dyn FnMut(u64, u64),
 ) -> Result<PathBuf, EvalError> {
+    ensure_dataset_until(cache, scenario, duration, seed, None, progress)
+}
+
+/// [`ensure_dataset`], stopped by `interrupt` (then the unfinished dataset is removed).
+pub fn ensure_dataset_until(
+    cache: &Path,
+    scenario: ScenarioName,
+    duration: Option<f64>,
+    seed: u64,
+    interrupt: Option<Arc<AtomicBool>>,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<PathBuf, EvalError> {
     let name = match duration {
         Some(d) => format!("{scenario}-{d}s-seed{seed}"),
         None => format!("{scenario}-seed{seed}"),
@@ -118,12 +134,21 @@ pub fn ensure_dataset(
             seed,
             duration,
             overwrite: true,
+            interrupt,
             ..SynthOptions::new(scenario, dir.clone())
         };
-        crate::synth::run(&options, progress).map_err(|source| EvalError::Synth {
-            scenario,
-            source: Box::new(source),
-        })?;
+        if let Err(e) = crate::synth::run(&options, progress) {
+            if matches!(e, SynthError::Interrupted) {
+                // The cache's own folder, half written: nothing of the user's. The cache
+                // itself goes too if that leaves it empty.
+                let _ = std::fs::remove_dir_all(&dir);
+                let _ = std::fs::remove_dir(cache);
+            }
+            return Err(EvalError::Synth {
+                scenario,
+                source: Box::new(e),
+            });
+        }
     }
     Ok(dir)
 }
@@ -169,6 +194,8 @@ impl EvalRow {
 pub struct EvalReport {
     /// Every run.
     pub rows: Vec<EvalRow>,
+    /// Stopped by Ctrl-C: the rows are the runs done (the last one possibly cut short).
+    pub interrupted: bool,
 }
 
 /// What to evaluate.
@@ -192,10 +219,31 @@ pub struct EvalOptions {
     pub two_features: bool,
     /// Overlay images every N frames (0: none).
     pub overlay_every: usize,
+    /// Replace the outputs of an earlier evaluation in `out` (otherwise they are refused).
+    pub overwrite: bool,
+    /// Set (by Ctrl-C) to stop: the current run writes what it tracked, the report what was
+    /// done.
+    pub interrupt: Arc<AtomicBool>,
 }
 
-/// Progress: `(what, done, total)`.
-pub type EvalProgress<'a> = &'a mut dyn FnMut(&str, u64, u64);
+/// What the evaluation reports while it runs.
+#[derive(Debug)]
+pub enum EvalEvent<'a> {
+    /// A step (synthesis, a tracking run) advanced: `done` of `total`.
+    Step {
+        /// The step.
+        what: &'a str,
+        /// Done.
+        done: u64,
+        /// Total.
+        total: u64,
+    },
+    /// A tracking run finished.
+    RunDone(&'a EvalRow),
+}
+
+/// Progress callback.
+pub type EvalProgress<'a> = &'a mut dyn FnMut(EvalEvent);
 
 /// Features per frame of the main runs (the map's default subset).
 fn default_features() -> usize {
@@ -226,11 +274,13 @@ pub fn run_one(
     o.overlay_every = options.overlay_every;
     o.vision.map.subset_size = features;
     let what = format!("{scenario} {tag}");
-    let run = track::run(
-        &o,
-        Arc::new(AtomicBool::new(false)),
-        &mut |done, total, _, _| progress(&what, done as u64, total as u64),
-    )
+    let run = track::run(&o, options.interrupt.clone(), &mut |done, total, _, _| {
+        progress(EvalEvent::Step {
+            what: &what,
+            done: done as u64,
+            total: total as u64,
+        })
+    })
     .map_err(|source| EvalError::Track {
         scenario: scenario.into(),
         model: tag.clone(),
@@ -260,43 +310,79 @@ pub fn run_one(
     })
 }
 
-/// Runs the evaluation and writes `eval.md`, `eval.json` and the comparison plots.
+/// What an evaluation writes into its output folder.
+fn outputs() -> Vec<String> {
+    let mut names = vec!["eval.md".to_string(), "eval.json".to_string()];
+    for sc in ScenarioName::ALL {
+        names.push(sc.as_str().to_string());
+        names.push(format!("{sc}_prediction_error.svg"));
+    }
+    names
+}
+
+/// Runs the evaluation and writes `eval.md`, `eval.json` and the comparison plots. Stopped by
+/// `options.interrupt`, it writes them for the runs done and says so in
+/// [`EvalReport::interrupted`].
 pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, EvalError> {
+    let mut out = OutFolder::prepare(&options.out, &outputs(), None, options.overwrite)?;
     let mut report = EvalReport::default();
-    for &scenario in &options.scenarios {
+    let stop = || options.interrupt.load(Ordering::Relaxed);
+    'scenarios: for &scenario in &options.scenarios {
         let what = format!("synth {scenario}");
-        let dataset = ensure_dataset(
+        let dataset = match ensure_dataset_until(
             &options.cache,
             scenario,
             options.duration,
             options.seed,
-            &mut |d, t| progress(&what, d, t),
-        )?;
-        for &model in &options.models {
-            report.rows.push(run_one(
-                &dataset,
-                scenario.as_str(),
-                model,
-                default_features(),
-                options,
-                progress,
-            )?);
-        }
+            Some(options.interrupt.clone()),
+            &mut |done, total| {
+                progress(EvalEvent::Step {
+                    what: &what,
+                    done,
+                    total,
+                })
+            },
+        ) {
+            Ok(d) => d,
+            Err(_) if stop() => break,
+            Err(e) => return Err(e),
+        };
+        let mut runs = vec![default_features()];
         if options.two_features && scenario == ScenarioName::DesktopSlow {
+            runs.push(2);
+        }
+        for features in runs {
             for &model in &options.models {
-                report.rows.push(run_one(
+                if stop() {
+                    break 'scenarios;
+                }
+                let row = match run_one(
                     &dataset,
                     scenario.as_str(),
                     model,
-                    2,
+                    features,
                     options,
                     progress,
-                )?);
+                ) {
+                    Ok(row) => row,
+                    Err(_) if stop() => break 'scenarios,
+                    Err(e) => return Err(e),
+                };
+                out.keep();
+                progress(EvalEvent::RunDone(&row));
+                report.rows.push(row);
             }
         }
         write_plots(&options.out, scenario.as_str(), &report)?;
     }
-    report.write(&options.out)?;
+    report.interrupted = stop();
+    if let (true, Some(last)) = (report.interrupted, report.rows.last()) {
+        // The interrupted scenario's plots were not written in the loop.
+        write_plots(&options.out, &last.scenario, &report)?;
+    }
+    if !report.rows.is_empty() {
+        report.write(&options.out)?;
+    }
     Ok(report)
 }
 

@@ -6,7 +6,7 @@
 //! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
 //! map and correspondences ([`features`]); synthetic EuRoC datasets of the paper's test cases
 //! ([`synth`]); EuRoC datasets as the tracker reads them ([`dataset`]) and the tracking pipeline
-//! with its outputs ([`track`]).
+//! with its outputs ([`track`]), and the checks of a run's output folder ([`out_folder`]).
 
 pub mod backproject;
 pub mod camera;
@@ -15,6 +15,7 @@ pub mod eval;
 pub mod features;
 pub mod link;
 pub mod model;
+pub mod out_folder;
 pub mod render;
 pub mod selftest;
 pub mod synth;

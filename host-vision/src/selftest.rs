@@ -222,7 +222,11 @@ impl std::fmt::Display for Report {
         )?;
         writeln!(
             f,
-            "  other major version refused: {}",
+            "  test step, refused on purpose: a host of another major version ({}) gets: {}",
+            Version {
+                major: PROTOCOL_VERSION.major + 1,
+                minor: 0
+            },
             self.version_mismatch
         )?;
         writeln!(

@@ -47,6 +47,8 @@ fn options(dataset: &std::path::Path, name: &str, model: ModelKind) -> TrackOpti
     let mut o = options_for(dataset, out);
     o.filter = model;
     o.overlay_every = 0;
+    // Each test process replaces the runs of the one before.
+    o.overwrite = true;
     o
 }
 
@@ -336,7 +338,10 @@ fn bad_inputs_are_named() {
     )
     .unwrap_err()
     .to_string();
-    assert!(err.contains("/nonexistent/dataset/mav0"), "{err}");
+    assert!(
+        err.contains("/nonexistent/dataset: missing (dataset folder)"),
+        "{err}"
+    );
 
     // A dataset whose images are gone: frames are reported unusable, the run goes on.
     let ds = dataset(ScenarioName::DesktopFast, 12.0);

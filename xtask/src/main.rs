@@ -248,6 +248,8 @@ fn demo(extra: &[String]) -> Result<(), String> {
         "host-vision",
         "--",
         "demo",
+        // Each demo replaces the last one's outputs.
+        "--overwrite",
     ])
     .args(extra);
     run(cmd)

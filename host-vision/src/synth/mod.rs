@@ -21,6 +21,8 @@ pub mod texture;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use firmware_sim::sim::imu::ImuNoise;
@@ -76,6 +78,9 @@ pub enum SynthError {
     /// An option is out of range.
     #[error("{0}")]
     BadOption(String),
+    /// Stopped by [`SynthOptions::interrupt`] (Ctrl-C) before the dataset was complete.
+    #[error("interrupted before the dataset was complete")]
+    Interrupted,
     /// Scenario parameters.
     #[error(transparent)]
     Scenario(#[from] ScenarioError),
@@ -122,6 +127,8 @@ pub struct SynthOptions {
     pub textures: TextureOptions,
     /// Replace an existing dataset in `out` (its `mav0/` and `model/` folders).
     pub overwrite: bool,
+    /// Set (by Ctrl-C) to stop after the current frame, with [`SynthError::Interrupted`].
+    pub interrupt: Option<Arc<AtomicBool>>,
 }
 
 impl SynthOptions {
@@ -138,6 +145,7 @@ impl SynthOptions {
             frames: FrameOptions::new(320, 240),
             textures: TextureOptions::generated(),
             overwrite: false,
+            interrupt: None,
         }
     }
 
@@ -326,6 +334,13 @@ pub fn run(
     );
     let (mut visible, mut any, mut occluded) = (0usize, 0usize, 0usize);
     for (done, &k) in indices.iter().enumerate() {
+        if options
+            .interrupt
+            .as_ref()
+            .is_some_and(|i| i.load(Ordering::Relaxed))
+        {
+            return Err(SynthError::Interrupted);
+        }
         let ns = scenario.imu_ns(k);
         let f = synth.frame(&scenario, ns as f64 * 1e-9, &mut rng)?;
         let stamp = T0_NS + ns;

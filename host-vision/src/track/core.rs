@@ -36,6 +36,53 @@ pub enum LinkSpec {
     Tcp(String),
     /// The firmware image under QEMU's Cortex-M4F board.
     Qemu(PathBuf),
+    /// The repository's firmware image under QEMU, found when the link opens (see
+    /// [`find_firmware_image`]).
+    QemuDefault,
+}
+
+/// The command line's forms of a link, for help texts and errors.
+pub const LINK_FORMS: &str = "sim, sim:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
+
+/// Baud rate of `serial:PATH` without `@BAUD` (the least the IMU and correspondence traffic
+/// needs, PROTOCOL.md §6).
+pub const DEFAULT_BAUD: u32 = 921_600;
+
+/// The firmware image's path inside the repository.
+const FIRMWARE_IMAGE: &str = "firmware/target/thumbv7em-none-eabihf/release/device";
+
+/// Where `qemu` finds the firmware image: in the current folder or one above it (run from the
+/// repository), else beside the program (`target/*/host-vision` in the repository).
+pub fn find_firmware_image() -> Result<PathBuf, String> {
+    let cwd = std::env::current_dir().ok();
+    let exe = std::env::current_exe().ok();
+    let roots = cwd.iter().chain(exe.iter()).flat_map(|p| p.ancestors());
+    for root in roots {
+        let image = root.join(FIRMWARE_IMAGE);
+        if image.is_file() {
+            return Ok(image);
+        }
+    }
+    Err(format!(
+        "link qemu: no firmware image {FIRMWARE_IMAGE} in the current folder or above it; build it with `cargo xtask firmware` in the repository and run from there, or give its path with --link qemu:IMAGE"
+    ))
+}
+
+impl std::fmt::Display for LinkSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LinkSpec::Sim(Precision::F32) => {
+                write!(f, "sim (f32 core in this process, on a pty pair)")
+            }
+            LinkSpec::Sim(Precision::F64) => {
+                write!(f, "sim:f64 (f64 core in this process, on a pty pair)")
+            }
+            LinkSpec::Serial { path, baud } => write!(f, "serial {path} at {baud} baud"),
+            LinkSpec::Tcp(addr) => write!(f, "tcp {addr}"),
+            LinkSpec::Qemu(image) => write!(f, "qemu {}", image.display()),
+            LinkSpec::QemuDefault => write!(f, "qemu (the repository's firmware image)"),
+        }
+    }
 }
 
 impl FromStr for LinkSpec {
@@ -45,12 +92,7 @@ impl FromStr for LinkSpec {
         match s {
             "sim" | "sim:f32" => return Ok(LinkSpec::Sim(Precision::F32)),
             "sim:f64" => return Ok(LinkSpec::Sim(Precision::F64)),
-            "qemu" => {
-                let ws = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-                return Ok(LinkSpec::Qemu(firmware_sim::qemu::default_image(
-                    &ws, "device",
-                )));
-            }
+            "qemu" => return Ok(LinkSpec::QemuDefault),
             _ => {}
         }
         if let Some(rest) = s.strip_prefix("serial:") {
@@ -60,7 +102,7 @@ impl FromStr for LinkSpec {
                     b.parse()
                         .map_err(|e| format!("baud rate `{b}` in `{s}`: {e}"))?,
                 ),
-                None => (rest, 921_600),
+                None => (rest, DEFAULT_BAUD),
             };
             if path.is_empty() {
                 return Err(format!("`{s}`: no device path"));
@@ -71,14 +113,22 @@ impl FromStr for LinkSpec {
             });
         }
         if let Some(addr) = s.strip_prefix("tcp:") {
-            return Ok(LinkSpec::Tcp(addr.into()));
+            return match addr.rsplit_once(':') {
+                Some((host, port)) if !host.is_empty() && port.parse::<u16>().is_ok() => {
+                    Ok(LinkSpec::Tcp(addr.into()))
+                }
+                _ => Err(format!(
+                    "`{s}`: expected tcp:HOST:PORT, e.g. tcp:127.0.0.1:7000"
+                )),
+            };
         }
         if let Some(image) = s.strip_prefix("qemu:") {
+            if image.is_empty() {
+                return Err(format!("`{s}`: no image path"));
+            }
             return Ok(LinkSpec::Qemu(image.into()));
         }
-        Err(format!(
-            "unknown link `{s}`: expected sim, sim:f64, serial:PATH[@BAUD], tcp:ADDR, qemu or qemu:IMAGE"
-        ))
+        Err(format!("unknown link `{s}`: expected {LINK_FORMS}"))
     }
 }
 
@@ -128,6 +178,10 @@ impl CoreLink {
                 let (q, duplex) = QemuBoard::start(image, Duration::from_secs(20))
                     .map_err(|e| TrackError::Core(e.to_string()))?;
                 (duplex, None, Some(q))
+            }
+            LinkSpec::QemuDefault => {
+                let image = find_firmware_image().map_err(TrackError::Core)?;
+                return Self::open(&LinkSpec::Qemu(image));
             }
         };
         Ok(Self::with_duplex(duplex, board, qemu))

@@ -43,6 +43,7 @@ use crate::camera::{CalibError, CameraError};
 use crate::dataset::{Dataset, DatasetError};
 use crate::features::ImageError;
 use crate::model::ModelError;
+use crate::out_folder::OutFolder;
 use crate::render::RenderError;
 
 /// Why tracking could not run (or stopped).
@@ -100,7 +101,16 @@ pub enum TrackError {
         #[source]
         source: std::io::Error,
     },
-    /// A bad option.
+    /// The output folder cannot be used.
+    #[error(transparent)]
+    OutFolder(#[from] crate::out_folder::OutFolderError),
+    /// Ctrl-C before any IMU sample was sent: nothing was tracked, nothing written.
+    #[error("interrupted before tracking began: nothing written")]
+    Interrupted,
+    /// The vision thread could not start or stopped.
+    #[error("{0}")]
+    Vision(String),
+    /// A bad option (named by its command-line flag).
     #[error("{0}")]
     Option(String),
 }
@@ -169,6 +179,8 @@ pub struct TrackOptions {
     pub faults: Faults,
     /// Longest wait for an answer of the core.
     pub timeout: Duration,
+    /// Replace the outputs of an earlier run in `out` (otherwise they are refused).
+    pub overwrite: bool,
 }
 
 impl TrackOptions {
@@ -189,7 +201,104 @@ impl TrackOptions {
             duration: None,
             faults: Faults::default(),
             timeout: Duration::from_secs(10),
+            overwrite: false,
         }
+    }
+
+    /// Checks every option against the dataset before anything is started, naming the
+    /// command-line flag of a bad one. Returns how many IMU samples will be streamed.
+    pub fn check(&self, dataset: &Dataset) -> Result<usize, TrackError> {
+        let bad = |m: String| Err(TrackError::Option(m));
+        let stamp0 = dataset.imu[0].stamp;
+        let data_s = (dataset.imu[dataset.imu.len() - 1].stamp - stamp0) as f64 / 1e9;
+        let still = self.tuning.still_seconds;
+        let end = match self.duration {
+            Some(d) if !(d.is_finite() && d > still) => {
+                return bad(format!(
+                    "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
+                ));
+            }
+            Some(d) => dataset
+                .imu
+                .partition_point(|r| ((r.stamp - stamp0) as f64) / 1e9 <= d),
+            None => dataset.imu.len(),
+        };
+        let tracked_s = self.duration.map_or(data_s, |d| d.min(data_s));
+        let frame_period = dataset
+            .camera
+            .rate_hz
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .map(|r| 1.0 / r)
+            .or_else(|| {
+                let f = &dataset.frames;
+                (f.len() >= 2).then(|| (f[1].stamp - f[0].stamp) as f64 / 1e9)
+            });
+        if !(self.latency.is_finite() && self.latency >= 0.0) {
+            return bad(format!(
+                "--latency must be a non-negative number of seconds, got {}",
+                self.latency
+            ));
+        }
+        if let Some(period) = frame_period
+            && self.latency >= period
+        {
+            return bad(format!(
+                "--latency {} s must be below one frame period ({period:.3} s): each prediction needs the previous frame's update",
+                self.latency
+            ));
+        }
+        if self.vision.map.subset_size == 0 {
+            return bad("--features must be at least 1".into());
+        }
+        let f = &self.faults;
+        if !(0.0..=1.0).contains(&f.outlier_fraction) {
+            return bad(format!(
+                "--outliers must be a fraction in [0, 1], got {}",
+                f.outlier_fraction
+            ));
+        }
+        if let Some(t) = f.corrupt_from
+            && !(t.is_finite() && (0.0..tracked_s).contains(&t))
+        {
+            return bad(format!(
+                "--corrupt-at counts seconds from the dataset's first IMU sample and must lie in the tracked span [0, {tracked_s:.2}) s, got {t}"
+            ));
+        }
+        let positive = |flag: &str, v: f64, unit: &str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(TrackError::Option(format!(
+                    "{flag} must be a positive number [{unit}], got {v}"
+                )))
+            }
+        };
+        positive("--expected-accel", self.tuning.expected_accel, "m/s²")?;
+        positive("--angular-noise", self.tuning.angular_noise, "rad/s²/√Hz")?;
+        if let Some(a) = self.tuning.accel_noise {
+            positive("--accel-meas-noise", a, "m/s²")?;
+        }
+        if let Some(p) = self.start.position
+            && !p.iter().all(|c| c.is_finite())
+        {
+            return bad(format!(
+                "--start-position must be three finite numbers, got {p:?}"
+            ));
+        }
+        if let Some(y) = self.start.yaw
+            && !y.is_finite()
+        {
+            return bad(format!("--start-yaw must be a finite angle, got {y}"));
+        }
+        if dataset.groundtruth.is_none()
+            && (self.start.position.is_none() || self.start.yaw.is_none())
+        {
+            return bad(
+                "the dataset has no ground truth: give the start pose with --start-position and --start-yaw"
+                    .into(),
+            );
+        }
+        Ok(end)
     }
 }
 
@@ -258,12 +367,7 @@ pub fn run(
     progress: Progress,
 ) -> Result<TrackRun, TrackError> {
     let dataset = Dataset::open(&options.dataset)?;
-    if !(options.latency.is_finite() && options.latency >= 0.0) {
-        return Err(TrackError::Option(format!(
-            "latency must be a non-negative number of seconds, got {}",
-            options.latency
-        )));
-    }
+    let end = options.check(&dataset)?;
     let model_path = options
         .model
         .clone()
@@ -274,27 +378,21 @@ pub fn run(
                 dataset.root.display()
             ))
         })?;
-    std::fs::create_dir_all(&options.out).map_err(|source| TrackError::Output {
-        path: options.out.clone(),
-        source,
-    })?;
+    let mut out = OutFolder::prepare(
+        &options.out,
+        &output::OUTPUTS.map(String::from),
+        Some(&dataset.root),
+        options.overwrite,
+    )?;
 
-    // The vision worker owns the renderer: created once, on its own thread.
-    let (job_tx, job_rx) = channel::<FrameJob>();
-    let (res_tx, res_rx) = channel::<Result<FrameResult, TrackError>>();
-    let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
-    let camera = dataset.camera.camera;
-    let vision_options = options.vision;
-    let worker = std::thread::Builder::new()
-        .name("vision".into())
-        .spawn(move || vision_worker(camera, model_path, vision_options, job_rx, res_tx, ready_tx))
-        .map_err(|e| TrackError::Option(format!("cannot start the vision thread: {e}")))?;
-    let ready = ready_rx
-        .recv()
-        .map_err(|_| TrackError::Option("the vision thread stopped".into()))??;
-    let adapter = ready.adapter;
-
+    // The link first: it fails most often, and fails before the renderer is made.
     let mut link = CoreLink::open(&options.link)?;
+    // The vision worker owns the renderer: created once, on its own thread, and always shut
+    // down and joined before this function returns (a renderer torn down by the process's
+    // exit crashes in the driver).
+    let (mut worker, ready) =
+        VisionWorker::start(dataset.camera.camera, model_path, options.vision)?;
+    let adapter = ready.adapter;
     let mut session = Session {
         options,
         dataset: &dataset,
@@ -304,13 +402,20 @@ pub fn run(
         rng: StdRng::seed_from_u64(options.faults.seed),
         injected_outliers: 0,
         sent_correspondences: 0,
+        streamed: 0,
         wall: Instant::now(),
         axes: ready.axes,
     };
-    let outcome = session.drive(&mut link, &job_tx, &res_rx, &interrupt, progress);
-    drop(job_tx);
+    let outcome = session.drive(&mut link, &worker, end, &interrupt, progress);
+    worker.stop();
     let closed = link.close();
-    let _ = worker.join();
+    if session.streamed == 0 {
+        // Nothing was tracked (the handshake or the configuration failed): nothing to write.
+        return Err(match (outcome, closed) {
+            (Err(e), _) | (Ok(_), Err(e)) => e,
+            (Ok(_), Ok(_)) => TrackError::Interrupted,
+        });
+    }
     // Whatever happened, write what was tracked. A board that failed at the end of an
     // otherwise complete session fails the run too.
     let outcome = match (outcome, closed) {
@@ -321,6 +426,7 @@ pub fn run(
         Ok((completed, board)) => (!completed, *board),
         Err(_) => (true, None),
     };
+    out.keep();
     let (frames, summary, written) = output::write_all(
         &dataset,
         options,
@@ -337,6 +443,71 @@ pub fn run(
         summary,
         written,
     })
+}
+
+/// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
+/// return leaves the renderer to be torn down by the process's exit.
+struct VisionWorker {
+    jobs: Option<Sender<FrameJob>>,
+    results: Receiver<Result<FrameResult, TrackError>>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+impl VisionWorker {
+    /// Starts the thread and waits until its renderer is set up.
+    fn start(
+        camera: crate::camera::Camera,
+        model_path: PathBuf,
+        options: VisionOptions,
+    ) -> Result<(Self, Ready), TrackError> {
+        let (job_tx, job_rx) = channel::<FrameJob>();
+        let (res_tx, res_rx) = channel::<Result<FrameResult, TrackError>>();
+        let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
+        let handle = std::thread::Builder::new()
+            .name("vision".into())
+            .spawn(move || vision_worker(camera, model_path, options, job_rx, res_tx, ready_tx))
+            .map_err(|e| TrackError::Vision(format!("cannot start the vision thread: {e}")))?;
+        let worker = VisionWorker {
+            jobs: Some(job_tx),
+            results: res_rx,
+            handle: Some(handle),
+        };
+        let ready = ready_rx
+            .recv()
+            .map_err(|_| TrackError::Vision("the vision thread stopped".into()))??;
+        Ok((worker, ready))
+    }
+
+    fn send(&self, job: FrameJob) -> Result<(), TrackError> {
+        self.jobs
+            .as_ref()
+            .and_then(|j| j.send(job).ok())
+            .ok_or_else(|| TrackError::Vision("the vision thread stopped".into()))
+    }
+
+    fn recv(&self) -> Result<Result<FrameResult, TrackError>, TrackError> {
+        self.results
+            .recv()
+            .map_err(|_| TrackError::Vision("the vision thread stopped".into()))
+    }
+
+    fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
+        self.results.try_recv().ok()
+    }
+
+    /// Ends the thread (it returns once its job channel is closed) and waits for it.
+    fn stop(&mut self) {
+        self.jobs = None;
+        if let Some(h) = self.handle.take() {
+            let _ = h.join();
+        }
+    }
+}
+
+impl Drop for VisionWorker {
+    fn drop(&mut self) {
+        self.stop();
+    }
 }
 
 fn vision_worker(
@@ -419,6 +590,8 @@ pub struct Session<'a> {
     pub injected_outliers: usize,
     /// Correspondences sent.
     pub sent_correspondences: usize,
+    /// IMU samples sent to the core.
+    pub streamed: usize,
     wall: Instant,
     /// Where the overlays draw the model's axes, and their length.
     pub axes: (Vector3<f64>, f64),
@@ -482,7 +655,11 @@ impl Session<'_> {
         let yaw = match (self.options.start.yaw, gt) {
             (Some(y), _) => y,
             (None, Some((_, q))) => q.euler_angles().2,
-            (None, None) => 0.0,
+            (None, None) => {
+                return Err(TrackError::Option(
+                    "the dataset has no ground truth: give the start yaw (--start-yaw)".into(),
+                ));
+            }
         };
         Ok(Init {
             position: position.map(|v| v as f32),
@@ -494,8 +671,8 @@ impl Session<'_> {
     fn drive(
         &mut self,
         link: &mut CoreLink,
-        jobs: &Sender<FrameJob>,
-        results: &Receiver<Result<FrameResult, TrackError>>,
+        worker: &VisionWorker,
+        end: usize,
         interrupt: &AtomicBool,
         progress: Progress,
     ) -> Result<bool, TrackError> {
@@ -522,19 +699,13 @@ impl Session<'_> {
         self.barrier(link)?;
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
-                "refused the configuration: {:?}",
+                "refused the configuration: {}",
                 e.code
             )));
         }
 
         let ds = self.dataset;
         let stamp0 = ds.imu[0].stamp;
-        let end = match self.options.duration {
-            Some(d) => ds
-                .imu
-                .partition_point(|r| ((r.stamp - stamp0) as f64) * 1e-9 <= d),
-            None => ds.imu.len(),
-        };
         let triggers: BTreeMap<usize, usize> =
             ds.triggers().into_iter().map(|(f, k)| (k, f)).collect();
         let latency_samples = (self.options.latency * ds.imu_rate_hz).round() as usize;
@@ -543,16 +714,14 @@ impl Session<'_> {
         let mut frames_done = 0usize;
         for k in 0..end {
             if interrupt.load(Ordering::Relaxed) {
-                self.finish(link, &mut pending, results, true)?;
+                self.finish(link, &mut pending, worker, true)?;
                 return Ok(false);
             }
             let lock_step = self.options.pacing == Pacing::LockStep;
             if lock_step {
                 while pending.front().is_some_and(|p| p.due <= k) {
                     let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                    let r = results
-                        .recv()
-                        .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+                    let r = worker.recv()?;
                     self.deliver(link, p, r)?;
                     frames_done += 1;
                 }
@@ -562,13 +731,13 @@ impl Session<'_> {
                     std::thread::sleep(wait);
                 }
                 while !pending.is_empty() {
-                    match results.try_recv() {
-                        Ok(r) => {
+                    match worker.try_recv() {
+                        Some(r) => {
                             let p = pending.pop_front().unwrap_or_else(|| unreachable!());
                             self.deliver(link, p, r)?;
                             frames_done += 1;
                         }
-                        Err(_) => break,
+                        None => break,
                     }
                 }
             }
@@ -581,6 +750,7 @@ impl Session<'_> {
                 accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
                 trigger: frame.is_some(),
             }))?;
+            self.streamed = k + 1;
             if let Some(f) = frame {
                 if lock_step {
                     self.barrier(link)?;
@@ -611,8 +781,7 @@ impl Session<'_> {
                         keep_image: every > 0 && f % every == 0,
                         omega_c,
                     };
-                    jobs.send(job)
-                        .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+                    worker.send(job)?;
                     pending.push_back(Pending {
                         frame_id: p.frame_id,
                         trigger_us: t_us,
@@ -626,7 +795,7 @@ impl Session<'_> {
                 progress(k + 1, end, frames_done, self.log.mode());
             }
         }
-        self.finish(link, &mut pending, results, false)?;
+        self.finish(link, &mut pending, worker, false)?;
         progress(end, end, self.results.len(), self.log.mode());
         Ok(true)
     }
@@ -636,13 +805,11 @@ impl Session<'_> {
         &mut self,
         link: &mut CoreLink,
         pending: &mut VecDeque<Pending>,
-        results: &Receiver<Result<FrameResult, TrackError>>,
+        worker: &VisionWorker,
         interrupted: bool,
     ) -> Result<(), TrackError> {
         while let Some(p) = pending.pop_front() {
-            let r = results
-                .recv()
-                .map_err(|_| TrackError::Option("the vision thread stopped".into()))?;
+            let r = worker.recv()?;
             if interrupted {
                 // Record the analysis; the core has no samples left to apply it to.
                 if let Ok(r) = r {
@@ -672,7 +839,7 @@ impl Session<'_> {
             }
             Err(e) => return Err(e),
         };
-        let t = p.trigger_us as f64 * 1e-6;
+        let t = output::seconds(p.trigger_us);
         let f = &self.options.faults;
         let corrupt = f
             .corrupt_from

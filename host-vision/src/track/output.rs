@@ -14,14 +14,32 @@ use firmware_sim::board::BoardReport;
 use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose};
 use crate::dataset::Dataset;
 
+/// What a run writes into its output folder (files and folders).
+pub const OUTPUTS: [&str; 7] = [
+    "trajectory.tum",
+    "trajectory_frames.tum",
+    "groundtruth.tum",
+    "frames.csv",
+    "summary.json",
+    "overlays",
+    "plots",
+];
+
+/// Seconds of a core time stamp [µs] (counted from the first IMU sample). Divided, not
+/// multiplied by 1e-6, so that 340 000 µs is 0.34 s and not 0.33999999999999997.
+pub fn seconds(t_us: u64) -> f64 {
+    t_us as f64 / 1e6
+}
+
 /// One analysed frame.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FrameRow {
-    /// Index in the dataset.
+    /// The image's row in `mav0/cam0/data.csv` (from 0; frames before the core's
+    /// initialisation ended get no prediction and no row).
     pub index: usize,
     /// Time since the first IMU sample [s].
     pub t: f64,
-    /// Frame id the core gave the trigger.
+    /// Frame id the core gave the trigger (from 0, counting the triggers it predicted).
     pub frame_id: u32,
     /// Fraction of the image covered by the model rendered at the prediction.
     pub model_coverage: f64,
@@ -166,8 +184,13 @@ pub struct Summary {
     pub link: String,
     /// Renderer adapter.
     pub adapter: String,
-    /// Seconds of data tracked.
+    /// Dataset time stamp [ns] of the first IMU sample: every time [s] here and in
+    /// `frames.csv` counts from it; the TUM files carry the dataset's own stamps.
+    pub t0_stamp_ns: u64,
+    /// Seconds of data streamed to the core (from the first IMU sample to the last sent).
     pub duration_s: f64,
+    /// Seconds tracked: from snap-on to the last sample sent (0 if never snapped on).
+    pub tracked_s: f64,
     /// Frames analysed.
     pub frames: usize,
     /// Frames that could not be analysed.
@@ -219,13 +242,24 @@ impl fmt::Display for Summary {
         writeln!(f, "renderer     {}", self.adapter)?;
         writeln!(
             f,
-            "tracked      {:.1} s, {} frames ({} unusable), wall time {:.1} s, {:.1} ms per frame",
+            "data         0.00-{:.2} s streamed, {} frames analysed ({} unusable), wall time {:.1} s, {:.1} ms per frame",
             self.duration_s,
             self.frames,
             self.frame_errors.len(),
             self.wall_s,
             self.mean_frame_ms
         )?;
+        match self.snapped_on_at {
+            Some(t0) => writeln!(
+                f,
+                "tracked      {:.2} s, from snap-on at {t0:.2} s",
+                self.tracked_s
+            )?,
+            None => writeln!(
+                f,
+                "tracked      never: the core accepted no correspondence, tracking never started"
+            )?,
+        }
         writeln!(
             f,
             "vision       {} correspondences sent, {} accepted, {} gated out, {} outliers injected",
@@ -240,16 +274,18 @@ impl fmt::Display for Summary {
         match &self.accuracy {
             Some(a) => writeln!(
                 f,
-                "accuracy     position mean {:.2} mm (rms {:.2}, max {:.2}); Euler errors [{:.2}, {:.2}, {:.2}]° (from snap-on at {})",
+                "accuracy     position mean {:.2} mm (rms {:.2}, max {:.2}); Euler errors [{:.2}, {:.2}, {:.2}]° (from snap-on)",
                 a.mean_position_m * 1e3,
                 a.rms_position_m * 1e3,
                 a.max_position_m * 1e3,
                 a.mean_euler_deg[0],
                 a.mean_euler_deg[1],
                 a.mean_euler_deg[2],
-                opt(self.snapped_on_at, "s"),
             )?,
-            None => writeln!(f, "accuracy     no ground truth or never snapped on")?,
+            None if self.snapped_on_at.is_none() => {
+                writeln!(f, "accuracy     n/a (tracking never started)")?
+            }
+            None => writeln!(f, "accuracy     n/a (the dataset has no ground truth)")?,
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
@@ -443,10 +479,11 @@ pub(super) fn write_all(
     )?;
     written.push(path);
     if dataset.groundtruth.is_some() {
+        // The span streamed to the core, as the trajectories.
         let path = out.join("groundtruth.tum");
         write_tum(
             &path,
-            dataset.imu.iter().filter_map(|r| {
+            dataset.imu[..session.streamed].iter().filter_map(|r| {
                 let (p, q) = dataset.groundtruth_at(r.stamp)?;
                 let (c, q_cw) = he.camera_pose(&p, &q);
                 Some((r.stamp, c, q_cw.inverse()))
@@ -469,7 +506,7 @@ pub(super) fn write_all(
         });
         rows.push(FrameRow {
             index: r.job.index,
-            t: p.t_us as f64 * 1e-6,
+            t: seconds(p.t_us),
             frame_id: *frame_id,
             model_coverage: r.model_coverage,
             visible: r.visible,
@@ -530,13 +567,13 @@ pub(super) fn write_all(
         .statuses
         .iter()
         .find(|s| s.reason == StatusReason::VisionAccepted)
-        .map(|s| s.t_us as f64 * 1e-6);
+        .map(|s| seconds(s.t_us));
     let divergences: Vec<Event> = log
         .statuses
         .iter()
         .filter(|s| matches!(s.mode, Mode::Diverged))
         .map(|s| Event {
-            t: s.t_us as f64 * 1e-6,
+            t: seconds(s.t_us),
             mode: format!("{:?}", s.mode),
             reason: format!("{:?}", s.reason),
         })
@@ -545,7 +582,7 @@ pub(super) fn write_all(
     if snapped_on_at.is_some() {
         let mut from: Option<f64> = None;
         for s in &log.statuses {
-            let t = s.t_us as f64 * 1e-6;
+            let t = seconds(s.t_us);
             match (s.mode, from) {
                 (Mode::Tracking, Some(f)) => {
                     without_vision.push([f, t]);
@@ -560,7 +597,7 @@ pub(super) fn write_all(
             }
         }
         if let (Some(f), Some(last)) = (from, log.states.last()) {
-            without_vision.push([f, last.t_us as f64 * 1e-6]);
+            without_vision.push([f, seconds(last.t_us)]);
         }
     }
 
@@ -570,7 +607,7 @@ pub(super) fn write_all(
         .iter()
         .filter_map(|s| {
             let e = state_errors(dataset, stamp_of(s.t_us), s)?;
-            Some((s.t_us as f64 * 1e-6, e))
+            Some((seconds(s.t_us), e))
         })
         .collect();
     // Accuracy from snap-on.
@@ -599,13 +636,18 @@ pub(super) fn write_all(
     });
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
-    let duration_s = log.states.last().map_or(0.0, |s| s.t_us as f64 * 1e-6);
+    let duration_s = session
+        .streamed
+        .checked_sub(1)
+        .map_or(0.0, |k| (dataset.imu[k].stamp - stamp0) as f64 / 1e9);
     let summary = Summary {
         dataset: dataset.root.display().to_string(),
         model: format!("{:?}", options.filter).to_lowercase(),
-        link: format!("{:?}", options.link),
+        link: options.link.to_string(),
         adapter: adapter.to_string(),
+        t0_stamp_ns: stamp0,
         duration_s,
+        tracked_s: snapped_on_at.map_or(0.0, |t0| (duration_s - t0).max(0.0)),
         frames: rows.len(),
         frame_errors: session
             .frame_errors
@@ -651,6 +693,7 @@ pub(super) fn write_all(
             "decode_errors": b.counters.decode_errors,
         });
     }
+    round_floats(&mut json);
     let text = serde_json::to_string_pretty(&json).map_err(|e| TrackError::Output {
         path: path.clone(),
         source: std::io::Error::other(e),
@@ -676,6 +719,24 @@ pub(super) fn write_all(
     Ok((rows, summary, written))
 }
 
+/// Rounds every float in `v` to 9 significant digits: the figures are far less precise than
+/// that, and `0.30000000000000004` says nothing `0.3` does not.
+pub fn round_floats(v: &mut serde_json::Value) {
+    match v {
+        serde_json::Value::Number(n) if !(n.is_u64() || n.is_i64()) => {
+            if let Some(x) = n.as_f64()
+                && let Ok(r) = format!("{x:.8e}").parse::<f64>()
+                && let Some(r) = serde_json::Number::from_f64(r)
+            {
+                *n = r;
+            }
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(round_floats),
+        serde_json::Value::Object(o) => o.values_mut().for_each(round_floats),
+        _ => {}
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -688,6 +749,18 @@ mod tests {
             prediction_error_px: error_px,
             ..FrameRow::default()
         }
+    }
+
+    #[test]
+    fn json_floats_are_rounded_to_nine_digits_and_times_are_exact() {
+        assert_eq!(seconds(340_000), 0.34);
+        let mut v =
+            serde_json::json!({"a": [0.1 + 0.2, 1u64 << 60], "b": {"c": 0.007319247205086048}});
+        round_floats(&mut v);
+        assert_eq!(
+            v.to_string(),
+            r#"{"a":[0.3,1152921504606846976],"b":{"c":0.00731924721}}"#
+        );
     }
 
     #[test]

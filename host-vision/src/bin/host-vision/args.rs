@@ -1,0 +1,343 @@
+//! The command line: subcommands, their options and help texts.
+//!
+//! Every subcommand takes negative numbers as values (`--start-yaw -10`, `--start-position
+//! -0.5,0,0.2`); the ranges are checked afterwards, where the error can name the flag and
+//! the limit (`track`'s in `TrackOptions::check`, which knows the dataset).
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use firmware_sim::sim::scenario::ScenarioName;
+use host_vision::track::LinkSpec;
+
+/// Vision host of the visual-inertial tracker.
+///
+/// Exit codes: 0 done; 1 failed (input, link, output); 2 bad command line or option value;
+/// 3 tracking never started (track: the core accepted no correspondence); 130 interrupted
+/// (Ctrl-C; what was done is written).
+#[derive(Parser, Debug)]
+#[command(version, about)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Protocol loop-back self-test over a pty pair (a real serial line in one process).
+    Selftest {
+        /// IMU samples to stream through the link.
+        #[arg(long, default_value_t = 2000)]
+        imu_samples: usize,
+    },
+    /// Writes a synthetic EuRoC-format dataset of one of the paper's test cases.
+    Synth(Box<SynthArgs>),
+    /// Tracks a EuRoC-layout dataset with the fusion core at the other end of a link.
+    Track(Box<TrackArgs>),
+    /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
+    Eval(Box<EvalArgs>),
+    /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
+    /// gyro models over the simulated serial link, prints the summary and where the images are.
+    Demo(Box<DemoArgs>),
+}
+
+/// The help of every `--link`.
+const LINK_HELP: &str =
+    "The fusion core: sim, sim:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
+const LINK_LONG_HELP: &str = "The fusion core at the other end of the link:
+  sim               the simulated board (f32 core) in this process, on a pty pair
+  sim:f64           the same with the f64 core
+  serial:PATH[@BAUD] a serial device: a board, or `firmware-sim --link pty` in another
+                    process (it prints the PATH); BAUD defaults to 921600
+  tcp:HOST:PORT     `firmware-sim --link tcp:HOST:PORT` in another process
+  qemu              the firmware image under QEMU (`cargo xtask firmware` builds it; run
+                    from the repository)
+  qemu:IMAGE        a firmware image under QEMU";
+
+/// Options of `demo`.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct DemoArgs {
+    /// Output folder.
+    #[arg(long, default_value = "target/demo/out")]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier demo in --out.
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Where the synthetic dataset is cached.
+    #[arg(long, default_value = "target/demo/datasets")]
+    pub cache: PathBuf,
+    /// Seconds of the sequence.
+    #[arg(long, default_value_t = 15.0, value_parser = parse_seconds)]
+    pub duration: f64,
+    #[arg(long, default_value = "sim", help = LINK_HELP, long_help = LINK_LONG_HELP)]
+    pub link: LinkSpec,
+}
+
+/// Options of `eval`.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct EvalArgs {
+    /// Output folder (eval.md, eval.json, plots, and each run's outputs).
+    #[arg(long, default_value = "eval-out")]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier evaluation in --out.
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Where synthetic datasets are cached.
+    #[arg(long, default_value = "datasets")]
+    pub cache: PathBuf,
+    /// Scenarios (repeatable; default: all four).
+    #[arg(long = "scenario", value_enum)]
+    pub scenarios: Vec<ScenarioName>,
+    /// Models (repeatable; default: gyro, gravity, acc).
+    #[arg(long = "filter", value_enum)]
+    pub filters: Vec<FilterArg>,
+    /// Shorter scenarios [s] (default: their nominal lengths).
+    #[arg(long, value_parser = parse_seconds)]
+    pub duration: Option<f64>,
+    /// Seed of the synthetic sensors.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, default_value = "sim", help = LINK_HELP, long_help = LINK_LONG_HELP)]
+    pub link: LinkSpec,
+    /// Skip the two-feature run on desktop-slow (the paper's Fig. 6).
+    #[arg(long)]
+    pub no_two_features: bool,
+    /// Overlay images every N frames (0: none).
+    #[arg(long, default_value_t = 0)]
+    pub overlay_every: usize,
+}
+
+/// Options of `track`.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct TrackArgs {
+    /// Dataset folder (holding mav0/).
+    #[arg(long)]
+    pub dataset: PathBuf,
+    /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/); not inside
+    /// the dataset.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier run in --out (they are removed first).
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Model file (.obj, .gltf, .glb); default: the dataset's model/scene.obj.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    #[arg(long, default_value = "sim", help = LINK_HELP, long_help = LINK_LONG_HELP)]
+    pub link: LinkSpec,
+    /// Filter model.
+    #[arg(long, value_enum, default_value = "acc")]
+    pub filter: FilterArg,
+    /// IMU pacing.
+    #[arg(long, value_enum, default_value = "lock-step")]
+    pub pacing: host_vision::track::Pacing,
+    /// Trigger-to-correspondences latency in lock-step mode [s]: at least 0 and below one frame
+    /// period, so that each prediction has the previous frame's update.
+    #[arg(long, default_value_t = 0.03)]
+    pub latency: f64,
+    /// Features registered per frame (at least 1).
+    #[arg(long, default_value_t = 40)]
+    pub features: usize,
+    /// Track only the first S seconds of the dataset (longer than the core's 0.3 s
+    /// initialisation).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// Start position of the IMU `x,y,z` [m] (default: from the ground truth; required
+    /// without one).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub start_position: Option<[f64; 3]>,
+    /// Start yaw of the IMU [deg] (default: from the ground truth; required without one).
+    #[arg(long)]
+    pub start_yaw: Option<f64>,
+    /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
+    /// synthetic dataset's manifest, else 10).
+    #[arg(long)]
+    pub expected_accel: Option<f64>,
+    /// The core's accelerometer measurement noise, a standard deviation per sample [m/s²]
+    /// (default: per model). Not synth's --accel-noise, which is the sensor's noise density.
+    #[arg(long)]
+    pub accel_meas_noise: Option<f64>,
+    /// Angular-acceleration noise density of the core's motion model [rad/s²/√Hz].
+    #[arg(long, default_value_t = 10.0)]
+    pub angular_noise: f64,
+    /// Write an overlay image every N frames (0: none).
+    #[arg(long, default_value_t = 25)]
+    pub overlay_every: usize,
+    /// Replace this fraction of correspondences by outliers (robustness tests).
+    #[arg(long, default_value_t = 0.0)]
+    pub outliers: f64,
+    /// Corrupt all correspondences for 0.3 s from this time [s], counted from the dataset's
+    /// first IMU sample as frames.csv's t_s (forces a divergence).
+    #[arg(long)]
+    pub corrupt_at: Option<f64>,
+}
+
+/// Filter model on the command line.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum FilterArg {
+    /// Constant velocity, gyro updates.
+    Gyro,
+    /// Constant velocity, gyro and accelerometer (gravity direction) updates.
+    Gravity,
+    /// Constant acceleration, gyro and accelerometer updates.
+    Acc,
+}
+
+impl From<FilterArg> for protocol::ModelKind {
+    fn from(f: FilterArg) -> Self {
+        match f {
+            FilterArg::Gyro => protocol::ModelKind::Gyro,
+            FilterArg::Gravity => protocol::ModelKind::Gravity,
+            FilterArg::Acc => protocol::ModelKind::Acc,
+        }
+    }
+}
+
+/// Options of `synth`.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct SynthArgs {
+    /// Test case.
+    #[arg(long, value_enum)]
+    pub scenario: ScenarioName,
+    /// Output folder (created; must not already hold a dataset unless --overwrite).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Seed of sensor noise, biases and vibration.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Image size WxH.
+    #[arg(long, default_value = "320x240", value_parser = parse_resolution)]
+    pub resolution: (u32, u32),
+    /// Duration in seconds (default: the scenario's).
+    #[arg(long)]
+    pub duration: Option<f64>,
+    /// IMU rate in Hz.
+    #[arg(long, default_value_t = 100.0)]
+    pub imu_rate: f64,
+    /// One camera frame every N IMU samples.
+    #[arg(long, default_value_t = 4)]
+    pub camera_every: u32,
+    /// Fewest sub-frames averaged over the exposure (with --max-subframes 1: 1 means no
+    /// motion blur).
+    #[arg(long, default_value_t = 4)]
+    pub subframes: u32,
+    /// Most sub-frames (fast frames get about one per pixel of image motion).
+    #[arg(long, default_value_t = 32)]
+    pub max_subframes: u32,
+    /// Render supersampling per axis (1-4).
+    #[arg(long, default_value_t = 2)]
+    pub supersample: u32,
+    /// Texel density factor of the generated textures.
+    #[arg(long, default_value_t = 1.0)]
+    pub texture_scale: f64,
+    /// Image for the modelled surfaces instead of generated textures (repeatable).
+    #[arg(long = "texture")]
+    pub textures: Vec<PathBuf>,
+    /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
+    #[arg(long)]
+    pub ideal: bool,
+    /// Gyro white-noise density [rad/s/√Hz] (default: the MT9-class 1e-3).
+    #[arg(long, value_parser = parse_density)]
+    pub gyro_noise: Option<f64>,
+    /// Gyro bias random walk [rad/s²/√Hz] (default: 2e-5).
+    #[arg(long, value_parser = parse_density)]
+    pub gyro_walk: Option<f64>,
+    /// Accelerometer white-noise density of the simulated sensor [m/s²/√Hz] (default: 2e-3).
+    #[arg(long, value_parser = parse_density)]
+    pub accel_noise: Option<f64>,
+    /// Accelerometer bias random walk [m/s³/√Hz] (default: 1e-4).
+    #[arg(long, value_parser = parse_density)]
+    pub accel_walk: Option<f64>,
+    /// Replace a dataset already in the output folder.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("`{p}`: {e}")))
+        .collect::<Result<_, _>>()?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
+        _ => Err(format!("expected three finite numbers x,y,z, got `{s}`")),
+    }
+}
+
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("must be a positive number of seconds, got `{s}`"))
+    }
+}
+
+fn parse_density(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("`{s}`: {e}"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!(
+            "a noise density must be finite and non-negative, got `{s}`"
+        ))
+    }
+}
+
+fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected WxH, e.g. 320x240, got `{s}`"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|e| format!("`{v}` in `{s}`: {e}"))
+    };
+    let (w, h) = (parse(w)?, parse(h)?);
+    if !(16..=4096).contains(&w) || !(16..=4096).contains(&h) {
+        return Err(format!("each side must be 16..=4096 pixels, got {w}x{h}"));
+    }
+    Ok((w, h))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory as _;
+
+    #[test]
+    fn the_command_line_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn negative_numbers_are_values() {
+        let cli = Cli::try_parse_from([
+            "host-vision",
+            "track",
+            "--dataset",
+            "d",
+            "--out",
+            "o",
+            "--start-position",
+            "-0.5,0,0.2",
+            "--start-yaw",
+            "-10",
+            "--latency",
+            "-1",
+        ])
+        .unwrap();
+        let Command::Track(a) = cli.command else {
+            panic!("not track")
+        };
+        assert_eq!(a.start_position, Some([-0.5, 0.0, 0.2]));
+        assert_eq!(a.start_yaw, Some(-10.0));
+        assert_eq!(a.latency, -1.0);
+    }
+}

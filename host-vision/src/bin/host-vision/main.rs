@@ -1,0 +1,350 @@
+//! `host-vision`: the vision host's command line.
+
+mod args;
+mod console;
+mod progress;
+
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Parser as _;
+use firmware_sim::sim::scenario::ScenarioName;
+
+use args::{Cli, Command, DemoArgs, EvalArgs, SynthArgs, TrackArgs};
+use console::{Failure, exit, note, say};
+use progress::Bar;
+
+/// The bar of `track`: IMU samples streamed.
+const TRACK_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len} IMU samples, ETA {eta}";
+/// The bar of `synth`: frames rendered.
+const SYNTH_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len} frames, ETA {eta}";
+/// The bar of `eval` and `demo`: the current step.
+const EVAL_BAR: &str = "{wide_msg} [{bar:20}] {pos}/{len}, {elapsed}";
+
+/// What a command ends with, when it did not fail.
+enum Done {
+    /// Everything done.
+    Complete,
+    /// `track` ran, but the core never accepted a correspondence.
+    NeverTracked,
+    /// Ctrl-C: what was done is written.
+    Interrupted,
+}
+
+/// A flag set by Ctrl-C. A second Ctrl-C ends the process at once, as usual.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    let interrupt = Arc::new(AtomicBool::new(false));
+    let flag = interrupt.clone();
+    let _ = ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::Relaxed) {
+            std::process::exit(exit::INTERRUPTED.into());
+        }
+    });
+    interrupt
+}
+
+fn track(a: &TrackArgs) -> Result<Done, Failure> {
+    use host_vision::track::{self, Faults, Start};
+    let mut o = host_vision::eval::options_for(&a.dataset, a.out.clone());
+    o.model = a.model.clone();
+    o.link = a.link.clone();
+    o.filter = a.filter.into();
+    o.pacing = a.pacing;
+    o.latency = a.latency;
+    o.vision.map.subset_size = a.features;
+    o.duration = a.duration;
+    o.overwrite = a.overwrite;
+    o.start = Start {
+        position: a.start_position,
+        yaw: a.start_yaw.map(f64::to_radians),
+    };
+    if let Some(accel) = a.expected_accel {
+        o.tuning.expected_accel = accel;
+    }
+    o.tuning.angular_noise = a.angular_noise;
+    o.tuning.accel_noise = a.accel_meas_noise;
+    o.overlay_every = a.overlay_every;
+    o.faults = Faults {
+        outlier_fraction: a.outliers,
+        corrupt_from: a.corrupt_at,
+        corrupt_seconds: 0.3,
+        seed: 1,
+    };
+    let interrupt = interrupt_flag();
+    let mut bar = Bar::new(TRACK_BAR);
+    let name = format!("track {:?}", o.filter).to_lowercase();
+    let result = track::run(&o, interrupt.clone(), &mut |done, total, frames, mode| {
+        let mode = mode.map(|m| format!(", {m:?}")).unwrap_or_default();
+        bar.update(
+            &format!("{name}: {frames} frames{mode}"),
+            done as u64,
+            total as u64,
+        );
+    });
+    bar.finish();
+    let run = result?;
+    say!("{}", run.summary);
+    let interrupted = interrupt.load(Ordering::Relaxed);
+    if interrupted {
+        say!("interrupted: wrote what was tracked");
+    }
+    list_outputs(&a.out, &run.written);
+    if interrupted {
+        return Ok(Done::Interrupted);
+    }
+    if run.summary.snapped_on_at.is_none() {
+        note!(
+            "tracking never started: the core accepted none of the {} correspondences sent over {} frames; check the start pose (--start-position, --start-yaw), the model and the calibration",
+            run.summary.correspondences_sent,
+            run.summary.frames
+        );
+        return Ok(Done::NeverTracked);
+    }
+    Ok(Done::Complete)
+}
+
+/// Lists the files written, the overlay images as their folder and count.
+fn list_outputs(out: &Path, written: &[std::path::PathBuf]) {
+    let overlays = out.join("overlays");
+    say!("results in {}:", out.display());
+    for p in written.iter().filter(|p| !p.starts_with(&overlays)) {
+        say!("  {}", p.display());
+    }
+    let n = written.iter().filter(|p| p.starts_with(&overlays)).count();
+    if n > 0 {
+        let images = if n == 1 { "image" } else { "images" };
+        say!("  {} ({n} overlay {images})", overlays.display());
+    }
+}
+
+fn synth(a: &SynthArgs) -> Result<Done, Failure> {
+    use anyhow::Context as _;
+    use host_vision::synth::{FrameOptions, SynthOptions, TextureOptions, run};
+    if !(a.texture_scale.is_finite() && a.texture_scale > 0.0 && a.texture_scale <= 4.0) {
+        return Err(Failure {
+            error: anyhow::anyhow!("--texture-scale must be in (0, 4], got {}", a.texture_scale),
+            code: exit::USAGE,
+        });
+    }
+    let mut frames = FrameOptions::new(a.resolution.0, a.resolution.1);
+    frames.subframes = a.subframes;
+    frames.max_subframes = a.max_subframes;
+    frames.supersample = a.supersample;
+    if a.ideal {
+        frames.lighting = false;
+        frames.read_noise = 0.0;
+        frames.shot_noise = 0.0;
+    }
+    let overridden = [a.gyro_noise, a.gyro_walk, a.accel_noise, a.accel_walk];
+    let imu_noise = overridden.iter().any(Option::is_some).then(|| {
+        let d = firmware_sim::sim::imu::ImuNoise::MT9;
+        firmware_sim::sim::imu::ImuNoise {
+            gyro_density: a.gyro_noise.unwrap_or(d.gyro_density),
+            gyro_walk: a.gyro_walk.unwrap_or(d.gyro_walk),
+            accel_density: a.accel_noise.unwrap_or(d.accel_density),
+            accel_walk: a.accel_walk.unwrap_or(d.accel_walk),
+        }
+    });
+    let options = SynthOptions {
+        seed: a.seed,
+        duration: a.duration,
+        rates: Some((a.imu_rate, a.camera_every)),
+        ideal_imu: a.ideal,
+        imu_noise,
+        frames,
+        textures: TextureOptions {
+            scale: a.texture_scale,
+            user_images: a.textures.clone(),
+            ..TextureOptions::generated()
+        },
+        overwrite: a.overwrite,
+        ..SynthOptions::new(a.scenario, a.out.clone())
+    };
+    let mut bar = Bar::new(SYNTH_BAR);
+    let label = format!("synth {}", a.scenario);
+    let report = run(&options, &mut |done, total| bar.update(&label, done, total))
+        .with_context(|| format!("generating {} into {}", a.scenario, a.out.display()))?;
+    bar.finish();
+    say!("{report}");
+    say!("dataset written to {}", a.out.display());
+    Ok(Done::Complete)
+}
+
+/// Runs an evaluation with one progress bar per step (synthesis, each tracking run) and a
+/// line per finished run (also without a terminal, where the bar is not drawn).
+fn run_eval(
+    options: &host_vision::eval::EvalOptions,
+) -> anyhow::Result<host_vision::eval::EvalReport> {
+    use host_vision::eval::EvalEvent;
+    let mut bar = Bar::new(EVAL_BAR);
+    let report = host_vision::eval::run(options, &mut |event| match event {
+        EvalEvent::Step { what, done, total } => bar.update(what, done, total),
+        EvalEvent::RunDone(row) => {
+            let s = &row.summary;
+            let px = s
+                .mean_prediction_error_px
+                .map_or("n/a".into(), |v| format!("{v:.2} px"));
+            let snap = s.snapped_on_at.map_or("never snapped on".into(), |t| {
+                format!("snapped on at {t:.2} s")
+            });
+            bar.say(&format!(
+                "done: {} {} model{}: prediction error {px}, {snap}, {} divergences, {:.1} s{}",
+                row.scenario,
+                row.model,
+                if row.features == 2 {
+                    " (2 features)"
+                } else {
+                    ""
+                },
+                s.divergences.len(),
+                s.wall_s,
+                if s.stopped_early {
+                    " (stopped early)"
+                } else {
+                    ""
+                },
+            ));
+        }
+    });
+    bar.clear();
+    Ok(report?)
+}
+
+fn eval(a: &EvalArgs) -> Result<Done, Failure> {
+    use host_vision::eval::EvalOptions;
+    let options = EvalOptions {
+        scenarios: if a.scenarios.is_empty() {
+            ScenarioName::ALL.to_vec()
+        } else {
+            a.scenarios.clone()
+        },
+        models: if a.filters.is_empty() {
+            protocol::ModelKind::ALL.to_vec()
+        } else {
+            a.filters.iter().map(|&f| f.into()).collect()
+        },
+        duration: a.duration,
+        cache: a.cache.clone(),
+        out: a.out.clone(),
+        seed: a.seed,
+        link: a.link.clone(),
+        two_features: !a.no_two_features,
+        overlay_every: a.overlay_every,
+        overwrite: a.overwrite,
+        interrupt: interrupt_flag(),
+    };
+    let report = run_eval(&options)?;
+    if report.rows.is_empty() {
+        say!("interrupted before any run finished: nothing written");
+        return Ok(Done::Interrupted);
+    }
+    say!("{}", report.markdown());
+    say!(
+        "written: {} and {}, plots and each run's outputs in {}",
+        a.out.join("eval.md").display(),
+        a.out.join("eval.json").display(),
+        a.out.display()
+    );
+    if report.interrupted {
+        say!("interrupted: wrote the runs done");
+        return Ok(Done::Interrupted);
+    }
+    Ok(Done::Complete)
+}
+
+fn demo(a: &DemoArgs) -> Result<Done, Failure> {
+    use host_vision::eval::EvalOptions;
+    let scenario = ScenarioName::DesktopFast;
+    say!(
+        "demo: {scenario} ({} s), tracked by the acc and gyro models; the core: {}",
+        a.duration,
+        a.link
+    );
+    let options = EvalOptions {
+        scenarios: vec![scenario],
+        models: vec![protocol::ModelKind::Gyro, protocol::ModelKind::Acc],
+        duration: Some(a.duration),
+        cache: a.cache.clone(),
+        out: a.out.clone(),
+        seed: 0,
+        link: a.link.clone(),
+        two_features: false,
+        overlay_every: 10,
+        overwrite: a.overwrite,
+        interrupt: interrupt_flag(),
+    };
+    let report = run_eval(&options)?;
+    if report.rows.is_empty() {
+        say!("interrupted before any run finished: nothing written");
+        return Ok(Done::Interrupted);
+    }
+    for row in &report.rows {
+        say!("── {} model\n{}", row.model, row.summary);
+    }
+    say!("{}", report.markdown());
+    if report.interrupted {
+        say!("interrupted: wrote the runs done, in {}", a.out.display());
+        return Ok(Done::Interrupted);
+    }
+    let acc = a.out.join(scenario.as_str()).join("acc");
+    say!("look at:");
+    say!(
+        "  {}   overlays: registered features (green), failed (red), the model's axes",
+        acc.join("overlays").display()
+    );
+    say!(
+        "  {}   prediction error of both models (the paper's Fig. 5)",
+        a.out
+            .join(format!("{scenario}_prediction_error.svg"))
+            .display()
+    );
+    say!(
+        "  {}   camera position error against ground truth",
+        acc.join("plots/position_error.svg").display()
+    );
+    say!(
+        "  {}   camera trajectory (TUM, for evo; ground truth beside it)",
+        acc.join("trajectory.tum").display()
+    );
+    say!("  {}   the table above", a.out.join("eval.md").display());
+    Ok(Done::Complete)
+}
+
+fn selftest(imu_samples: usize) -> Result<Done, Failure> {
+    let report = host_vision::selftest::run_over_pty(imu_samples)?;
+    say!("{report}");
+    say!("self-test passed");
+    Ok(Done::Complete)
+}
+
+/// Mesa's Vulkan and EGL drivers print "XDG_RUNTIME_DIR is invalid or not set" on headless
+/// machines, where it is harmless; give them a private folder instead.
+#[allow(unsafe_code)]
+fn set_runtime_dir() {
+    let usable = std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| Path::new(&d).is_dir());
+    if !usable {
+        let dir = std::env::temp_dir();
+        // SAFETY: called first thing in `main`, before any other thread exists, so no one
+        // reads the environment concurrently.
+        unsafe { std::env::set_var("XDG_RUNTIME_DIR", dir) };
+    }
+}
+
+fn main() -> ExitCode {
+    set_runtime_dir();
+    let done = match Cli::parse().command {
+        Command::Selftest { imu_samples } => selftest(imu_samples),
+        Command::Synth(args) => synth(&args),
+        Command::Track(args) => track(&args),
+        Command::Eval(args) => eval(&args),
+        Command::Demo(args) => demo(&args),
+    };
+    match done {
+        Ok(Done::Complete) => ExitCode::SUCCESS,
+        Ok(Done::NeverTracked) => ExitCode::from(exit::NEVER_TRACKED),
+        Ok(Done::Interrupted) => ExitCode::from(exit::INTERRUPTED),
+        Err(f) => console::report(f),
+    }
+}
