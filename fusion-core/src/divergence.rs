@@ -13,9 +13,10 @@
 //!    snapshot is dropped with the re-initialisation;
 //! 2. the Frobenius norm of the state covariance exceeds a threshold (catches the unbounded
 //!    uncertainty growth of dead reckoning without vision);
-//! 3. the quaternion moves off the unit sphere: the radial part of a measurement update's
-//!    step, or the norm change of a time update (a wild update; see
-//!    [`crate::ekf::radial_step`]).
+//! 3. a measurement update moves the quaternion off the sphere: the radial part of its step
+//!    exceeds a threshold ([`crate::ekf::radial_step`]; a correct update's step is tangential
+//!    and only grows the norm by `θ²/8`, which the normalisation before each time update
+//!    removes).
 
 use protocol::StatusReason;
 

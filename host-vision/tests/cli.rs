@@ -437,16 +437,26 @@ fn p10_no_internal_debug_text() {
         !binary.windows(baked.len()).any(|w| w == baked),
         "a build-machine path is baked into the binary"
     );
-    // Without an image near the current folder, `qemu` says where it looked.
+    // Without an image near the current folder or the program, `qemu` says where it looked.
+    // (Beside the program is the repository's image, once `cargo xtask firmware` built it:
+    // then that one is used.)
+    let beside = std::path::Path::new(HV).ancestors().any(|a| {
+        a.join("firmware/target/thumbv7em-none-eabihf/release/device")
+            .is_file()
+    });
     let run = Command::new(HV)
         .args(track_args(&ds, &out, &["--overwrite", "--link", "qemu"]))
         .current_dir("/")
         .output()
         .unwrap();
+    if beside {
+        assert_eq!(run.status.code(), Some(0), "{}", text(&run.stderr));
+        return;
+    }
     assert_eq!(run.status.code(), Some(1));
     let err = text(&run.stderr);
     assert!(
-        err.contains("no firmware image firmware/target/thumbv7em-none-eabihf/release/device in the current folder or above it; build it with `cargo xtask firmware`")
+        err.contains("no firmware image firmware/target/thumbv7em-none-eabihf/release/device in the current folder, beside this program, or above either; build it with `cargo xtask firmware`")
             || err.contains("qemu-system-arm"),
         "{err}"
     );
@@ -635,7 +645,19 @@ fn p13_ctrl_c_in_eval_and_demo_writes_what_was_done() {
         printed.contains("interrupted before any run finished: nothing written"),
         "{printed}"
     );
-    assert!(!out.exists() && !cache.exists(), "empty folders left");
+    assert!(!out.exists(), "an empty output folder was left");
+    // The signal may land after the synthesis under load: a finished dataset may stay in the
+    // cache (it is one), a half-made one never.
+    if cache.exists() {
+        for entry in std::fs::read_dir(&cache).unwrap() {
+            let dir = entry.unwrap().path();
+            assert!(
+                dir.join("manifest.json").is_file(),
+                "half-made dataset {}",
+                dir.display()
+            );
+        }
+    }
 }
 
 /// Point 14: One time base per file, as the README says; the ground truth cut to the span tracked.

@@ -15,15 +15,15 @@ use crate::quat;
 use crate::scalar::Scalar;
 use crate::state::{ACC, ACC_BIAS, GYRO_BIAS, N, OMEGA, POS, QUAT, State, VEL};
 
-/// Normalises the quaternion before a time update (as the paper does) and returns
-/// `|‖q‖ − 1|` before normalisation, for the divergence monitor.
-pub fn normalise_quaternion<T: Scalar>(st: &mut State<T>) -> T {
+/// Normalises the quaternion before a time update, as the paper does: each measurement
+/// update changes its norm a little (by `θ²/8` for a correct correction of `θ`; the
+/// divergence monitor judges only an update's radial part, [`crate::ekf::radial_step`]).
+pub fn normalise_quaternion<T: Scalar>(st: &mut State<T>) {
     let q = st.q();
     let norm = q.norm();
     if norm > T::zero() {
         st.set_q(&(q / norm));
     }
-    (norm - T::one()).abs()
 }
 
 /// Propagates mean and covariance over `dt` seconds (eq. 7 / 12 / 15).

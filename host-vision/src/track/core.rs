@@ -64,7 +64,7 @@ pub fn find_firmware_image() -> Result<PathBuf, String> {
         }
     }
     Err(format!(
-        "link qemu: no firmware image {FIRMWARE_IMAGE} in the current folder or above it; build it with `cargo xtask firmware` in the repository and run from there, or give its path with --link qemu:IMAGE"
+        "link qemu: no firmware image {FIRMWARE_IMAGE} in the current folder, beside this program, or above either; build it with `cargo xtask firmware` in the repository and run from there, or give its path with --link qemu:IMAGE"
     ))
 }
 
