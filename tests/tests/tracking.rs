@@ -303,27 +303,6 @@ fn real_time_pacing_tracks_too() {
     assert!(a.mean_position_m < 0.01, "{}", a.mean_position_m);
 }
 
-/// Issue 12, defect 9: the host checks its latency against the limit the core advertises in
-/// `HelloAck` (four frames at 25 Hz, less one IMU period of 10 ms: 150 ms) before configuring.
-#[test]
-fn a_latency_beyond_the_cores_limit_is_refused_at_the_handshake() {
-    let ds = dataset(ScenarioName::DesktopFast, 12.0);
-    let mut o = options(&ds, "latency-too-long", ModelKind::Acc);
-    o.duration = Some(1.0);
-    o.latency = 0.2;
-    let err = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {})
-        .unwrap_err()
-        .to_string();
-    assert!(
-        err.contains("--latency 0.2 s is longer than the core can wait") && err.contains("0.150 s"),
-        "{err}"
-    );
-    o.latency = 0.14;
-    o.out = o.out.with_file_name("latency-within");
-    let run = track(&o);
-    assert!(run.summary.mean_prediction_error_px.is_some());
-}
-
 #[test]
 fn bad_inputs_are_named() {
     let missing = options(

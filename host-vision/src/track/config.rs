@@ -2,7 +2,9 @@
 //! hand-eye from the camera's `T_BS`, and the process noise tuned per model as the paper did
 //! (the constant-velocity models need a much larger motion noise than the acc model).
 
-use protocol::{Config, DivergenceParams, InitSigma, ModelKind, NoiseParams, validate};
+use protocol::{Capacities, Config, DivergenceParams, InitSigma, ModelKind, NoiseParams, validate};
+
+use super::TrackError;
 
 use crate::dataset::Dataset;
 
@@ -123,5 +125,62 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
         camera_rate_hz: camera_rate as f32,
         still_samples: ((rate * tuning.still_seconds).round() as u16).max(2),
         state_every: 1,
+    }
+}
+
+/// Checks the correspondences' latency against what the core advertised in `HelloAck`: it
+/// keeps a frame's snapshot only so long, and refuses later correspondences as too old. (The
+/// host's own rule, below one frame period, is stricter today; this guards a core with fewer
+/// buffers.)
+pub fn check_latency(latency_s: f64, caps: &Capacities, config: &Config) -> Result<(), TrackError> {
+    let limit_us = caps.max_latency_us(config.imu_rate_hz, config.camera_rate_hz);
+    if latency_s * 1e6 > limit_us as f64 {
+        return Err(TrackError::Option(format!(
+            "--latency {latency_s} s is longer than the core can wait for a frame's \
+             correspondences: {:.3} s at {} Hz IMU and {} Hz camera ({} frames, {} IMU samples \
+             kept)",
+            limit_us as f64 * 1e-6,
+            config.imu_rate_hz,
+            config.camera_rate_hz,
+            caps.max_pending_frames,
+            caps.delay_buffer_samples,
+        )));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 12, defect 9: the reviewer's 225 ms at 200 Hz IMU and 20 Hz camera is refused
+    /// against the firmware's capacities (four frames: 195 ms), and what fits is accepted.
+    #[test]
+    fn a_latency_beyond_the_cores_limit_is_refused() {
+        // The fusion core's (fusion_core::Device::capacities, checked in its own tests).
+        let caps = Capacities {
+            max_frame_len: protocol::MAX_FRAME_LEN as u16,
+            max_correspondences_per_message: protocol::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
+            max_correspondences_per_frame: protocol::MAX_CORRESPONDENCES_PER_FRAME as u16,
+            delay_buffer_samples: 64,
+            max_pending_frames: 4,
+            scalar_bits: 32,
+        };
+        let mut config = protocol::samples::config();
+        config.imu_rate_hz = 200.0;
+        config.camera_rate_hz = 20.0;
+        let err = check_latency(0.225, &caps, &config)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            err,
+            "--latency 0.225 s is longer than the core can wait for a frame's correspondences: \
+             0.195 s at 200 Hz IMU and 20 Hz camera (4 frames, 64 IMU samples kept)"
+        );
+        assert!(check_latency(0.195, &caps, &config).is_ok());
+        config.imu_rate_hz = 100.0;
+        config.camera_rate_hz = 25.0;
+        assert!(check_latency(0.15, &caps, &config).is_ok());
+        assert!(check_latency(0.151, &caps, &config).is_err());
     }
 }

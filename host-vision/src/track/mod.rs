@@ -34,7 +34,7 @@ use protocol::{
 use rand::rngs::StdRng;
 use rand::{RngExt as _, SeedableRng};
 
-pub use self::config::{CoreTuning, core_config};
+pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
 pub use self::output::{FrameRow, Summary};
 pub use self::vision::{FrameJob, FrameResult, Vision, VisionOptions};
@@ -678,22 +678,7 @@ impl Session<'_> {
     ) -> Result<bool, TrackError> {
         let ack = self.handshake(link)?;
         let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
-        // The core keeps a frame's snapshot only so long: later correspondences are refused.
-        let limit_us = ack
-            .capacities
-            .max_latency_us(config.imu_rate_hz, config.camera_rate_hz);
-        if self.options.latency * 1e6 > limit_us as f64 {
-            return Err(TrackError::Option(format!(
-                "--latency {} s is longer than the core can wait for a frame's correspondences: \
-                 {:.3} s at {} Hz IMU and {} Hz camera ({} frames, {} IMU samples kept)",
-                self.options.latency,
-                limit_us as f64 * 1e-6,
-                config.imu_rate_hz,
-                config.camera_rate_hz,
-                ack.capacities.max_pending_frames,
-                ack.capacities.delay_buffer_samples,
-            )));
-        }
+        check_latency(self.options.latency, &ack.capacities, &config)?;
         link.send(&HostToCore::Configure(config))?;
         link.send(&HostToCore::Init(self.init_message()?))?;
         self.barrier(link)?;
