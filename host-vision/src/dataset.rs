@@ -32,6 +32,17 @@ pub enum DatasetError {
     /// The camera calibration could not be read.
     #[error(transparent)]
     Calib(#[from] CalibError),
+    /// A camera folder without `imu0`: tracking needs the IMU until the core has a
+    /// vision-only model.
+    #[error(
+        "{path}: missing (IMU samples); vision-only tracking without an IMU is not available yet (it needs issue 14's vision-only model in the fusion core); `host-vision frames --images {cam0}` reads the frames"
+    )]
+    NoImu {
+        /// The missing IMU file.
+        path: PathBuf,
+        /// The camera folder that is there.
+        cam0: String,
+    },
     /// A file's content is unusable.
     #[error("{path}: {what}")]
     Invalid {
@@ -162,7 +173,14 @@ impl Dataset {
             });
         }
         let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
-        let imu_csv = require(mav0.join("imu0/data.csv"), "IMU samples")?;
+        let imu_csv = mav0.join("imu0/data.csv");
+        if !imu_csv.exists() && mav0.join("cam0/data.csv").exists() {
+            return Err(DatasetError::NoImu {
+                path: imu_csv,
+                cam0: mav0.join("cam0").display().to_string(),
+            });
+        }
+        let imu_csv = require(imu_csv, "IMU samples")?;
         let cam_dir = require(mav0.join("cam0"), "camera folder")?;
         let cam_yaml = require(cam_dir.join("sensor.yaml"), "camera calibration")?;
         let cam_csv = require(cam_dir.join("data.csv"), "camera frame list")?;
@@ -293,7 +311,9 @@ impl Dataset {
     }
 }
 
-fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
+/// The frames of a EuRoC `cam0/data.csv` (`timestamp,filename`, increasing stamps), as paths
+/// under `data`.
+pub(crate) fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
     let text = std::fs::read_to_string(csv).map_err(|source| {
         DatasetError::Csv(CsvError::Io {
             path: csv.to_owned(),
@@ -367,6 +387,13 @@ mod tests {
         let err = Dataset::open(dir.path()).unwrap_err().to_string();
         assert!(
             err.ends_with("/mav0: missing (EuRoC folder mav0/)"),
+            "{err}"
+        );
+        std::fs::create_dir_all(dir.path().join("mav0/cam0")).unwrap();
+        std::fs::write(dir.path().join("mav0/cam0/data.csv"), "1,a.png\n").unwrap();
+        let err = Dataset::open(dir.path()).unwrap_err().to_string();
+        assert!(
+            err.contains("/mav0/imu0/data.csv: missing (IMU samples); vision-only tracking without an IMU is not available yet"),
             "{err}"
         );
         let file = dir.path().join("manifest.json");

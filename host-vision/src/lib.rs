@@ -6,17 +6,21 @@
 //! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
 //! map and correspondences ([`features`]); synthetic EuRoC datasets of the paper's test cases
 //! ([`synth`]); EuRoC datasets as the tracker reads them ([`dataset`]) and the tracking pipeline
-//! with its outputs ([`track`]), and the checks of a run's output folder ([`out_folder`]).
+//! with its outputs ([`track`]), and the checks of a run's output folder ([`out_folder`]);
+//! frame sources without an IMU, a video through ffmpeg or an image folder ([`frames`]), and
+//! the full 6-DoF start pose file ([`start_pose`]).
 
 pub mod backproject;
 pub mod camera;
 pub mod dataset;
 pub mod eval;
 pub mod features;
+pub mod frames;
 pub mod link;
 pub mod model;
 pub mod out_folder;
 pub mod render;
 pub mod selftest;
+pub mod start_pose;
 pub mod synth;
 pub mod track;

@@ -22,11 +22,13 @@ const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
 const NO_STD_CRATES: &[&str] = &["protocol", "fusion-core"];
 
 /// Debian packages each command needs at run time: the renderer's software Vulkan driver
-/// (lavapipe) for both, and GL (llvmpipe) for the tests, which run the GPU tests on both.
-const DEMO_PACKAGES: &[&str] = &["libvulkan1", "mesa-vulkan-drivers"];
+/// (lavapipe) for both, `ffmpeg` (with `ffprobe`) for host-vision's video input and its
+/// tests, and GL (llvmpipe) for the tests, which run the GPU tests on both.
+const DEMO_PACKAGES: &[&str] = &["libvulkan1", "mesa-vulkan-drivers", "ffmpeg"];
 const TEST_PACKAGES: &[&str] = &[
     "libvulkan1",
     "mesa-vulkan-drivers",
+    "ffmpeg",
     "libegl1",
     "libgl1-mesa-dri",
     "qemu-system-arm",

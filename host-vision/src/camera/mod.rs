@@ -7,12 +7,14 @@
 
 mod calib;
 mod distortion;
+mod intrinsics;
 mod pinhole;
 mod pose;
 mod undistort_map;
 
 pub use calib::{CalibError, CameraCalib, read_euroc_sensor_yaml, read_kalibr_camchain};
 pub use distortion::Distortion;
+pub use intrinsics::{parse_intrinsics, pinhole_camera, read_camera_json};
 pub use pinhole::Pinhole;
 pub use pose::CameraPose;
 pub use undistort_map::{Gray32FImage, UndistortMap};

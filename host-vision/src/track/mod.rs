@@ -139,13 +139,30 @@ pub struct Faults {
 }
 
 /// Where tracking starts (the paper's semi-automatic initialisation: the user holds the
-/// camera near a known pose; roll and pitch come from the IMU).
+/// camera near a known pose; roll and pitch come from the IMU), or a full 6-DoF pose.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Start {
     /// IMU position [m]; from the ground truth when `None`.
     pub position: Option<[f64; 3]>,
     /// Yaw of the IMU [rad]; from the ground truth when `None`.
     pub yaw: Option<f64>,
+    /// The camera's full pose in the model (world) frame at the first IMU sample
+    /// (`--start-pose`): the core gets position and orientation, roll and pitch included,
+    /// instead of roll and pitch from gravity. Excludes `position` and `yaw`.
+    pub pose: Option<crate::camera::CameraPose>,
+}
+
+impl Start {
+    /// The IMU pose `(s_w, q_sw)` the core expects for the camera pose `pose`, through the
+    /// camera's mount (DESIGN.md §3: `q_cw = q_cs q_sw`, `c_w = s_w + R(q_sw)ᵀ c_s`).
+    pub fn imu_pose_of_camera(
+        pose: &crate::camera::CameraPose,
+        hand_eye: &crate::dataset::HandEye,
+    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let q_sw = hand_eye.q_cs.inverse() * pose.q_cw;
+        let s_w = pose.c_w - q_sw.inverse() * hand_eye.c_s;
+        (s_w, q_sw)
+    }
 }
 
 /// Everything `track` needs.
@@ -290,11 +307,19 @@ impl TrackOptions {
         {
             return bad(format!("--start-yaw must be a finite angle, got {y}"));
         }
+        if self.start.pose.is_some() && (self.start.position.is_some() || self.start.yaw.is_some())
+        {
+            return bad(
+                "--start-pose gives the whole pose: leave out --start-position and --start-yaw"
+                    .into(),
+            );
+        }
         if dataset.groundtruth.is_none()
+            && self.start.pose.is_none()
             && (self.start.position.is_none() || self.start.yaw.is_none())
         {
             return bad(
-                "the dataset has no ground truth: give the start pose with --start-position and --start-yaw"
+                "the dataset has no ground truth: give the start pose with --start-pose, or --start-position and --start-yaw"
                     .into(),
             );
         }
@@ -641,6 +666,14 @@ impl Session<'_> {
     }
 
     fn init_message(&self) -> Result<Init, TrackError> {
+        if let Some(pose) = &self.options.start.pose {
+            let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.dataset.hand_eye);
+            let q = q_sw.quaternion();
+            return Ok(Init {
+                position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
+                attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
+            });
+        }
         let gt = self.dataset.groundtruth_at(self.dataset.imu[0].stamp);
         let position = match (self.options.start.position, gt) {
             (Some(p), _) => p,
@@ -886,4 +919,27 @@ pub fn camera_of_state(
     let (s_w, q_ws) = state_pose(s);
     let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_ws);
     (c_w, q_cw.inverse())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::CameraPose;
+    use crate::dataset::HandEye;
+
+    #[test]
+    fn a_start_pose_maps_to_the_imu_pose_whose_camera_it_is() {
+        let hand_eye = HandEye {
+            q_cs: UnitQuaternion::from_euler_angles(-1.5, 0.1, 0.2),
+            c_s: Vector3::new(0.03, -0.01, 0.05),
+        };
+        let pose = CameraPose {
+            q_cw: UnitQuaternion::from_euler_angles(0.4, -0.7, 2.1),
+            c_w: Vector3::new(0.5, 1.0, -0.3),
+        };
+        let (s_w, q_sw) = Start::imu_pose_of_camera(&pose, &hand_eye);
+        let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_sw.inverse());
+        assert!((c_w - pose.c_w).norm() < 1e-12);
+        assert!(q_cw.angle_to(&pose.q_cw) < 1e-12);
+    }
 }

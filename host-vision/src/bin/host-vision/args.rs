@@ -36,6 +36,9 @@ pub enum Command {
     Synth(Box<SynthArgs>),
     /// Tracks a EuRoC-layout dataset with the fusion core at the other end of a link.
     Track(Box<TrackArgs>),
+    /// Decodes a video, a camera or an image folder without tracking, and reports frame count,
+    /// size, time span and decoding speed (checks an input before tracking).
+    Frames(Box<FramesArgs>),
     /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
     Eval(Box<EvalArgs>),
     /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
@@ -111,13 +114,51 @@ pub struct EvalArgs {
     pub overlay_every: usize,
 }
 
+/// Help of `--video`, shared by `frames` and `track`.
+const VIDEO_HELP: &str = "Video file (mp4 or anything ffmpeg reads) or a V4L2 camera such as /dev/video0, decoded by the ffmpeg program into grey frames with the container's time stamps";
+/// Help of `--images`.
+const IMAGES_HELP: &str = "Folder of PNG/JPG frames in name order (with --fps), or a EuRoC cam0 folder (or a dataset holding mav0/cam0) with its data.csv time stamps";
+
+/// Options of `frames`.
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+pub struct FramesArgs {
+    #[arg(long, help = VIDEO_HELP, required_unless_present = "images", conflicts_with = "images")]
+    pub video: Option<PathBuf>,
+    #[arg(long, help = IMAGES_HELP)]
+    pub images: Option<PathBuf>,
+    /// Frame rate of a plain image folder [Hz] (a EuRoC folder has its time stamps).
+    #[arg(long, requires = "images")]
+    pub fps: Option<f64>,
+    /// Pinhole intrinsics without distortion `fx,fy,cx,cy` [px], checked against the frames.
+    #[arg(long, value_parser = host_vision::camera::parse_intrinsics, allow_hyphen_values = true, conflicts_with = "camera")]
+    pub intrinsics: Option<host_vision::camera::Pinhole>,
+    /// A camera.json (pinhole, no distortion: model, width, height, fx, fy, cx, cy), checked
+    /// against the frames.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// Stop after this many frames (a live camera never ends by itself).
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+}
+
 /// Options of `track`.
 #[derive(clap::Args, Debug)]
 #[command(allow_negative_numbers = true)]
 pub struct TrackArgs {
     /// Dataset folder (holding mav0/).
-    #[arg(long)]
-    pub dataset: PathBuf,
+    #[arg(long, required_unless_present_any = ["video", "images"])]
+    pub dataset: Option<PathBuf>,
+    /// Not available yet: vision-only tracking of a video needs the core's vision-only model
+    /// (issue 14). `host-vision frames --video FILE` checks a video now.
+    #[arg(long, conflicts_with_all = ["dataset", "images"])]
+    pub video: Option<PathBuf>,
+    /// Not available yet: vision-only tracking of an image folder (as --video).
+    #[arg(long, conflicts_with = "dataset")]
+    pub images: Option<PathBuf>,
+    /// Frame rate of a plain --images folder [Hz].
+    #[arg(long, requires = "images")]
+    pub fps: Option<f64>,
     /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/); not inside
     /// the dataset.
     #[arg(long)]
@@ -154,6 +195,12 @@ pub struct TrackArgs {
     /// Start yaw of the IMU [deg] (default: from the ground truth; required without one).
     #[arg(long)]
     pub start_yaw: Option<f64>,
+    /// Full start pose of the camera in the model (world) frame at the first IMU sample: JSON
+    /// with a 4x4 camera-from-model `cMo` [m], or one TUM line `t tx ty tz qx qy qz qw` (camera
+    /// centre, camera-to-world quaternion); checked to be rigid. Replaces --start-position and
+    /// --start-yaw.
+    #[arg(long, conflicts_with_all = ["start_position", "start_yaw"])]
+    pub start_pose: Option<PathBuf>,
     /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
     /// synthetic dataset's manifest, else 10).
     #[arg(long)]

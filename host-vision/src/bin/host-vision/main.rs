@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use clap::Parser as _;
 use firmware_sim::sim::scenario::ScenarioName;
 
-use args::{Cli, Command, DemoArgs, EvalArgs, SynthArgs, TrackArgs};
+use args::{Cli, Command, DemoArgs, EvalArgs, FramesArgs, SynthArgs, TrackArgs};
 use console::{Failure, exit, note, say};
 use progress::Bar;
 
@@ -45,9 +45,121 @@ fn interrupt_flag() -> Arc<AtomicBool> {
     interrupt
 }
 
+/// `--video` or `--images` of `frames` and `track`.
+fn frame_input(
+    video: &Option<std::path::PathBuf>,
+    images: &Option<std::path::PathBuf>,
+    fps: Option<f64>,
+) -> Option<host_vision::frames::FrameInput> {
+    use host_vision::frames::FrameInput;
+    match (video, images) {
+        (Some(v), _) => Some(FrameInput::Video(v.clone())),
+        (None, Some(dir)) => Some(FrameInput::Images {
+            dir: dir.clone(),
+            fps,
+        }),
+        (None, None) => None,
+    }
+}
+
+/// `track --video/--images`: the input is checked (its first frame decoded), then refused,
+/// since the core has no model without an IMU yet.
+fn vision_only_unavailable(input: &host_vision::frames::FrameInput) -> Result<Done, Failure> {
+    use host_vision::frames::VideoOptions;
+    let mut source = input.open(&VideoOptions::default())?;
+    let size = match source.next() {
+        Some(frame) => {
+            let (w, h) = frame?.image.dimensions();
+            format!("its first frame, {w}x{h}, decodes")
+        }
+        None => "it holds no frame".into(),
+    };
+    drop(source);
+    Err(Failure {
+        error: anyhow::anyhow!(
+            "{}: {size}, but vision-only tracking (without an IMU) is not available yet: it needs issue 14's vision-only model in the fusion core. `host-vision frames` reports the input's frames; `track --dataset` tracks EuRoC datasets with an IMU",
+            input.path().display()
+        ),
+        code: exit::FAILED,
+    })
+}
+
+fn frames(a: &FramesArgs) -> Result<Done, Failure> {
+    use host_vision::camera::{pinhole_camera, read_camera_json};
+    use host_vision::frames::{DecodeStats, VideoOptions};
+    let usage = |m: String| Failure {
+        error: anyhow::anyhow!(m),
+        code: exit::USAGE,
+    };
+    let Some(input) = frame_input(&a.video, &a.images, a.fps) else {
+        return Err(usage("give --video FILE or --images DIR".into()));
+    };
+    if a.max_frames == Some(0) {
+        return Err(usage("--max-frames must be at least 1".into()));
+    }
+    // The calibration is read first: a bad one is said before a long decode.
+    let camera = a.camera.as_deref().map(read_camera_json).transpose()?;
+    let source = input.open(&VideoOptions::default())?;
+    let stats = DecodeStats::collect(source, a.max_frames, &mut |_| {})?;
+    say!("{}", input.path().display());
+    say!("{stats}");
+    if let Some(p) = a.intrinsics {
+        let (w, h) = stats.size;
+        pinhole_camera(w, h, p).map_err(|e| usage(format!("--intrinsics: {e}")))?;
+        say!(
+            "intrinsics:    fx {} fy {} cx {} cy {}, no distortion: fit the {w}x{h} frames",
+            p.fx,
+            p.fy,
+            p.cx,
+            p.cy
+        );
+    }
+    if let (Some(c), Some(path)) = (camera, &a.camera) {
+        if (c.width, c.height) != stats.size {
+            return Err(Failure {
+                error: anyhow::anyhow!(
+                    "--camera {}: the calibration is for {}x{} images, the frames are {}x{}",
+                    path.display(),
+                    c.width,
+                    c.height,
+                    stats.size.0,
+                    stats.size.1
+                ),
+                code: exit::FAILED,
+            });
+        }
+        say!(
+            "camera:        {} fits the frames (fx {} fy {} cx {} cy {})",
+            path.display(),
+            c.pinhole.fx,
+            c.pinhole.fy,
+            c.pinhole.cx,
+            c.pinhole.cy
+        );
+    }
+    Ok(Done::Complete)
+}
+
 fn track(a: &TrackArgs) -> Result<Done, Failure> {
-    use host_vision::track::{self, Faults, Start};
-    let mut o = host_vision::eval::options_for(&a.dataset, a.out.clone());
+    use host_vision::track::{self, Faults, Start, TrackError};
+    if let Some(input) = frame_input(&a.video, &a.images, a.fps) {
+        return vision_only_unavailable(&input);
+    }
+    let Some(dataset) = &a.dataset else {
+        return Err(Failure {
+            error: anyhow::anyhow!("give --dataset DIR"),
+            code: exit::USAGE,
+        });
+    };
+    let pose = a
+        .start_pose
+        .as_deref()
+        .map(|p| {
+            host_vision::start_pose::read_start_pose(p)
+                .map_err(|e| TrackError::Option(format!("--start-pose {}: {e}", p.display())))
+        })
+        .transpose()?;
+    let mut o = host_vision::eval::options_for(dataset, a.out.clone());
     o.model = a.model.clone();
     o.link = a.link.clone();
     o.filter = a.filter.into();
@@ -59,6 +171,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     o.start = Start {
         position: a.start_position,
         yaw: a.start_yaw.map(f64::to_radians),
+        pose,
     };
     if let Some(accel) = a.expected_accel {
         o.tuning.expected_accel = accel;
@@ -96,7 +209,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     }
     if run.summary.snapped_on_at.is_none() {
         note!(
-            "tracking never started: the core accepted none of the {} correspondences sent over {} frames; check the start pose (--start-position, --start-yaw), the model and the calibration",
+            "tracking never started: the core accepted none of the {} correspondences sent over {} frames; check the start pose (--start-pose, or --start-position and --start-yaw), the model and the calibration",
             run.summary.correspondences_sent,
             run.summary.frames
         );
@@ -338,6 +451,7 @@ fn main() -> ExitCode {
         Command::Selftest { imu_samples } => selftest(imu_samples),
         Command::Synth(args) => synth(&args),
         Command::Track(args) => track(&args),
+        Command::Frames(args) => frames(&args),
         Command::Eval(args) => eval(&args),
         Command::Demo(args) => demo(&args),
     };
