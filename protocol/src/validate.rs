@@ -83,20 +83,15 @@ fn square_normal(x: f32) -> bool {
 /// and tilt σ since either may apply; its radial part is negligible).
 pub fn initial_covariance_frobenius_sq(model: ModelKind, s: &InitSigma) -> f32 {
     let sq = |x: f32| x * x;
-    let mut blocks: [(f32, f32); 6] = [
+    let axes = |active: bool| if active { 3.0 } else { 0.0 };
+    let blocks = [
         (s.position, 3.0),
         (s.velocity, 3.0),
         (s.angular_velocity, 3.0),
         (s.gyro_bias, 3.0),
-        (s.accel_bias, 0.0),
-        (s.acceleration, 0.0),
+        (s.accel_bias, axes(model != ModelKind::Gyro)),
+        (s.acceleration, axes(model == ModelKind::Acc)),
     ];
-    if model != ModelKind::Gyro {
-        blocks[4].1 = 3.0;
-    }
-    if model == ModelKind::Acc {
-        blocks[5].1 = 3.0;
-    }
     let diagonal: f32 = blocks.iter().map(|&(sigma, n)| n * sq(sq(sigma))).sum();
     let yaw = s.yaw.max(s.tilt);
     let orientation = 2.0 * sq(sq(s.tilt) / 4.0) + sq(sq(yaw) / 4.0);

@@ -48,27 +48,14 @@ impl Default for VideoOptions {
     }
 }
 
-/// What the stderr reader passes on, in ffmpeg's order.
-#[derive(Debug)]
-enum Event {
-    Config {
-        time_base: (i64, i64),
-        frame_rate: (i64, i64),
-    },
-    Frame {
-        n: usize,
-        pts: Option<i64>,
-        size: (u32, u32),
-    },
-}
-
 /// Frames of a video (or a camera) decoded by ffmpeg.
 #[derive(Debug)]
 pub struct VideoFrames {
     path: PathBuf,
     child: Child,
     stdout: BufReader<ChildStdout>,
-    events: Receiver<Event>,
+    /// The stderr reader's `Config` and `Frame` lines, in ffmpeg's order.
+    events: Receiver<Line>,
     /// Returns ffmpeg's error lines when stderr closes.
     stderr: Option<JoinHandle<Vec<String>>>,
     time_base: Option<(i64, i64)>,
@@ -159,26 +146,17 @@ impl VideoFrames {
                 let mut buf = Vec::new();
                 while matches!(lines.read_until(b'\n', &mut buf), Ok(n) if n > 0) {
                     let line = String::from_utf8_lossy(&buf);
-                    let event = match showinfo::parse(&line) {
-                        Line::Config {
-                            time_base,
-                            frame_rate,
-                        } => Some(Event::Config {
-                            time_base,
-                            frame_rate,
-                        }),
-                        Line::Frame { n, pts, size } => Some(Event::Frame { n, pts, size }),
+                    match showinfo::parse(&line) {
                         Line::Error(e) => {
                             if !e.is_empty() && !errors.contains(&e) {
                                 errors.push(e);
                             }
-                            None
                         }
-                        Line::Other => None,
-                    };
-                    if let Some(event) = event {
+                        Line::Other => {}
                         // The receiver gone means the source was dropped: keep draining.
-                        let _ = tx.send(event);
+                        event => {
+                            let _ = tx.send(event);
+                        }
                     }
                     buf.clear();
                 }
@@ -278,7 +256,7 @@ impl VideoFrames {
     fn next_event(&mut self) -> Option<(usize, Option<i64>, (u32, u32))> {
         loop {
             match self.events.recv().ok()? {
-                Event::Config {
+                Line::Config {
                     time_base,
                     frame_rate,
                 } => {
@@ -286,7 +264,9 @@ impl VideoFrames {
                     self.frame_rate = (frame_rate.0 > 0 && frame_rate.1 > 0)
                         .then(|| frame_rate.0 as f64 / frame_rate.1 as f64);
                 }
-                Event::Frame { n, pts, size } => return Some((n, pts, size)),
+                Line::Frame { n, pts, size } => return Some((n, pts, size)),
+                // The reader sends only the two above.
+                Line::Error(_) | Line::Other => {}
             }
         }
     }

@@ -157,15 +157,7 @@ mod tests {
     /// against the firmware's capacities (four frames: 195 ms), and what fits is accepted.
     #[test]
     fn a_latency_beyond_the_cores_limit_is_refused() {
-        // The fusion core's (fusion_core::Device::capacities, checked in its own tests).
-        let caps = Capacities {
-            max_frame_len: protocol::MAX_FRAME_LEN as u16,
-            max_correspondences_per_message: protocol::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
-            max_correspondences_per_frame: protocol::MAX_CORRESPONDENCES_PER_FRAME as u16,
-            delay_buffer_samples: 64,
-            max_pending_frames: 4,
-            scalar_bits: 32,
-        };
+        let caps = fusion_core::Device::<f32>::capacities();
         let mut config = protocol::samples::config();
         config.imu_rate_hz = 200.0;
         config.camera_rate_hz = 20.0;
