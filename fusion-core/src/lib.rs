@@ -35,6 +35,7 @@ pub mod scalar;
 pub mod state;
 #[cfg(test)]
 mod testutil;
+pub mod trig;
 
 pub use device::{Device, DeviceIo};
 pub use protocol::{ModelKind, PROTOCOL_VERSION};

@@ -104,7 +104,7 @@ pub fn exp_increment<T: Scalar>(omega: &Vector3<T>, dt: T) -> (Quat<T>, Matrix4x
                     - t * (c(1.0 / 840.0) - t * (c(1.0 / 45360.0) - t * c(1.0 / 3991680.0)))),
         )
     } else {
-        let (s, c) = (theta.sin(), theta.cos());
+        let (s, c) = theta.sin_cos_of();
         (c, s / theta, (theta * c - s) / (theta2 * theta))
     };
     let dq = Vector4::new(cos, sinc * v[0], sinc * v[1], sinc * v[2]);
@@ -118,8 +118,8 @@ pub fn exp_increment<T: Scalar>(omega: &Vector3<T>, dt: T) -> (Quat<T>, Matrix4x
 /// Rotation about a unit axis by `angle`.
 pub fn from_axis_angle<T: Scalar>(axis: &Vector3<T>, angle: T) -> Quat<T> {
     let h = angle * T::c(0.5);
-    let s = h.sin();
-    Vector4::new(h.cos(), axis[0] * s, axis[1] * s, axis[2] * s)
+    let (s, c) = h.sin_cos_of();
+    Vector4::new(c, axis[0] * s, axis[1] * s, axis[2] * s)
 }
 
 /// `q_ws` of a body with yaw `ψ`, pitch `θ`, roll `φ` (z-y-x order): `R_z(ψ) R_y(θ) R_x(φ)`.

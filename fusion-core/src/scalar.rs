@@ -75,6 +75,9 @@ pub trait Scalar: RealField + Copy + Default + Kernels {
     fn to_wire(self) -> f32;
     /// Conversion to `f64` (host-side analysis).
     fn to_f64(self) -> f64;
+    /// `(sin x, cos x)`: for `f32` in `f32` arithmetic alone ([`crate::trig`]), the same on
+    /// the PC and the MCU; for `f64` the platform's.
+    fn sin_cos_of(self) -> (Self, Self);
 }
 
 impl Scalar for f32 {
@@ -94,6 +97,9 @@ impl Scalar for f32 {
     fn to_f64(self) -> f64 {
         self as f64
     }
+    fn sin_cos_of(self) -> (Self, Self) {
+        crate::trig::sin_cos_f32(self)
+    }
 }
 
 impl Scalar for f64 {
@@ -112,5 +118,11 @@ impl Scalar for f64 {
     }
     fn to_f64(self) -> f64 {
         self
+    }
+    fn sin_cos_of(self) -> (Self, Self) {
+        (
+            nalgebra::ComplexField::sin(self),
+            nalgebra::ComplexField::cos(self),
+        )
     }
 }
