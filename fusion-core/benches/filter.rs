@@ -43,7 +43,7 @@ fn warmed<T: Scalar>(model: ModelKind) -> (Params<T>, Filter<T>) {
 }
 
 fn imu_step<T: Scalar>(c: &mut Criterion, name: &str) {
-    for model in ModelKind::ALL {
+    for model in ModelKind::INERTIAL {
         let (prm, filter) = warmed::<T>(model);
         let mut t = filter.t_us;
         let mut f = filter.clone();

@@ -51,7 +51,9 @@ pub struct Counters {
     pub decode_errors: u32,
     /// Messages failing field validation.
     pub invalid_messages: u32,
-    /// Messages refused for order (before `Hello` or `Configure`).
+    /// Messages refused for the device's state: before `Hello` or `Configure`, or meant for
+    /// another model (`Imu` to the vision-only model, `Tick` to an inertial one, a vision-only
+    /// `Init` without the full orientation).
     pub out_of_order: u32,
     /// IMU samples refused for their time stamp.
     pub imu_time_rejected: u32,
@@ -133,6 +135,9 @@ struct ClockCandidate {
 #[derive(Clone, Copy, Debug)]
 struct Anchor<T: Scalar> {
     position: Vector3<T>,
+    /// Orientation `q_sw` (the vision-only model restarts from all of it; the inertial models
+    /// take only the yaw, roll and pitch coming from gravity again). Zero in [`Self::NONE`].
+    q_sw: Quat<T>,
     /// Yaw of the sensor in the world [rad], if known (not after a `Gravity` init without
     /// vision since).
     yaw: Option<T>,
@@ -147,6 +152,7 @@ impl<T: Scalar> Anchor<T> {
     /// device stays in `.bss`; it is never restarted from).
     const NONE: Anchor<T> = Anchor {
         position: Vector3::new(T::ZERO, T::ZERO, T::ZERO),
+        q_sw: Quat::new(T::ZERO, T::ZERO, T::ZERO, T::ZERO),
         yaw: None,
         from_vision: false,
         age_us: 0,
@@ -271,6 +277,7 @@ impl<T: Scalar> Device<T> {
             HostToCore::Configure(c) => self.configure(c, out),
             HostToCore::Init(i) => self.init(i, out),
             HostToCore::Imu(s) => self.imu(s, out),
+            HostToCore::Tick(t) => self.tick(t, out),
             HostToCore::Correspondences(c) => self.correspondences(c, out),
             HostToCore::Reset => {
                 if self.prm.is_some() {
@@ -309,9 +316,14 @@ impl<T: Scalar> Device<T> {
     }
 
     fn init(&mut self, i: &Init, out: Out) {
-        if self.prm.is_none() {
+        let Some(prm) = &self.prm else {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
+            return;
+        };
+        if !prm.model.has_imu() && !matches!(i.attitude, InitAttitude::Full(_)) {
+            Counters::bump(&mut self.counters.out_of_order);
+            out(CoreToHost::error(ErrorCode::VisionNeedsFullPose));
             return;
         }
         let p = Vector3::new(
@@ -320,21 +332,18 @@ impl<T: Scalar> Device<T> {
             T::from_wire(i.position[2]),
         );
         // A later full re-initialisation without vision since restarts from what was given.
-        let yaw = match i.attitude {
-            InitAttitude::Gravity => None,
-            InitAttitude::GravityAndYaw(yaw) => Some(T::from_wire(yaw)),
+        let (yaw, q_sw) = match i.attitude {
+            InitAttitude::Gravity => (None, quat::identity()),
+            InitAttitude::GravityAndYaw(yaw) => (Some(T::from_wire(yaw)), quat::identity()),
             InitAttitude::Full(q) => {
                 let f = T::from_wire;
-                Some(quat::yaw_of(&quat::conj(&Quat::new(
-                    f(q[0]),
-                    f(q[1]),
-                    f(q[2]),
-                    f(q[3]),
-                ))))
+                let q_sw = Quat::new(f(q[0]), f(q[1]), f(q[2]), f(q[3]));
+                (Some(quat::yaw_of(&quat::conj(&q_sw))), q_sw)
             }
         };
         self.anchor = Anchor {
             position: p,
+            q_sw,
             yaw,
             from_vision: false,
             age_us: 0,
@@ -388,19 +397,43 @@ impl<T: Scalar> Device<T> {
     }
 
     fn imu(&mut self, wire: &protocol::ImuSample, out: Out) {
+        self.advance(&ImuSample::<T>::from_wire(wire), wire.trigger, true, out);
+    }
+
+    fn tick(&mut self, t: &protocol::Tick, out: Out) {
+        let sample = ImuSample {
+            t_us: t.t_us,
+            gyro: Vector3::zeros(),
+            accel: Vector3::zeros(),
+        };
+        self.advance(&sample, t.trigger, false, out);
+    }
+
+    /// One step of the device's clock: an IMU sample (`inertial`), or a vision-only tick (a
+    /// sample without readings, which the vision-only model's step never reads).
+    fn advance(&mut self, sample: &ImuSample<T>, trigger: bool, inertial: bool, out: Out) {
         let Some(prm) = self.prm else {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
             return;
         };
-        let jumped = match self.check_time(wire.t_us, out) {
+        if inertial != prm.model.has_imu() {
+            Counters::bump(&mut self.counters.out_of_order);
+            out(CoreToHost::error(if inertial {
+                ErrorCode::ImuInVisionModel
+            } else {
+                ErrorCode::TickInInertialModel
+            }));
+            return;
+        }
+        let jumped = match self.check_time(sample.t_us, out) {
             Ok(j) => j,
             Err(()) => return,
         };
         // IMU time since the last sample; after a clock jump the time between the two clocks
         // is unknown, and so is the anchor's age.
         let dt = match self.last_t_us {
-            Some(last) if !jumped => wire.t_us.saturating_sub(last),
+            Some(last) if !jumped => sample.t_us.saturating_sub(last),
             _ => 0,
         };
         self.anchor.age_us = if jumped {
@@ -409,11 +442,17 @@ impl<T: Scalar> Device<T> {
             self.anchor.age_us.saturating_add(dt)
         };
         self.unchecked_us = self.unchecked_us.saturating_add(dt);
-        self.last_t_us = Some(wire.t_us);
+        self.last_t_us = Some(sample.t_us);
         if jumped && matches!(self.phase, Phase::Running) {
             self.reinitialise(StatusReason::TimeJump, &prm, out);
         }
-        let sample = ImuSample::<T>::from_wire(wire);
+        // The vision-only model has no still window: it starts at its first tick, and that
+        // tick is also its first step (its trigger is answered).
+        let (needed, step_now) = if prm.model.has_imu() {
+            (prm.still_samples, false)
+        } else {
+            (1, true)
+        };
         match &mut self.phase {
             Phase::Unconfigured | Phase::AwaitingInit => {}
             Phase::Initialising {
@@ -422,7 +461,7 @@ impl<T: Scalar> Device<T> {
                 yaw_known,
                 window,
             } => {
-                if window.add(&sample.gyro, &sample.accel, prm.still_samples) {
+                if window.add(&sample.gyro, &sample.accel, needed) {
                     initialise(
                         &mut self.filter.st,
                         &prm,
@@ -435,9 +474,12 @@ impl<T: Scalar> Device<T> {
                     self.filter.quat_norm_error = T::zero();
                     self.restart_phase(Phase::Running);
                     self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
+                    if step_now {
+                        self.step(&prm, sample, trigger, out);
+                    }
                 }
             }
-            Phase::Running => self.step(&prm, &sample, wire.trigger, out),
+            Phase::Running => self.step(&prm, sample, trigger, out),
         }
     }
 
@@ -650,6 +692,7 @@ impl<T: Scalar> Device<T> {
         if report.accepted > 0 {
             self.anchor = Anchor {
                 position: good.0,
+                q_sw: good.1,
                 yaw: Some(quat::yaw_of(&quat::conj(&good.1))),
                 from_vision: true,
                 age_us: 0,
@@ -686,9 +729,16 @@ impl<T: Scalar> Device<T> {
     /// Restarts from the anchor: the last good position and yaw, or those `Init` gave, with
     /// roll and pitch from a new still window. The yaw keeps the tilt σ only while the anchor
     /// is recent ([`SOFT_RESET_WINDOW_US`]); older, it restarts with the configured yaw σ.
-    fn reinitialise(&mut self, reason: StatusReason, _prm: &Params<T>, out: Out) {
+    fn reinitialise(&mut self, reason: StatusReason, prm: &Params<T>, out: Out) {
         let a = self.anchor;
         let attitude = match a.yaw {
+            // No gravity to level it: the vision-only model restarts from the whole anchor.
+            _ if !prm.model.has_imu() => InitAttitude::Full([
+                a.q_sw[0].to_wire(),
+                a.q_sw[1].to_wire(),
+                a.q_sw[2].to_wire(),
+                a.q_sw[3].to_wire(),
+            ]),
             Some(yaw) => InitAttitude::GravityAndYaw(yaw.to_wire()),
             None => InitAttitude::Gravity,
         };

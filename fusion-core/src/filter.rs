@@ -1,4 +1,5 @@
-//! One IMU step of the filter: normalise, time update, gyro and accelerometer updates.
+//! One IMU step of the filter: normalise, time update, gyro and accelerometer updates (the
+//! vision-only model's tick: normalise and time update).
 
 use nalgebra::{Matrix3, Matrix3x4, Vector3};
 use protocol::{ModelKind, StatusReason};
@@ -102,8 +103,13 @@ impl<T: Scalar> Filter<T> {
             );
         }
         self.t_us = s.t_us;
+        // The vision-only model has no readings to update with: its step is the time update.
         // A singular innovation here means a broken covariance: the monitor reports it below.
-        let updated = imu_update(&mut self.st, prm, s);
+        let updated = if prm.model.has_imu() {
+            imu_update(&mut self.st, prm, s)
+        } else {
+            Ok(T::zero())
+        };
         self.quat_norm_error = updated.unwrap_or(T::zero());
         match Monitor::step(&self.st, self.quat_norm_error, prm) {
             Some(reason) => Err(reason),
@@ -186,9 +192,33 @@ mod tests {
     use approx::assert_relative_eq;
     use nalgebra::{SMatrix, SVector};
 
+    /// A vision-only step never reads the sample's readings: it is the time update alone,
+    /// and the 9 states past the model's 13 stay zero.
+    #[test]
+    fn a_vision_only_step_is_the_time_update_alone() {
+        let prm = params::<f64>(ModelKind::Vision);
+        let st = random_state(prm.n, 7);
+        let mut f = Filter::new(st.clone(), 0);
+        let s = ImuSample {
+            t_us: 10_000,
+            gyro: Vector3::new(5.0, -5.0, 5.0),
+            accel: Vector3::new(1.0, 2.0, 3.0),
+        };
+        f.imu_step(&prm, &s).unwrap();
+        let mut want = st;
+        motion::normalise_quaternion(&mut want);
+        motion::time_update(&mut want, &prm, 0.01);
+        assert_eq!(f.st, want);
+        assert!(f.st.x.iter().skip(prm.n).all(|&v| v == 0.0));
+        assert!(f.st.p.iter().enumerate().all(|(k, &v)| {
+            let (i, j) = (k % N, k / N);
+            (i < prm.n && j < prm.n) || v == 0.0
+        }));
+    }
+
     #[test]
     fn imu_update_equals_the_dense_joseph_update() {
-        for model in ModelKind::ALL {
+        for model in ModelKind::INERTIAL {
             let prm = params::<f64>(model);
             let mut st = random_state(prm.n, 31);
             let s = ImuSample {

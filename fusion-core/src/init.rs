@@ -184,7 +184,15 @@ mod tests {
             let prm = params::<f64>(model);
             // A yaw σ above the tilt σ (the closed form takes the larger).
             assert!(prm.init_sigma.yaw > prm.init_sigma.tilt);
-            let st = initial_state(&prm, &Vector3::zeros(), &InitAttitude::Gravity, &w);
+            // The largest the yaw σ gets: unknown yaw (inertial), or a stale full pose
+            // (vision-only re-initialisation).
+            let attitude = if model.has_imu() {
+                InitAttitude::Gravity
+            } else {
+                InitAttitude::Full([0.5, 0.5, -0.5, 0.5])
+            };
+            let mut st = State::zeroed();
+            initialise(&mut st, &prm, &Vector3::zeros(), &attitude, false, &w);
             let built = st.cov_frobenius().powi(2);
             let closed =
                 protocol::validate::initial_covariance_frobenius_sq(model, &prm.init_sigma) as f64;
@@ -192,9 +200,35 @@ mod tests {
         }
     }
 
+    /// The vision-only model starts at the given pose with its 13 states' covariance, and
+    /// nothing outside them.
+    #[test]
+    fn vision_only_starts_at_the_full_pose_with_only_its_states() {
+        let prm = params::<f64>(ModelKind::Vision);
+        let q = [0.5, 0.5, -0.5, 0.5];
+        let st = initial_state(
+            &prm,
+            &Vector3::new(1.0, 2.0, 3.0),
+            &InitAttitude::Full(q),
+            &StillWindow::default(),
+        );
+        assert!(crate::testutil::active_block_is_pd(&st.p, prm.n));
+        assert_eq!(prm.n, 13);
+        for i in 0..crate::state::N {
+            for j in 0..crate::state::N {
+                if i >= prm.n || j >= prm.n {
+                    assert_eq!(st.p[(i, j)], 0.0, "({i}, {j})");
+                }
+            }
+        }
+        assert_relative_eq!(st.q(), Quat::new(0.5, 0.5, -0.5, 0.5), epsilon = 1e-12);
+        assert_eq!(st.v3(POS), Vector3::new(1.0, 2.0, 3.0));
+        assert_eq!(st.v3(OMEGA), Vector3::zeros());
+    }
+
     #[test]
     fn initial_covariance_is_positive_definite_for_every_model() {
-        for model in ModelKind::ALL {
+        for model in ModelKind::INERTIAL {
             let prm = params::<f64>(model);
             let mut w = StillWindow::default();
             for _ in 0..10 {

@@ -189,6 +189,15 @@ pub enum ErrorCode {
         /// Frame id.
         frame_id: u32,
     },
+    /// An `Imu` sample reached a core configured for the vision-only model, which has no
+    /// inertial measurements: its time is advanced by `Tick` (since 2.1).
+    ImuInVisionModel,
+    /// A `Tick` reached a core configured for an inertial model, which is advanced by `Imu`
+    /// samples (since 2.1).
+    TickInInertialModel,
+    /// The vision-only model has no gravity to find roll and pitch: it starts only from
+    /// `InitAttitude::Full` (since 2.1).
+    VisionNeedsFullPose,
 }
 
 impl fmt::Display for ErrorCode {
@@ -214,6 +223,15 @@ impl fmt::Display for ErrorCode {
                     "frame {frame_id} has more correspondences than the core holds"
                 )
             }
+            ErrorCode::ImuInVisionModel => f.write_str(
+                "IMU sample sent to a core configured for the vision-only model: send Tick instead",
+            ),
+            ErrorCode::TickInInertialModel => f.write_str(
+                "Tick sent to a core configured for an inertial model: send Imu samples instead",
+            ),
+            ErrorCode::VisionNeedsFullPose => f.write_str(
+                "the vision-only model has no gravity for roll and pitch: Init needs the full orientation",
+            ),
         }
     }
 }

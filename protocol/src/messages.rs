@@ -51,6 +51,9 @@ pub enum HostToCore {
     Correspondences(Correspondences),
     /// Drops all filter state and returns to the configured, uninitialised mode.
     Reset,
+    /// Advances the vision-only model's time, in place of an IMU sample (since 2.1). Sent to
+    /// an inertial model it is refused with [`ErrorCode::TickInInertialModel`].
+    Tick(Tick),
 }
 
 /// Session opening.
@@ -60,11 +63,12 @@ pub struct Hello {
     pub version: Version,
 }
 
-/// The three system models of the paper (DESIGN.md §4).
+/// The three system models of the paper (DESIGN.md §4), and the vision-only fallback for a
+/// camera without an IMU.
 ///
 /// The in-memory discriminants start at 1 so that `Option<ModelKind>`'s `None` (and so an
 /// unconfigured core) is all zero bytes: a firmware's device `static` then lands in `.bss`
-/// instead of costing its size in flash. The wire encoding is the variant index (0, 1, 2).
+/// instead of costing its size in flash. The wire encoding is the variant index (0, 1, 2, 3).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum ModelKind {
@@ -74,11 +78,21 @@ pub enum ModelKind {
     Gravity = 2,
     /// Gyroscopes + accelerometer with free acceleration: 22 states.
     Acc = 3,
+    /// No inertial sensor (since 2.1): a constant-velocity pose advanced by [`Tick`]s alone,
+    /// 13 states (position, velocity, orientation, angular velocity).
+    Vision = 4,
 }
 
 impl ModelKind {
-    /// All models, in the paper's order.
-    pub const ALL: [ModelKind; 3] = [ModelKind::Gyro, ModelKind::Gravity, ModelKind::Acc];
+    /// The paper's three inertial models, in its order.
+    pub const INERTIAL: [ModelKind; 3] = [ModelKind::Gyro, ModelKind::Gravity, ModelKind::Acc];
+    /// Every model: the inertial ones, then vision-only.
+    pub const ALL: [ModelKind; 4] = [
+        ModelKind::Gyro,
+        ModelKind::Gravity,
+        ModelKind::Acc,
+        ModelKind::Vision,
+    ];
 
     /// Number of filter states of this model.
     pub const fn state_dim(self) -> usize {
@@ -86,6 +100,7 @@ impl ModelKind {
             ModelKind::Gyro => 16,
             ModelKind::Gravity => 19,
             ModelKind::Acc => 22,
+            ModelKind::Vision => 13,
         }
     }
 
@@ -95,7 +110,14 @@ impl ModelKind {
             ModelKind::Gyro => "gyro",
             ModelKind::Gravity => "gravity",
             ModelKind::Acc => "acc",
+            ModelKind::Vision => "vision",
         }
+    }
+
+    /// Whether the model measures with an IMU (it is advanced by `Imu` samples; the
+    /// vision-only model by `Tick`s).
+    pub const fn has_imu(self) -> bool {
+        !matches!(self, ModelKind::Vision)
     }
 }
 
@@ -223,6 +245,17 @@ pub struct ImuSample {
     pub accel: [f32; 3],
     /// The camera was triggered at this sample: the core answers with a
     /// [`CoreToHost::PosePrediction`] for this time stamp.
+    pub trigger: bool,
+}
+
+/// The vision-only model's clock (since 2.1): advances the filter to `t_us` by its motion
+/// model alone, with the time-stamp rules of [`ImuSample`].
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tick {
+    /// Time stamp [µs], strictly increasing.
+    pub t_us: u64,
+    /// The camera was triggered at this time: the core answers with a
+    /// [`CoreToHost::PosePrediction`] for it.
     pub trigger: bool,
 }
 
@@ -550,6 +583,7 @@ impl HostToCore {
             HostToCore::Imu(_) => "Imu",
             HostToCore::Correspondences(_) => "Correspondences",
             HostToCore::Reset => "Reset",
+            HostToCore::Tick(_) => "Tick",
         }
     }
 

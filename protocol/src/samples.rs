@@ -61,7 +61,7 @@ pub const fn correspondence(m_n: [f32; 2], m_w: [f32; 3]) -> Correspondence {
 }
 
 /// Named host messages, one per kind (two for `Init`).
-pub fn host_messages() -> [(&'static str, HostToCore); 7] {
+pub fn host_messages() -> [(&'static str, HostToCore); 8] {
     let mut items = Vec::new();
     let _ = items.push(correspondence([0.125, -0.25], [0.5, 0.25, 0.0]));
     let _ = items.push(correspondence([-0.0625, 0.5], [0.0, 0.1, 0.2]));
@@ -107,11 +107,18 @@ pub fn host_messages() -> [(&'static str, HostToCore); 7] {
             }),
         ),
         ("Reset", HostToCore::Reset),
+        (
+            "Tick",
+            HostToCore::Tick(Tick {
+                t_us: 1_033_333,
+                trigger: true,
+            }),
+        ),
     ]
 }
 
-/// Named core messages, one per kind (three for `Error`).
-pub fn core_messages() -> [(&'static str, CoreToHost); 9] {
+/// Named core messages, one per kind (four for `Error`).
+pub fn core_messages() -> [(&'static str, CoreToHost); 10] {
     let mut cov = [0.0f32; 21];
     for i in 0..6 {
         cov[sym_index(6, i, i)] = if i < 3 { 1e-4 } else { 1e-5 };
@@ -152,6 +159,10 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 9] {
         (
             "Error (decode)",
             CoreToHost::error(ErrorCode::Decode(DecodeError::Crc)),
+        ),
+        (
+            "Error (IMU sample in the vision-only model)",
+            CoreToHost::error(ErrorCode::ImuInVisionModel),
         ),
         (
             "PosePrediction",

@@ -29,7 +29,8 @@ pub const COVARIANCE_THRESHOLD_MARGIN: f32 = 2.0;
 
 pub(crate) fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
     match msg {
-        HostToCore::Hello(_) | HostToCore::Reset => Ok(()),
+        // A tick's only field is its time stamp, which the core checks against its clock.
+        HostToCore::Hello(_) | HostToCore::Reset | HostToCore::Tick(_) => Ok(()),
         HostToCore::Configure(c) => config(c),
         HostToCore::Init(i) => init(i),
         HostToCore::Imu(s) => {
@@ -88,8 +89,11 @@ pub fn initial_covariance_frobenius_sq(model: ModelKind, s: &InitSigma) -> f32 {
         (s.position, 3.0),
         (s.velocity, 3.0),
         (s.angular_velocity, 3.0),
-        (s.gyro_bias, 3.0),
-        (s.accel_bias, axes(model != ModelKind::Gyro)),
+        (s.gyro_bias, axes(model.has_imu())),
+        (
+            s.accel_bias,
+            axes(model.has_imu() && model != ModelKind::Gyro),
+        ),
         (s.acceleration, axes(model == ModelKind::Acc)),
     ];
     let diagonal: f32 = blocks.iter().map(|&(sigma, n)| n * sq(sq(sigma))).sum();
@@ -100,12 +104,17 @@ pub fn initial_covariance_frobenius_sq(model: ModelKind, s: &InitSigma) -> f32 {
 
 fn config(c: &Config) -> Result<(), InvalidField> {
     let n = &c.noise;
-    // Process noises may be zero (a constant bias, say); measurement noises may not.
+    // Process noises may be zero (a constant bias, say); measurement noises may not, where the
+    // model measures with them (the gyro model has no accelerometer, vision-only no IMU).
     let process = [n.motion, n.angular, n.gyro_bias_walk, n.accel_bias_walk];
     let process_ok = process.iter().all(|&x| x == 0.0 || square_normal(x));
-    let accel_ok =
-        (c.model == ModelKind::Gyro && non_negative(n.accel_meas)) || square_normal(n.accel_meas);
-    if !process_ok || !square_normal(n.gyro_meas) || !accel_ok {
+    let unused = |used: bool, x: f32| !used && non_negative(x);
+    let gyro_ok = unused(c.model.has_imu(), n.gyro_meas) || square_normal(n.gyro_meas);
+    let accel_ok = unused(
+        c.model.has_imu() && c.model != ModelKind::Gyro,
+        n.accel_meas,
+    ) || square_normal(n.accel_meas);
+    if !process_ok || !gyro_ok || !accel_ok {
         return Err(InvalidField::NoiseParams);
     }
     let s = &c.init_sigma;
@@ -296,6 +305,26 @@ mod tests {
         );
         assert_eq!(
             configure(|c| c.noise.gyro_meas = 1e-20),
+            Err(InvalidField::NoiseParams)
+        );
+        // The vision-only model measures with neither: zero noises are fine, bad ones not.
+        let vision = |edit: fn(&mut Config)| {
+            configure(|c| c.model = ModelKind::Vision)?;
+            let mut c = samples::config();
+            c.model = ModelKind::Vision;
+            edit(&mut c);
+            HostToCore::Configure(c).validate()
+        };
+        assert_eq!(
+            vision(|c| (c.noise.gyro_meas, c.noise.accel_meas) = (0.0, 0.0)),
+            Ok(())
+        );
+        assert_eq!(
+            vision(|c| c.noise.gyro_meas = f32::NAN),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            vision(|c| c.noise.accel_meas = -1.0),
             Err(InvalidField::NoiseParams)
         );
         assert_eq!(

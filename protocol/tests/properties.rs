@@ -27,7 +27,8 @@ fn model() -> impl Strategy<Value = ModelKind> {
     prop_oneof![
         Just(ModelKind::Gyro),
         Just(ModelKind::Gravity),
-        Just(ModelKind::Acc)
+        Just(ModelKind::Acc),
+        Just(ModelKind::Vision)
     ]
 }
 
@@ -128,6 +129,8 @@ fn host_message() -> impl Strategy<Value = HostToCore> {
                 })
             }),
         Just(HostToCore::Reset),
+        (any::<u64>(), any::<bool>())
+            .prop_map(|(t_us, trigger)| HostToCore::Tick(Tick { t_us, trigger })),
     ]
 }
 

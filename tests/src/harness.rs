@@ -11,7 +11,7 @@ use fusion_core::{Device, Scalar};
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use protocol::{
     Config, CoreToHost, Correspondence, Correspondences, ErrorCode, Hello, HostToCore, ImuSample,
-    Init, Mode, PROTOCOL_VERSION, Status, UpdateOutcome, UpdateReport,
+    Init, Mode, PROTOCOL_VERSION, Status, Tick, UpdateOutcome, UpdateReport,
 };
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -193,7 +193,8 @@ impl<'s, T: Scalar> Driver<'s, T> {
         answers
     }
 
-    /// The next IMU sample of the scenario as a message (not sent).
+    /// The next IMU sample of the scenario as a message (not sent); for the vision-only
+    /// model, a `Tick` at its time instead.
     pub fn next_imu(&mut self) -> HostToCore {
         let sc = self.sc;
         let t = self.k as f64 / sc.imu_rate_hz;
@@ -201,12 +202,20 @@ impl<'s, T: Scalar> Driver<'s, T> {
         let reading = self.imu.read(&truth);
         self.last = Some((truth, reading));
         let f = |v: Vector3<f64>| [v[0] as f32, v[1] as f32, v[2] as f32];
-        let msg = HostToCore::Imu(ImuSample {
-            t_us: t_us(self.k, sc.imu_rate_hz),
-            gyro: f(reading.gyro),
-            accel: f(reading.accel),
-            trigger: self.k.is_multiple_of(sc.camera_every),
-        });
+        let (t_us, trigger) = (
+            t_us(self.k, sc.imu_rate_hz),
+            self.k.is_multiple_of(sc.camera_every),
+        );
+        let msg = if sc.config.model.has_imu() {
+            HostToCore::Imu(ImuSample {
+                t_us,
+                gyro: f(reading.gyro),
+                accel: f(reading.accel),
+                trigger,
+            })
+        } else {
+            HostToCore::Tick(Tick { t_us, trigger })
+        };
         self.k += 1;
         msg
     }
@@ -422,11 +431,18 @@ pub mod scenes {
     }
 
     /// The standard scenario for `model`: hand-held motion in front of the wall, 200 Hz IMU,
-    /// 25 Hz camera (every 8th sample), 60 ms latency, true initial pose given.
+    /// 25 Hz camera (every 8th sample), 60 ms latency, true initial pose given (its position
+    /// and yaw to the inertial models, all of it to vision-only, which ticks at the IMU's
+    /// rate).
     pub fn standard(model: ModelKind, length: f64, accel: f64, seed: u64) -> Scenario {
         let trajectory = handheld(length, 1.0, accel);
         let k0 = trajectory.at(0.0);
         let yaw = k0.q_ws.euler_angles().2;
+        let attitude = if model.has_imu() {
+            InitAttitude::GravityAndYaw(yaw as f32)
+        } else {
+            InitAttitude::Full(q_sw_of(&k0).map(|v| v as f32))
+        };
         Scenario {
             trajectory: Box::new(trajectory),
             imu_rate_hz: 200.0,
@@ -445,7 +461,7 @@ pub mod scenes {
             config: config(model, 200.0, accel),
             init: Init {
                 position: [k0.p_w[0] as f32, k0.p_w[1] as f32, k0.p_w[2] as f32],
-                attitude: InitAttitude::GravityAndYaw(yaw as f32),
+                attitude,
             },
             seed,
         }

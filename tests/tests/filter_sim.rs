@@ -12,7 +12,7 @@ fn mean(v: &[f64]) -> f64 {
 /// Every model converges from a start 14 cm and 9° of yaw off.
 #[test]
 fn each_model_converges_from_a_wrong_initial_state() {
-    for model in ModelKind::ALL {
+    for model in ModelKind::INERTIAL {
         let mut sc = scenes::standard(model, 20.0, 2.0, 1);
         let k0 = sc.trajectory.at(0.0);
         sc.init.position = [
@@ -58,7 +58,7 @@ fn each_model_converges_from_a_wrong_initial_state() {
 /// take the gyro bias from a resting mean, and the start attitude is given.
 #[test]
 fn gyro_and_accelerometer_biases_are_recovered() {
-    for model in ModelKind::ALL {
+    for model in ModelKind::INERTIAL {
         let mut sc = scenes::standard(model, 90.0, 2.0, 4);
         sc.gyro_bias = Vector3::new(0.02, -0.015, 0.01);
         sc.accel_bias = Vector3::new(0.15, -0.1, 0.2);
@@ -96,7 +96,7 @@ fn gyro_and_accelerometer_biases_are_recovered() {
 #[test]
 fn acc_model_predicts_best_under_fast_motion() {
     let mut errs = Vec::new();
-    for model in ModelKind::ALL {
+    for model in ModelKind::INERTIAL {
         let sc = scenes::standard(model, 30.0, 10.0, 2);
         let out = harness::run::<f64>(&sc, |_, _, _| {});
         let (accepted, rejected) = out.accepted_rejected();
@@ -119,7 +119,7 @@ fn acc_model_predicts_best_under_fast_motion() {
 #[test]
 fn with_two_correspondences_only_the_gyro_model_drifts_in_tilt() {
     let mut tilts = Vec::new();
-    for model in ModelKind::ALL {
+    for model in ModelKind::INERTIAL {
         let mut per_seed = Vec::new();
         for seed in [3, 5] {
             let mut sc = scenes::standard(model, 120.0, 0.05, seed);

@@ -54,6 +54,17 @@ fn agree(pc: &CoreToHost, fw: &CoreToHost, tol: f32) -> bool {
 
 #[test]
 fn firmware_under_qemu_agrees_with_the_pc_build() {
+    // The paper's acc model, and the vision-only model on its ticks.
+    for model in [ModelKind::Acc, ModelKind::Vision] {
+        if !agrees_with_the_pc_build(model) {
+            return;
+        }
+    }
+}
+
+/// One session of `model` through the firmware and the PC build; false if the firmware could
+/// not be started (and the test is skipped).
+fn agrees_with_the_pc_build(model: ModelKind) -> bool {
     let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let image = std::env::var_os("FIRMWARE_ELF")
         .map(Into::into)
@@ -64,13 +75,13 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
         Ok(b) => b,
         Err(e) if !required => {
             println!("SKIPPED: {e} (set REQUIRE_FIRMWARE to make this a failure)");
-            return;
+            return false;
         }
         Err(e) => panic!("{e}"),
     };
 
     // The PC build runs the session first; its transcript is replayed into the firmware.
-    let mut sc = scenes::standard(ModelKind::Acc, 6.0, 2.0, 21);
+    let mut sc = scenes::standard(model, 6.0, 2.0, 21);
     sc.config.state_every = 1;
     let mut pc = Driver::<f32>::new(&sc);
     pc.transcript = Some((Vec::new(), Vec::new()));
@@ -127,7 +138,7 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
 
     // The first answer is the HelloAck of the opening Hello (kept by the reader).
     println!(
-        "{} messages in, {} answers from the firmware ({} from the PC build) in {:.1} s",
+        "{model:?}: {} messages in, {} answers from the firmware ({} from the PC build) in {:.1} s",
         sent.len(),
         fw_answers.len(),
         pc_answers.len(),
@@ -159,4 +170,5 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
         worst_state
     );
     assert!(states > 900);
+    true
 }

@@ -42,12 +42,13 @@ fn warmed(model: ModelKind) -> (Params<f32>, Filter<f32>) {
         &Vector3::new(0.05, 0.0, 9.81),
         1,
     );
-    let st = initial_state(
-        &prm,
-        &Vector3::new(0.0, 0.0, 1.0),
-        &InitAttitude::Gravity,
-        &w,
-    );
+    // Vision-only has no gravity: it starts from a full pose.
+    let attitude = if model.has_imu() {
+        InitAttitude::Gravity
+    } else {
+        InitAttitude::Full([1.0, 0.0, 0.0, 0.0])
+    };
+    let st = initial_state(&prm, &Vector3::new(0.0, 0.0, 1.0), &attitude, &w);
     let mut f = Filter::new(st, 0);
     for k in 1..200u64 {
         let s = ImuSample {
@@ -62,6 +63,7 @@ fn warmed(model: ModelKind) -> (Params<f32>, Filter<f32>) {
 
 #[inline(never)]
 fn bench_imu_steps(timer: &Timer) {
+    // Vision-only's step is its tick: the time update alone (the readings are not read).
     for model in ModelKind::ALL {
         let (prm, mut f) = warmed(model);
         let t0 = f.t_us;
@@ -75,7 +77,11 @@ fn bench_imu_steps(timer: &Timer) {
                 let _ = f.imu_step(&prm, &s);
             }
         });
-        hprintln!("BENCH imu_step_{} {}", model.name(), ins / STEPS);
+        if model.has_imu() {
+            hprintln!("BENCH imu_step_{} {}", model.name(), ins / STEPS);
+        } else {
+            hprintln!("BENCH tick_{} {}", model.name(), ins / STEPS);
+        }
     }
 }
 
@@ -93,8 +99,8 @@ fn calibrate(timer: &Timer) {
 }
 
 #[inline(never)]
-fn bench_correspondence(timer: &Timer) {
-    let (prm, f) = warmed(ModelKind::Acc);
+fn bench_correspondence(timer: &Timer, model: ModelKind) {
+    let (prm, f) = warmed(model);
     let pose = fusion_core::state::camera_pose(&f.st, &prm.hand_eye);
     let r_wc = quat::rot(&pose.q_cw).transpose();
     let mut total = 0;
@@ -111,18 +117,29 @@ fn bench_correspondence(timer: &Timer) {
         let (ins, _) = timer.instructions(|| correspondence::update(&mut st, &prm, &obs));
         total += ins;
     }
-    hprintln!("BENCH correspondence_update {}", total / n);
+    if model == ModelKind::Acc {
+        hprintln!("BENCH correspondence_update {}", total / n);
+    } else {
+        hprintln!("BENCH correspondence_update_{} {}", model.name(), total / n);
+    }
 }
 
 /// A session through the device loop, as the host would drive it: handshake, configure, init,
-/// a still second, then 25 Hz frames of 40 correspondences arriving 50 ms late.
+/// a still second, then 25 Hz frames of 40 correspondences arriving 50 ms late. The
+/// vision-only model instead gets a tick per frame (25 Hz, every one a trigger), and each
+/// frame's correspondences before the next tick.
 #[inline(never)]
-fn session(timer: &Timer) {
+fn session(timer: &Timer, model: ModelKind) {
     // SAFETY: the only reference to DEVICE.
     // `&mut DEVICE` directly is refused for `static mut` in edition 2024; go through a raw
     // pointer, once.
     #[allow(clippy::deref_addrof)]
     let io = unsafe { &mut *(&raw mut DEVICE) };
+    // Each session starts from a device just out of reset: all zero bytes, which is what
+    // `DeviceIo::new()` is (that is why the static is in `.bss`). Zeroing it in place needs no
+    // stack copy of the 15 KB device.
+    // SAFETY: `io` is a valid, exclusive reference, and all zero bytes is a valid `DeviceIo`.
+    unsafe { core::ptr::write_bytes(io as *mut DeviceIo<f32>, 0, 1) };
     let mut frame = [0u8; MAX_FRAME_LEN];
     let mut sink = |_: &[u8]| {};
     let mut feed = |io: &mut DeviceIo<f32>, msg: &HostToCore| {
@@ -130,7 +147,11 @@ fn session(timer: &Timer) {
             io.receive(bytes, &mut sink);
         }
     };
-    let mut cfg = config(ModelKind::Acc);
+    let vision = !model.has_imu();
+    let mut cfg = config(model);
+    if vision {
+        cfg.imu_rate_hz = 25.0;
+    }
     cfg.still_samples = 100;
     cfg.state_every = 1;
     cfg.divergence.covariance_frobenius = 100.0;
@@ -143,7 +164,11 @@ fn session(timer: &Timer) {
     feed(io, &HostToCore::Configure(cfg));
     let init = Init {
         position: [0.0, 0.0, 1.0],
-        attitude: InitAttitude::Gravity,
+        attitude: if vision {
+            InitAttitude::Full([1.0, 0.0, 0.0, 0.0])
+        } else {
+            InitAttitude::Gravity
+        },
     };
     feed(io, &HostToCore::Init(init));
     // Camera pose of the resting device, for consistent correspondences.
@@ -155,27 +180,49 @@ fn session(timer: &Timer) {
     let mut imu_total = 0u64;
     let mut imu_count = 0u64;
     let mut pending: Option<(u32, u64, u64)> = None;
+    // (first trigger, samples per frame, samples of latency, sample period [µs])
+    let (first, every, latency, period) = if vision {
+        (1, 1, 0, 40_000)
+    } else {
+        (100, 8, 6, 5000)
+    };
     for k in 0..400u64 {
-        let msg = HostToCore::Imu(protocol::ImuSample {
-            t_us: k * 5000,
-            gyro: [0.0; 3],
-            accel: [0.0, 0.0, 9.81],
-            trigger: k >= 100 && k % 8 == 0,
-        });
+        let trigger = k >= first && (k - first) % every == 0;
+        let msg = if vision {
+            HostToCore::Tick(protocol::Tick {
+                t_us: k * period,
+                trigger,
+            })
+        } else {
+            HostToCore::Imu(protocol::ImuSample {
+                t_us: k * period,
+                gyro: [0.0; 3],
+                accel: [0.0, 0.0, 9.81],
+                trigger,
+            })
+        };
         let (ins, _) = timer.instructions(|| feed(io, &msg));
-        if k >= 100 {
+        if k >= first {
             imu_total += ins;
             imu_count += 1;
         }
-        if k >= 100 && k % 8 == 0 {
-            pending = Some((((k - 100) / 8) as u32, k * 5000, k + 6));
+        if trigger {
+            pending = Some((((k - first) / every) as u32, k * period, k + latency));
         }
         if let Some((frame_id, t_us, due)) = pending
             && due == k
         {
             let mut all = [protocol::samples::correspondence([0.0; 2], [0.0; 3]); 40];
             for (i, c) in all.iter_mut().enumerate() {
-                let p_c = Vector3::new(-0.6 + 0.03 * i as f32, -0.3 + 0.015 * i as f32, 2.0);
+                // The inertial session's points lie on a line (kept so that its figures stay
+                // comparable with earlier ones: gravity makes up the missing directions);
+                // without an IMU they must fix the whole pose: an 8 × 5 grid.
+                let p_c = if vision {
+                    let (u, v) = ((i % 8) as f32, (i / 8) as f32);
+                    Vector3::new(-0.6 + 0.17 * u, -0.4 + 0.2 * v, 2.0)
+                } else {
+                    Vector3::new(-0.6 + 0.03 * i as f32, -0.3 + 0.015 * i as f32, 2.0)
+                };
                 let m_w = pose.c_w + r_wc * p_c;
                 *c = Correspondence {
                     m_n: [p_c.x / p_c.z, p_c.y / p_c.z],
@@ -191,29 +238,37 @@ fn session(timer: &Timer) {
                         timer.instructions(|| feed(io, &HostToCore::Correspondences(part)));
                     frame_total += ins;
                 }
-                hprintln!("BENCH frame_40_correspondences {}", frame_total);
+                if vision {
+                    hprintln!("BENCH frame_40_correspondences_vision {}", frame_total);
+                } else {
+                    hprintln!("BENCH frame_40_correspondences {}", frame_total);
+                }
             }
             pending = None;
         }
     }
     let c = io.device.counters();
-    hprintln!(
-        "BENCH imu_message_through_device {}",
-        imu_total / imu_count.max(1)
-    );
-    hprintln!("BENCH session_accepted {}", c.accepted);
-    hprintln!("BENCH session_mode {:?}", io.device.mode());
+    let (per_message, name) = (imu_total / imu_count.max(1), model.name());
+    if vision {
+        hprintln!("BENCH tick_message_through_device_{} {}", name, per_message);
+    } else {
+        hprintln!("BENCH imu_message_through_device {}", per_message);
+    }
+    hprintln!("BENCH session_accepted_{} {}", name, c.accepted);
+    hprintln!("BENCH session_mode_{} {:?}", name, io.device.mode());
 }
 
 #[entry]
 fn main() -> ! {
     let timer = Timer::start();
     bench_imu_steps(&timer);
-    bench_correspondence(&timer);
+    bench_correspondence(&timer, ModelKind::Acc);
+    bench_correspondence(&timer, ModelKind::Vision);
     calibrate(&timer);
     // Stack of the device loop alone: repaint, run the session, measure.
     stack::paint();
-    session(&timer);
+    session(&timer, ModelKind::Acc);
+    session(&timer, ModelKind::Vision);
     hprintln!("BENCH stack_high_water {}", stack::high_water());
     hprintln!("BENCH static_ram {}", stack::static_ram());
     hprintln!(

@@ -1,8 +1,9 @@
 //! Time update (eq. 7, 12, 15).
 //!
-//! - gyro, gravity (constant velocity): `s ← s + ṡT`, `ṡ ← ṡ + v_s̈ T`
+//! - gyro, gravity, vision (constant velocity): `s ← s + ṡT`, `ṡ ← ṡ + v_s̈ T`
 //! - acc (constant acceleration): `s ← s + ṡT + s̈T²/2`, `ṡ ← ṡ + s̈T`, `s̈ ← s̈ + v`
-//! - all: `q ← exp(−T/2 · ω) ⊙ q`, `ω ← ω + v_ω`, biases random walks.
+//! - all: `q ← exp(−T/2 · ω) ⊙ q`, `ω ← ω + v_ω`, biases random walks (none in vision-only:
+//!   13 states, the first four blocks).
 //!
 //! Process noises are continuous-time white-noise densities; their exact discretisation over
 //! `T` gives the `Q` blocks below (integrated white acceleration / jerk / angular acceleration).
@@ -168,8 +169,14 @@ fn add_process_noise<T: Scalar>(st: &mut State<T>, prm: &Params<T>, dt: T, f_qw:
         let z = T::zero();
         (q2 * dt3 / T::c(3.0), q2 * dt2 * T::c(0.5), z, q2 * dt, z, z)
     };
-    let gb2 = prm.q_gyro_bias * prm.q_gyro_bias * dt;
-    let ab2 = if prm.model == ModelKind::Gyro {
+    // Biases the model lacks get zero (their entries stay zero: no IMU in vision-only, no
+    // accelerometer in the gyro model).
+    let gb2 = if prm.model.has_imu() {
+        prm.q_gyro_bias * prm.q_gyro_bias * dt
+    } else {
+        T::zero()
+    };
+    let ab2 = if matches!(prm.model, ModelKind::Gyro | ModelKind::Vision) {
         T::zero()
     } else {
         prm.q_accel_bias * prm.q_accel_bias * dt

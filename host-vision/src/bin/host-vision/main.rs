@@ -334,7 +334,7 @@ fn eval(a: &EvalArgs) -> Result<Done, Failure> {
             a.scenarios.clone()
         },
         models: if a.filters.is_empty() {
-            protocol::ModelKind::ALL.to_vec()
+            protocol::ModelKind::INERTIAL.to_vec()
         } else {
             a.filters.iter().map(|&f| f.into()).collect()
         },
