@@ -17,7 +17,9 @@ use firmware_sim::board::Precision;
 use firmware_sim::sim::scenario::ScenarioName;
 use host_vision::dataset::Dataset;
 use host_vision::synth::{FrameOptions, SynthOptions};
-use host_vision::track::vision::{FrameJob, StageTimes, Vision, VisionOptions, prediction_pose};
+use host_vision::track::vision::{
+    FrameImage, FrameJob, StageTimes, Vision, VisionOptions, prediction_pose,
+};
 use host_vision::track::{CoreLink, Incoming, LinkSpec};
 use nalgebra::Vector3;
 use protocol::{
@@ -51,7 +53,7 @@ fn jobs(ds: &Dataset) -> Vec<FrameJob> {
             Some(FrameJob {
                 index: f,
                 stamp: ds.frames[f].stamp,
-                image: ds.frames[f].path.clone(),
+                image: FrameImage::File(ds.frames[f].path.clone()),
                 prediction: PosePrediction {
                     frame_id: f as u32,
                     t_us: (ds.imu[k].stamp - ds.imu[0].stamp) / 1000,

@@ -32,16 +32,15 @@ pub enum DatasetError {
     /// The camera calibration could not be read.
     #[error(transparent)]
     Calib(#[from] CalibError),
-    /// A camera folder without `imu0`: tracking needs the IMU until the core has a
-    /// vision-only model.
+    /// An inertial model was asked for on a dataset without `imu0`.
     #[error(
-        "{path}: missing (IMU samples); vision-only tracking without an IMU is not available yet (it needs issue 14's vision-only model in the fusion core); `host-vision frames --images {cam0}` reads the frames"
+        "{path}: missing (IMU samples): the {model} model needs an IMU; `--filter vision` tracks the camera alone"
     )]
     NoImu {
         /// The missing IMU file.
         path: PathBuf,
-        /// The camera folder that is there.
-        cam0: String,
+        /// The model asked for.
+        model: &'static str,
     },
     /// A file's content is unusable.
     #[error("{path}: {what}")]
@@ -85,6 +84,12 @@ pub struct HandEye {
 }
 
 impl HandEye {
+    /// The camera is the sensor: the vision-only model's mount.
+    pub const IDENTITY: HandEye = HandEye {
+        q_cs: UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(1.0, 0.0, 0.0, 0.0)),
+        c_s: Vector3::new(0.0, 0.0, 0.0),
+    };
+
     /// From EuRoC's `T_BS` of the camera (camera → body, the body being the IMU).
     pub fn from_t_bs(t: &nalgebra::Matrix4<f64>) -> Option<Self> {
         let r_sc: Matrix3<f64> = t.fixed_view::<3, 3>(0, 0).into_owned();
@@ -158,7 +163,8 @@ struct ImuYaml {
 }
 
 impl Dataset {
-    /// Opens `root` (the folder holding `mav0/`).
+    /// Opens `root` (the folder holding `mav0/`). A folder with `cam0` and no `imu0` opens
+    /// without IMU samples ([`Self::has_imu`] is false): only the vision-only model tracks it.
     pub fn open(root: &Path) -> Result<Self, DatasetError> {
         if root.is_file() {
             return Err(DatasetError::Invalid {
@@ -174,16 +180,38 @@ impl Dataset {
         }
         let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
         let imu_csv = mav0.join("imu0/data.csv");
-        if !imu_csv.exists() && mav0.join("cam0/data.csv").exists() {
-            return Err(DatasetError::NoImu {
-                path: imu_csv,
-                cam0: mav0.join("cam0").display().to_string(),
-            });
-        }
-        let imu_csv = require(imu_csv, "IMU samples")?;
         let cam_dir = require(mav0.join("cam0"), "camera folder")?;
         let cam_yaml = require(cam_dir.join("sensor.yaml"), "camera calibration")?;
         let cam_csv = require(cam_dir.join("data.csv"), "camera frame list")?;
+        let camera = read_euroc_sensor_yaml(&cam_yaml)?;
+        let frames = read_frame_list(&cam_csv, &cam_dir.join("data"))?;
+        let gt_path = mav0.join("state_groundtruth_estimate0/data.csv");
+        let groundtruth = if gt_path.exists() {
+            Some(euroc::read_groundtruth_csv(&gt_path)?)
+        } else {
+            None
+        };
+        let model = Some(root.join("model/scene.obj")).filter(|p| p.exists());
+        if !imu_csv.exists() {
+            // The camera alone: its pose is the filter's (no mount), unless T_BS relates it to
+            // a ground truth of the body.
+            let hand_eye = camera
+                .extrinsics
+                .as_ref()
+                .and_then(HandEye::from_t_bs)
+                .unwrap_or(HandEye::IDENTITY);
+            return Ok(Dataset {
+                root: root.to_owned(),
+                imu: Vec::new(),
+                imu_rate_hz: camera.rate_hz.unwrap_or(0.0),
+                imu_noise: None,
+                camera,
+                hand_eye,
+                frames,
+                groundtruth,
+                model,
+            });
+        }
 
         let imu = euroc::read_imu_csv(&imu_csv)?;
         if imu.len() < 2 {
@@ -231,7 +259,6 @@ impl Dataset {
             .filter(|r| r.is_finite() && *r > 0.0)
             .unwrap_or(1.0 / median_dt);
 
-        let camera = read_euroc_sensor_yaml(&cam_yaml)?;
         let hand_eye = camera
             .extrinsics
             .as_ref()
@@ -245,15 +272,6 @@ impl Dataset {
                     what: "T_BS is not a rigid transform".into(),
                 })
             })?;
-        let frames = read_frame_list(&cam_csv, &cam_dir.join("data"))?;
-
-        let gt_path = mav0.join("state_groundtruth_estimate0/data.csv");
-        let groundtruth = if gt_path.exists() {
-            Some(euroc::read_groundtruth_csv(&gt_path)?)
-        } else {
-            None
-        };
-        let model = Some(root.join("model/scene.obj")).filter(|p| p.exists());
         Ok(Dataset {
             root: root.to_owned(),
             imu,
@@ -265,6 +283,33 @@ impl Dataset {
             groundtruth,
             model,
         })
+    }
+
+    /// A video or image folder at `root` seen by `camera`: no IMU, no ground truth, and the
+    /// frames come from the frame source as they are decoded (so the list is empty).
+    pub fn frames_only(root: &Path, camera: crate::camera::Camera) -> Self {
+        Dataset {
+            root: root.to_owned(),
+            imu: Vec::new(),
+            imu_rate_hz: 0.0,
+            imu_noise: None,
+            camera: CameraCalib {
+                name: root.display().to_string(),
+                camera,
+                extrinsics: None,
+                rate_hz: None,
+                timeshift_cam_imu: None,
+            },
+            hand_eye: HandEye::IDENTITY,
+            frames: Vec::new(),
+            groundtruth: None,
+            model: None,
+        }
+    }
+
+    /// Whether the dataset has IMU samples (the inertial models need them).
+    pub fn has_imu(&self) -> bool {
+        !self.imu.is_empty()
     }
 
     /// Index of the IMU sample that triggered each frame (the nearest within half a sample
@@ -393,7 +438,7 @@ mod tests {
         std::fs::write(dir.path().join("mav0/cam0/data.csv"), "1,a.png\n").unwrap();
         let err = Dataset::open(dir.path()).unwrap_err().to_string();
         assert!(
-            err.contains("/mav0/imu0/data.csv: missing (IMU samples); vision-only tracking without an IMU is not available yet"),
+            err.ends_with("/mav0/cam0/sensor.yaml: missing (camera calibration)"),
             "{err}"
         );
         let file = dir.path().join("manifest.json");

@@ -19,6 +19,10 @@ use crate::backproject::backproject;
 use crate::camera::Gray32FImage;
 use crate::render::{Frame, RenderView};
 
+/// Smallest extraction cell [px]: the registration window is 15 px wide, and features closer
+/// than about a window share most of their pixels.
+pub const MIN_CELL_SIZE: usize = 12;
+
 /// Map management parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapConfig {
@@ -229,9 +233,21 @@ impl FeatureMap {
         visible.len() < self.config.min_visible
     }
 
+    /// The extraction grid for a rendering: the configured cells, or smaller ones for a model
+    /// that covers little of the image (a small object, or one far away), so that its mask
+    /// still holds about twice `min_visible` cells (down to [`MIN_CELL_SIZE`]).
+    pub fn grid_for(&self, mask: &image::GrayImage) -> GridConfig {
+        let model_px = mask.pixels().filter(|p| p.0[0] > 0).count() as f64;
+        let wanted = 2.0 * self.config.min_visible.max(1) as f64;
+        let side = (model_px / wanted).sqrt().floor() as usize;
+        let mut grid = self.config.grid;
+        grid.cell_size = grid.cell_size.min(side.max(MIN_CELL_SIZE));
+        grid
+    }
+
     /// Extracts FAST corners in the free cells of a rendering (cells not holding one of
-    /// `occupied`, on the model's mask), back-projects them through the depth buffer and adds
-    /// them. Returns the new ids.
+    /// `occupied`, on the model's mask; [`Self::grid_for`]), back-projects them through the
+    /// depth buffer and adds them. Returns the new ids.
     pub fn add_from_rendering(
         &mut self,
         frame: &Frame,
@@ -239,7 +255,8 @@ impl FeatureMap {
         frame_index: u64,
     ) -> Result<Vec<u64>, ImageError> {
         let mask = Mask::from_gray8(&frame.mask)?;
-        let corners = grid::extract(&frame.gray, Some(&mask), occupied, &self.config.grid)?;
+        let grid = self.grid_for(&frame.mask);
+        let corners = grid::extract(&frame.gray, Some(&mask), occupied, &grid)?;
         let mut ids = Vec::with_capacity(corners.len());
         for c in corners {
             let Some(z) = frame.depth_at(c.x, c.y) else {

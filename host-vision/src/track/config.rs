@@ -128,6 +128,35 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
     }
 }
 
+/// Peak acceleration [m/s²] of the camera relative to an object held and turned in a hand, the
+/// default for a video or image folder: a hand turns an object at up to about 12 rad/s² (a
+/// quarter turn in half a second), which, seen from 0.4 m, moves the camera in the object's
+/// frame at about 5 m/s²; a push across a desk is slower (1-2 m/s²).
+pub const OBJECT_IN_HAND_ACCEL: f64 = 5.0;
+
+/// Angular-acceleration noise density [rad/s²/√Hz] of an object turned by hand: about
+/// 12 rad/s² held for about a quarter of a second, `12 · √0.25`.
+pub const OBJECT_IN_HAND_ANGULAR_NOISE: f64 = 6.0;
+
+/// The `Configure` message of the vision-only model for a camera at `camera_rate_hz`: the
+/// constant-velocity motion noise of the inertial models' rule (white acceleration of
+/// `1.5 ×` the expected peak acceleration, white angular acceleration as tuned), no mount (the
+/// camera is the sensor), and the clock of its ticks: one at each frame and one just after it,
+/// so twice the frame rate.
+pub fn vision_config(dataset: &Dataset, camera_rate_hz: f64, tuning: &CoreTuning) -> Config {
+    let mut c = core_config(dataset, ModelKind::Vision, tuning);
+    c.noise.gyro_meas = 0.0;
+    c.noise.accel_meas = 0.0;
+    c.noise.gyro_bias_walk = 0.0;
+    c.noise.accel_bias_walk = 0.0;
+    c.hand_eye = crate::dataset::HandEye::IDENTITY.to_wire();
+    c.camera_rate_hz = camera_rate_hz as f32;
+    c.imu_rate_hz = (2.0 * camera_rate_hz) as f32;
+    c.still_samples = 1;
+    c.state_every = 1;
+    c
+}
+
 /// Checks the correspondences' latency against what the core advertised in `HelloAck`: it
 /// keeps a frame's snapshot only so long, and refuses later correspondences as too old. (The
 /// host's own rule, below one frame period, is stricter today; this guards a core with fewer

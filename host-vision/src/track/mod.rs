@@ -12,12 +12,14 @@
 //! - **real time** ([`Pacing::RealTime`]): IMU samples paced by the clock, correspondences sent
 //!   as soon as the worker has them.
 
+pub mod assess;
 pub mod config;
 pub mod core;
 pub mod output;
 pub mod overlay;
 pub mod plot;
 pub mod vision;
+mod vision_only;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
@@ -34,13 +36,14 @@ use protocol::{
 use rand::rngs::StdRng;
 use rand::{RngExt as _, SeedableRng};
 
+pub use self::assess::{Assessment, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
 pub use self::output::{FrameRow, Summary};
-pub use self::vision::{FrameJob, FrameResult, Vision, VisionOptions};
+pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 
 use crate::camera::{CalibError, CameraError};
-use crate::dataset::{Dataset, DatasetError};
+use crate::dataset::{Dataset, DatasetError, HandEye};
 use crate::features::ImageError;
 use crate::model::ModelError;
 use crate::out_folder::OutFolder;
@@ -104,6 +107,9 @@ pub enum TrackError {
     /// The output folder cannot be used.
     #[error(transparent)]
     OutFolder(#[from] crate::out_folder::OutFolderError),
+    /// The frames of a video, camera or image folder could not be read.
+    #[error(transparent)]
+    Frames(#[from] crate::frames::FrameError),
     /// Ctrl-C before any IMU sample was sent: nothing was tracked, nothing written.
     #[error("interrupted before tracking began: nothing written")]
     Interrupted,
@@ -198,6 +204,13 @@ pub struct TrackOptions {
     pub timeout: Duration,
     /// Replace the outputs of an earlier run in `out` (otherwise they are refused).
     pub overwrite: bool,
+    /// Frames from a video, camera or image folder instead of the dataset's (vision-only;
+    /// `dataset` is then that input, for reports).
+    pub frames: Option<crate::frames::FrameInput>,
+    /// The camera of `frames` (its intrinsics), or instead of the dataset's.
+    pub camera: Option<crate::camera::Camera>,
+    /// Stop after this many frames (vision-only; a live camera never ends by itself).
+    pub max_frames: Option<usize>,
 }
 
 impl TrackOptions {
@@ -219,13 +232,38 @@ impl TrackOptions {
             faults: Faults::default(),
             timeout: Duration::from_secs(10),
             overwrite: false,
+            frames: None,
+            camera: None,
+            max_frames: None,
         }
+    }
+
+    /// Whether this run is vision-only (no IMU samples are sent).
+    pub fn vision_only(&self) -> bool {
+        !self.filter.has_imu()
     }
 
     /// Checks every option against the dataset before anything is started, naming the
     /// command-line flag of a bad one. Returns how many IMU samples will be streamed.
     pub fn check(&self, dataset: &Dataset) -> Result<usize, TrackError> {
         let bad = |m: String| Err(TrackError::Option(m));
+        self.check_common()?;
+        if self.vision_only() {
+            return self.check_vision(dataset).map(|()| 0);
+        }
+        if !dataset.has_imu() {
+            return Err(DatasetError::NoImu {
+                path: dataset.root.join("mav0/imu0/data.csv"),
+                model: self.filter.name(),
+            }
+            .into());
+        }
+        if self.frames.is_some() {
+            return bad(format!(
+                "--video and --images have no IMU: track them with --filter vision, not {}",
+                self.filter.name()
+            ));
+        }
         let stamp0 = dataset.imu[0].stamp;
         let data_s = (dataset.imu[dataset.imu.len() - 1].stamp - stamp0) as f64 / 1e9;
         let still = self.tuning.still_seconds;
@@ -264,36 +302,12 @@ impl TrackOptions {
                 self.latency
             ));
         }
-        if self.vision.map.subset_size == 0 {
-            return bad("--features must be at least 1".into());
-        }
-        let f = &self.faults;
-        if !(0.0..=1.0).contains(&f.outlier_fraction) {
-            return bad(format!(
-                "--outliers must be a fraction in [0, 1], got {}",
-                f.outlier_fraction
-            ));
-        }
-        if let Some(t) = f.corrupt_from
+        if let Some(t) = self.faults.corrupt_from
             && !(t.is_finite() && (0.0..tracked_s).contains(&t))
         {
             return bad(format!(
                 "--corrupt-at counts seconds from the dataset's first IMU sample and must lie in the tracked span [0, {tracked_s:.2}) s, got {t}"
             ));
-        }
-        let positive = |flag: &str, v: f64, unit: &str| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(TrackError::Option(format!(
-                    "{flag} must be a positive number [{unit}], got {v}"
-                )))
-            }
-        };
-        positive("--expected-accel", self.tuning.expected_accel, "m/s²")?;
-        positive("--angular-noise", self.tuning.angular_noise, "rad/s²/√Hz")?;
-        if let Some(a) = self.tuning.accel_noise {
-            positive("--accel-meas-noise", a, "m/s²")?;
         }
         if let Some(p) = self.start.position
             && !p.iter().all(|c| c.is_finite())
@@ -324,6 +338,71 @@ impl TrackOptions {
             );
         }
         Ok(end)
+    }
+
+    /// The checks of every model: features, faults, noise settings.
+    fn check_common(&self) -> Result<(), TrackError> {
+        let bad = |m: String| Err(TrackError::Option(m));
+        if self.vision.map.subset_size == 0 {
+            return bad("--features must be at least 1".into());
+        }
+        let f = &self.faults;
+        if !(0.0..=1.0).contains(&f.outlier_fraction) {
+            return bad(format!(
+                "--outliers must be a fraction in [0, 1], got {}",
+                f.outlier_fraction
+            ));
+        }
+        let positive = |flag: &str, v: f64, unit: &str| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(TrackError::Option(format!(
+                    "{flag} must be a positive number [{unit}], got {v}"
+                )))
+            }
+        };
+        positive("--expected-accel", self.tuning.expected_accel, "m/s²")?;
+        positive("--angular-noise", self.tuning.angular_noise, "rad/s²/√Hz")?;
+        if let Some(a) = self.tuning.accel_noise {
+            positive("--accel-meas-noise", a, "m/s²")?;
+        }
+        Ok(())
+    }
+
+    /// The vision-only run's checks: a whole start pose, and what its frames allow.
+    fn check_vision(&self, dataset: &Dataset) -> Result<(), TrackError> {
+        let bad = |m: String| Err(TrackError::Option(m));
+        if let Some(d) = self.duration
+            && !(d.is_finite() && d > 0.0)
+        {
+            return bad(format!(
+                "--duration must be a positive number of seconds, got {d}"
+            ));
+        }
+        if self.max_frames == Some(0) {
+            return bad("--max-frames must be at least 1".into());
+        }
+        if let Some(t) = self.faults.corrupt_from
+            && !(t.is_finite() && t >= 0.0)
+        {
+            return bad(format!(
+                "--corrupt-at counts seconds from the first frame and must be at least 0, got {t}"
+            ));
+        }
+        if self.start.position.is_some() || self.start.yaw.is_some() {
+            return bad(
+                "the vision-only model has no gravity for roll and pitch: give the whole start pose with --start-pose, not --start-position/--start-yaw"
+                    .into(),
+            );
+        }
+        if self.start.pose.is_none() && dataset.groundtruth.is_none() {
+            return bad(format!(
+                "{}: no ground truth to start from: give the camera's pose in the first frame with --start-pose (cMo JSON or a TUM line)",
+                dataset.root.display()
+            ));
+        }
+        Ok(())
     }
 }
 
@@ -391,18 +470,38 @@ pub fn run(
     interrupt: Arc<AtomicBool>,
     progress: Progress,
 ) -> Result<TrackRun, TrackError> {
-    let dataset = Dataset::open(&options.dataset)?;
+    let dataset = vision_only::open_dataset(options)?;
     let end = options.check(&dataset)?;
     let model_path = options
         .model
         .clone()
         .or_else(|| dataset.model.clone())
         .ok_or_else(|| {
-            TrackError::Option(format!(
-                "{}: no model/scene.obj in the dataset; give the model with --model",
-                dataset.root.display()
-            ))
+            TrackError::Option(if options.frames.is_some() {
+                format!(
+                    "{}: give the object's textured model with --model (OBJ or glTF)",
+                    dataset.root.display()
+                )
+            } else {
+                format!(
+                    "{}: no model/scene.obj in the dataset; give the model with --model",
+                    dataset.root.display()
+                )
+            })
         })?;
+    // Vision-only frames: a video, camera or image folder, or the dataset's own cam0 (its IMU
+    // withheld, or absent). Opened before anything is started: a bad input fails first.
+    let mut frames = match (&options.frames, options.vision_only()) {
+        (Some(input), _) => Some(input.open(&crate::frames::VideoOptions::default())?),
+        (None, true) => Some(
+            crate::frames::FrameInput::Images {
+                dir: dataset.root.join("mav0/cam0"),
+                fps: None,
+            }
+            .open(&crate::frames::VideoOptions::default())?,
+        ),
+        (None, false) => None,
+    };
     let mut out = OutFolder::prepare(
         &options.out,
         &output::OUTPUTS.map(String::from),
@@ -421,6 +520,13 @@ pub fn run(
     let mut session = Session {
         options,
         dataset: &dataset,
+        core_hand_eye: if options.vision_only() {
+            HandEye::IDENTITY
+        } else {
+            dataset.hand_eye
+        },
+        clock: Vec::new(),
+        assessments: BTreeMap::new(),
         log: CoreLog::default(),
         results: Vec::new(),
         frame_errors: Vec::new(),
@@ -431,7 +537,10 @@ pub fn run(
         wall: Instant::now(),
         axes: ready.axes,
     };
-    let outcome = session.drive(&mut link, &worker, end, &interrupt, progress);
+    let outcome = match frames.as_mut() {
+        Some(source) => session.drive_vision(&mut link, &worker, source, &interrupt, progress),
+        None => session.drive(&mut link, &worker, end, &interrupt, progress),
+    };
     worker.stop();
     let closed = link.close();
     if session.streamed == 0 {
@@ -473,9 +582,24 @@ pub fn run(
 /// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
 /// return leaves the renderer to be torn down by the process's exit.
 struct VisionWorker {
-    jobs: Option<Sender<FrameJob>>,
-    results: Receiver<Result<FrameResult, TrackError>>,
+    jobs: Option<Sender<WorkerJob>>,
+    results: Receiver<WorkerDone>,
     handle: Option<std::thread::JoinHandle<()>>,
+}
+
+/// What the vision thread is asked to do.
+enum WorkerJob {
+    /// Analyse a frame.
+    Frame(FrameJob),
+    /// Judge the last analysed frame at the pose estimated with its update, over the
+    /// correspondences the core applied.
+    Assess(crate::camera::CameraPose, Vec<bool>),
+}
+
+/// What the vision thread answers, in the order of the jobs.
+enum WorkerDone {
+    Frame(Box<Result<FrameResult, TrackError>>),
+    Assess(Result<Assessment, TrackError>),
 }
 
 impl VisionWorker {
@@ -485,8 +609,8 @@ impl VisionWorker {
         model_path: PathBuf,
         options: VisionOptions,
     ) -> Result<(Self, Ready), TrackError> {
-        let (job_tx, job_rx) = channel::<FrameJob>();
-        let (res_tx, res_rx) = channel::<Result<FrameResult, TrackError>>();
+        let (job_tx, job_rx) = channel::<WorkerJob>();
+        let (res_tx, res_rx) = channel::<WorkerDone>();
         let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
         let handle = std::thread::Builder::new()
             .name("vision".into())
@@ -503,21 +627,55 @@ impl VisionWorker {
         Ok((worker, ready))
     }
 
-    fn send(&self, job: FrameJob) -> Result<(), TrackError> {
+    fn send_job(&self, job: WorkerJob) -> Result<(), TrackError> {
         self.jobs
             .as_ref()
             .and_then(|j| j.send(job).ok())
             .ok_or_else(|| TrackError::Vision("the vision thread stopped".into()))
     }
 
+    fn send(&self, job: FrameJob) -> Result<(), TrackError> {
+        self.send_job(WorkerJob::Frame(job))
+    }
+
+    fn stopped() -> TrackError {
+        TrackError::Vision("the vision thread stopped".into())
+    }
+
     fn recv(&self) -> Result<Result<FrameResult, TrackError>, TrackError> {
-        self.results
-            .recv()
-            .map_err(|_| TrackError::Vision("the vision thread stopped".into()))
+        match self.results.recv() {
+            Ok(WorkerDone::Frame(r)) => Ok(*r),
+            Ok(WorkerDone::Assess(_)) => Err(TrackError::Vision(
+                "the vision thread answered out of order".into(),
+            )),
+            Err(_) => Err(Self::stopped()),
+        }
     }
 
     fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
-        self.results.try_recv().ok()
+        match self.results.try_recv().ok()? {
+            WorkerDone::Frame(r) => Some(*r),
+            WorkerDone::Assess(_) => Some(Err(TrackError::Vision(
+                "the vision thread answered out of order".into(),
+            ))),
+        }
+    }
+
+    /// Judges the last analysed frame at `pose` over the correspondences `applied` (no frame
+    /// may be in flight).
+    fn assess(
+        &self,
+        pose: crate::camera::CameraPose,
+        applied: Vec<bool>,
+    ) -> Result<Assessment, TrackError> {
+        self.send_job(WorkerJob::Assess(pose, applied))?;
+        match self.results.recv() {
+            Ok(WorkerDone::Assess(r)) => r,
+            Ok(WorkerDone::Frame(_)) => Err(TrackError::Vision(
+                "the vision thread answered out of order".into(),
+            )),
+            Err(_) => Err(Self::stopped()),
+        }
     }
 
     /// Ends the thread (it returns once its job channel is closed) and waits for it.
@@ -539,8 +697,8 @@ fn vision_worker(
     camera: crate::camera::Camera,
     model_path: PathBuf,
     options: VisionOptions,
-    jobs: Receiver<FrameJob>,
-    results: Sender<Result<FrameResult, TrackError>>,
+    jobs: Receiver<WorkerJob>,
+    results: Sender<WorkerDone>,
     ready: Sender<Result<Ready, TrackError>>,
 ) {
     let setup = || -> Result<(Vision, Ready), TrackError> {
@@ -564,7 +722,11 @@ fn vision_worker(
     };
     // Ends when the session drops its sender.
     while let Ok(job) = jobs.recv() {
-        if results.send(vision.process(job)).is_err() {
+        let done = match job {
+            WorkerJob::Frame(job) => WorkerDone::Frame(Box::new(vision.process(job))),
+            WorkerJob::Assess(pose, applied) => WorkerDone::Assess(vision.assess(&pose, &applied)),
+        };
+        if results.send(done).is_err() {
             return;
         }
     }
@@ -604,6 +766,14 @@ struct Pending {
 pub struct Session<'a> {
     options: &'a TrackOptions,
     dataset: &'a Dataset,
+    /// The mount the core was configured with: the dataset's, or none (the camera is the
+    /// sensor) in vision-only runs.
+    pub core_hand_eye: HandEye,
+    /// Time stamp [ns, the input's clock] of every clock message sent, in order: the IMU
+    /// samples, or the vision-only ticks.
+    pub clock: Vec<u64>,
+    /// Per frame id, the vision-only frame's judgement at the pose estimated with its update.
+    pub assessments: BTreeMap<u32, Assessment>,
     /// What the core said.
     pub log: CoreLog,
     /// Frame results with the id the core gave them.
@@ -768,6 +938,7 @@ impl Session<'_> {
                 accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
                 trigger: frame.is_some(),
             }))?;
+            self.clock.push(row.stamp);
             self.streamed = k + 1;
             if let Some(f) = frame {
                 if lock_step {
@@ -794,7 +965,7 @@ impl Session<'_> {
                     let job = FrameJob {
                         index: f,
                         stamp: ds.frames[f].stamp,
-                        image: ds.frames[f].path.clone(),
+                        image: FrameImage::File(ds.frames[f].path.clone()),
                         prediction: p,
                         keep_image: every > 0 && f % every == 0,
                         omega_c,

@@ -12,7 +12,7 @@ use serde::Serialize;
 use firmware_sim::board::BoardReport;
 
 use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose};
-use crate::dataset::Dataset;
+use crate::dataset::{Dataset, HandEye};
 
 /// What a run writes into its output folder (files and folders).
 pub const OUTPUTS: [&str; 7] = [
@@ -69,6 +69,26 @@ pub struct FrameRow {
     pub klt_ms: f64,
     /// Whole frame [ms].
     pub total_ms: f64,
+    /// Reprojection rms [px] of the registered features at the pose estimated with this
+    /// frame (vision-only runs; [`super::assess`]).
+    pub rms_px: Option<f64>,
+    /// Rendered-vs-live correlation over the model's mask at that pose (vision-only runs).
+    pub ncc: Option<f64>,
+    /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
+    pub tracked: Option<bool>,
+}
+
+/// How many frames a vision-only run tracked ([`super::TrackedRule`]).
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct TrackedShare {
+    /// Frames judged.
+    pub frames: usize,
+    /// Of them tracked.
+    pub tracked: usize,
+    /// `tracked / frames`.
+    pub share: f64,
+    /// The rule.
+    pub rule: super::TrackedRule,
 }
 
 /// Accuracy against ground truth.
@@ -211,6 +231,10 @@ pub struct Summary {
     pub accuracy: Option<Accuracy>,
     /// Time of the first accepted update [s].
     pub snapped_on_at: Option<f64>,
+    /// Whether the core had IMU samples (false: the vision-only model, on ticks alone).
+    pub imu_used: bool,
+    /// Frames judged tracked by the rendered-vs-live check (vision-only runs), and the rule.
+    pub tracked: Option<TrackedShare>,
     /// Divergences and re-initialisations.
     pub divergences: Vec<Event>,
     /// Stretches after snap-on without vision (dead reckoning), `[start, end]` [s].
@@ -238,7 +262,17 @@ impl fmt::Display for Summary {
             None => "n/a".into(),
         };
         writeln!(f, "dataset      {}", self.dataset)?;
-        writeln!(f, "model        {}   link {}", self.model, self.link)?;
+        writeln!(
+            f,
+            "model        {}{}   link {}",
+            self.model,
+            if self.imu_used {
+                ""
+            } else {
+                " (vision-only: no IMU used)"
+            },
+            self.link
+        )?;
         writeln!(f, "renderer     {}", self.adapter)?;
         writeln!(
             f,
@@ -286,6 +320,18 @@ impl fmt::Display for Summary {
                 writeln!(f, "accuracy     n/a (tracking never started)")?
             }
             None => writeln!(f, "accuracy     n/a (the dataset has no ground truth)")?,
+        }
+        if let Some(t) = &self.tracked {
+            writeln!(
+                f,
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}",
+                t.tracked,
+                t.frames,
+                100.0 * t.share,
+                t.rule.max_rms_px,
+                t.rule.min_features,
+                t.rule.min_ncc
+            )?;
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
@@ -410,16 +456,25 @@ pub struct StateError {
     pub attitude_deg: f64,
 }
 
-/// [`StateError`] of a state report at `stamp`; `None` without ground truth there.
+/// [`StateError`] of a state report at `stamp` from a core configured with the mount
+/// `core_he` (the dataset's, or none in vision-only runs, whose state is the camera's); `None`
+/// without ground truth there.
 pub fn state_errors(
     dataset: &Dataset,
+    core_he: &HandEye,
     stamp: u64,
     s: &protocol::StateReport,
 ) -> Option<StateError> {
     let (p_true, q_true) = dataset.groundtruth_at(stamp)?;
     let (c_true, _) = dataset.hand_eye.camera_pose(&p_true, &q_true);
-    let (c_est, _) = camera_of_state(s, &dataset.hand_eye);
-    let (_, q_ws_est) = state_pose(s);
+    let (c_est, q_wc_est) = camera_of_state(s, core_he);
+    // The IMU's orientation: the state's own, or, for a camera state, through the mount
+    // (q_ws = q_wc q_cs).
+    let q_ws_est = if *core_he == dataset.hand_eye {
+        state_pose(s).1
+    } else {
+        q_wc_est * dataset.hand_eye.q_cs
+    };
     let (r0, p0, y0) = q_true.euler_angles();
     let (r1, p1, y1) = q_ws_est.euler_angles();
     let euler = [
@@ -454,17 +509,19 @@ pub(super) fn write_all(
 ) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
     let out = &options.out;
     let log = &session.log;
-    let stamp0 = dataset.imu[0].stamp;
+    let stamp0 = session.clock.first().copied().unwrap_or(0);
     let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
     let mut written = Vec::new();
 
-    // Trajectories.
+    // Trajectories (the states through the core's mount, the ground truth through the
+    // dataset's).
+    let core_he = session.core_hand_eye;
     let he = dataset.hand_eye;
     let path = out.join("trajectory.tum");
     write_tum(
         &path,
         log.states.iter().map(|s| {
-            let (c, q) = camera_of_state(s, &he);
+            let (c, q) = camera_of_state(s, &core_he);
             (stamp_of(s.t_us), c, q)
         }),
     )?;
@@ -483,11 +540,13 @@ pub(super) fn write_all(
         let path = out.join("groundtruth.tum");
         write_tum(
             &path,
-            dataset.imu[..session.streamed].iter().filter_map(|r| {
-                let (p, q) = dataset.groundtruth_at(r.stamp)?;
-                let (c, q_cw) = he.camera_pose(&p, &q);
-                Some((r.stamp, c, q_cw.inverse()))
-            }),
+            session.clock[..session.streamed]
+                .iter()
+                .filter_map(|&stamp| {
+                    let (p, q) = dataset.groundtruth_at(stamp)?;
+                    let (c, q_cw) = he.camera_pose(&p, &q);
+                    Some((stamp, c, q_cw.inverse()))
+                }),
         )?;
         written.push(path);
     }
@@ -504,7 +563,12 @@ pub(super) fn write_all(
             let (c, _) = super::vision::camera_in_world(p)?;
             Some((c - c_true).norm())
         });
+        let judged = session.assessments.get(frame_id);
+        let rule = super::TrackedRule::default();
         rows.push(FrameRow {
+            rms_px: judged.and_then(|a| a.rms_px),
+            ncc: judged.and_then(|a| a.ncc),
+            tracked: judged.map(|a| rule.holds(a)),
             index: r.job.index,
             t: seconds(p.t_us),
             frame_id: *frame_id,
@@ -530,14 +594,14 @@ pub(super) fn write_all(
         let e = io(&path);
         writeln!(
             w,
-            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms"
+            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,rms_px,ncc,tracked"
         )
         .map_err(&e)?;
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
         for r in &rows {
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -554,7 +618,12 @@ pub(super) fn write_all(
                 r.render_ms,
                 r.pyramids_ms,
                 r.klt_ms,
-                r.total_ms
+                r.total_ms,
+                o(r.rms_px),
+                o(r.ncc),
+                r.tracked
+                    .map(|t| if t { "1" } else { "0" })
+                    .unwrap_or_default()
             )
             .map_err(&e)?;
         }
@@ -606,7 +675,7 @@ pub(super) fn write_all(
         .states
         .iter()
         .filter_map(|s| {
-            let e = state_errors(dataset, stamp_of(s.t_us), s)?;
+            let e = state_errors(dataset, &core_he, stamp_of(s.t_us), s)?;
             Some((seconds(s.t_us), e))
         })
         .collect();
@@ -639,7 +708,8 @@ pub(super) fn write_all(
     let duration_s = session
         .streamed
         .checked_sub(1)
-        .map_or(0.0, |k| (dataset.imu[k].stamp - stamp0) as f64 / 1e9);
+        .and_then(|k| session.clock.get(k))
+        .map_or(0.0, |&stamp| (stamp - stamp0) as f64 / 1e9);
     let summary = Summary {
         dataset: dataset.root.display().to_string(),
         model: format!("{:?}", options.filter).to_lowercase(),
@@ -663,6 +733,17 @@ pub(super) fn write_all(
         median_prediction_error_px: median(errors_px),
         accuracy,
         snapped_on_at,
+        imu_used: !options.vision_only(),
+        tracked: (!session.assessments.is_empty()).then(|| {
+            let judged: Vec<bool> = rows.iter().filter_map(|r| r.tracked).collect();
+            let tracked = judged.iter().filter(|&&t| t).count();
+            TrackedShare {
+                frames: judged.len(),
+                tracked,
+                share: tracked as f64 / judged.len().max(1) as f64,
+                rule: super::TrackedRule::default(),
+            }
+        }),
         divergences,
         without_vision,
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),

@@ -1,6 +1,7 @@
 //! Overlay images: the undistorted live image with registered features as green crosses,
-//! failed ones as red crosses at their predicted position, and the model's axes drawn from the
-//! pose the core predicted (the augmentation an AR display would show at that instant).
+//! failed ones as red crosses at their predicted position, and the model's outline (yellow)
+//! and axes drawn from the pose the core predicted (the augmentation an AR display would show
+//! at that instant).
 
 use std::path::{Path, PathBuf};
 
@@ -14,6 +15,7 @@ use crate::dataset::Dataset;
 
 const GREEN: Rgb<u8> = Rgb([40, 230, 40]);
 const RED: Rgb<u8> = Rgb([240, 40, 40]);
+const OUTLINE: Rgb<u8> = Rgb([250, 220, 40]);
 const AXES: [Rgb<u8>; 3] = [Rgb([255, 60, 60]), Rgb([60, 255, 60]), Rgb([80, 140, 255])];
 
 /// Display scale of the overlays (small sensor images are hard to read at 1:1).
@@ -63,6 +65,17 @@ pub fn draw(result: &FrameResult, camera: &Camera, axes: (Vector3<f64>, f64)) ->
     let s = SCALE as f64;
     // Pixel centres: source (u, v) covers [sU, sU + s) in the scaled image.
     let at = |p: [f64; 2]| [(p[0] + 0.5) * s - 0.5, (p[1] + 0.5) * s - 0.5];
+    // The model's outline where the core predicted it.
+    for &[x, y] in &result.outline {
+        let p = at([f64::from(x), f64::from(y)]);
+        put(&mut img, p[0].round() as i64, p[1].round() as i64, OUTLINE);
+        put(
+            &mut img,
+            p[0].round() as i64 + 1,
+            p[1].round() as i64,
+            OUTLINE,
+        );
+    }
     for f in &result.features {
         match f.registered {
             Ok(p) => cross(&mut img, at(p), 4.0, GREEN),

@@ -19,6 +19,7 @@ use crate::model::Model;
 use crate::render::{RenderView, Renderer};
 
 use super::TrackError;
+use super::assess::{Assessment, masked_ncc, reprojection_rms};
 
 /// Image-analysis parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -51,6 +52,26 @@ impl Default for VisionOptions {
     }
 }
 
+/// The live image of a frame to analyse.
+#[derive(Debug, Clone)]
+pub enum FrameImage {
+    /// An image file (a EuRoC dataset's frame), read by the analysis.
+    File(PathBuf),
+    /// A frame already decoded (a video, a camera, an image folder), grey. The analysis takes
+    /// the pixels, leaving an empty image in the result's job.
+    Decoded(GrayImage),
+}
+
+impl FrameImage {
+    /// What to name in an error about this image.
+    fn describe(&self, index: usize) -> PathBuf {
+        match self {
+            FrameImage::File(p) => p.clone(),
+            FrameImage::Decoded(_) => PathBuf::from(format!("frame {index}")),
+        }
+    }
+}
+
 /// A frame to analyse.
 #[derive(Debug, Clone)]
 pub struct FrameJob {
@@ -58,8 +79,8 @@ pub struct FrameJob {
     pub index: usize,
     /// Time stamp of the image [ns].
     pub stamp: u64,
-    /// Image file.
-    pub image: PathBuf,
+    /// The image.
+    pub image: FrameImage,
     /// The core's prediction for the frame's trigger.
     pub prediction: PosePrediction,
     /// Keep the undistorted live image in the result (for an overlay).
@@ -122,6 +143,17 @@ pub struct FrameResult {
     pub times: StageTimes,
     /// The undistorted live image, if the job asked for it.
     pub image: Option<GrayImage>,
+    /// Pixels on the border of the model rendered at the prediction, if the job asked for the
+    /// image (the overlay draws the model's outline from them).
+    pub outline: Vec<[u32; 2]>,
+}
+
+/// The last analysed frame, kept for [`Vision::assess`].
+#[derive(Debug, Clone)]
+struct LastFrame {
+    live: GrayImage,
+    /// Registered pixel and model point of each correspondence sent, in the order sent.
+    registered: Vec<(Vector2<f64>, Vector3<f64>)>,
 }
 
 /// The host's image analysis, with its renderer and feature map.
@@ -132,6 +164,7 @@ pub struct Vision {
     renderer: Renderer,
     map: FeatureMap,
     options: VisionOptions,
+    last: Option<LastFrame>,
 }
 
 impl std::fmt::Debug for Vision {
@@ -167,6 +200,43 @@ impl Vision {
             renderer,
             map: FeatureMap::new(options.map),
             options,
+            last: None,
+        })
+    }
+
+    /// Judges the last analysed frame at `pose`, the core's estimate after that frame's
+    /// update: the reprojection rms there of the correspondences the core applied (`applied`,
+    /// one flag per correspondence sent, in order; the gated ones are outliers it did not
+    /// use), and the model rendered there against the live image ([`super::assess`]).
+    pub fn assess(
+        &mut self,
+        pose: &CameraPose,
+        applied: &[bool],
+    ) -> Result<Assessment, TrackError> {
+        let Some(last) = &self.last else {
+            return Ok(Assessment::default());
+        };
+        let used: Vec<(Vector2<f64>, Vector3<f64>)> = last
+            .registered
+            .iter()
+            .zip(applied)
+            .filter(|(_, a)| **a)
+            .map(|(r, _)| *r)
+            .collect();
+        let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
+        let view = RenderView {
+            pinhole: self.ideal.pinhole,
+            pose: *pose,
+            near: self.options.clip.0,
+            far: self.options.clip.1,
+        };
+        let rendering = self.renderer.render(&view)?;
+        let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
+        Ok(Assessment {
+            features,
+            rms_px,
+            ncc,
+            ncc_pixels,
         })
     }
 
@@ -209,18 +279,22 @@ impl Vision {
     }
 
     /// Analyses one frame.
-    pub fn process(&mut self, job: FrameJob) -> Result<FrameResult, TrackError> {
+    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, TrackError> {
         let t0 = Instant::now();
         let mut times = StageTimes::default();
-        let raw = image::open(&job.image)
-            .map_err(|source| TrackError::Image {
-                path: job.image.clone(),
-                source,
-            })?
-            .into_luma8();
+        self.last = None;
+        let raw = match &mut job.image {
+            FrameImage::File(path) => image::open(&*path)
+                .map_err(|source| TrackError::Image {
+                    path: path.clone(),
+                    source,
+                })?
+                .into_luma8(),
+            FrameImage::Decoded(image) => std::mem::take(image),
+        };
         if raw.dimensions() != (self.camera.width, self.camera.height) {
             return Err(TrackError::ImageSize {
-                path: job.image.clone(),
+                path: job.image.describe(job.index),
                 got: raw.dimensions(),
                 expected: (self.camera.width, self.camera.height),
             });
@@ -274,6 +348,7 @@ impl Vision {
 
         let mut features = Vec::with_capacity(selected.len());
         let mut correspondences = Vec::with_capacity(selected.len());
+        let mut registered = Vec::with_capacity(selected.len());
         let mut error_sum = 0.0;
         let mut error_count = 0usize;
         if !selected.is_empty() {
@@ -323,6 +398,7 @@ impl Vision {
                         ) {
                             Ok(c) => {
                                 correspondences.push(c);
+                                registered.push((px, feature.p_w));
                                 true
                             }
                             Err(_) => false,
@@ -350,6 +426,15 @@ impl Vision {
             times.klt = t.elapsed().as_secs_f64();
         }
         let retired = self.map.retire().len();
+        let outline = if job.keep_image {
+            mask_outline(&rendering.mask)
+        } else {
+            Vec::new()
+        };
+        self.last = Some(LastFrame {
+            live: live.clone(),
+            registered,
+        });
         times.total = t0.elapsed().as_secs_f64();
         Ok(FrameResult {
             visible: visible.len(),
@@ -361,9 +446,31 @@ impl Vision {
             model_coverage,
             times,
             image: job.keep_image.then_some(live),
+            outline,
             job,
         })
     }
+}
+
+/// Mask pixels with a 4-neighbour outside the mask (or on the image border).
+fn mask_outline(mask: &GrayImage) -> Vec<[u32; 2]> {
+    let (w, h) = mask.dimensions();
+    let on = |x: i64, y: i64| {
+        x >= 0
+            && y >= 0
+            && x < w as i64
+            && y < h as i64
+            && mask.get_pixel(x as u32, y as u32).0[0] > 0
+    };
+    let mut out = Vec::new();
+    for y in 0..h as i64 {
+        for x in 0..w as i64 {
+            if on(x, y) && !(on(x - 1, y) && on(x + 1, y) && on(x, y - 1) && on(x, y + 1)) {
+                out.push([x as u32, y as u32]);
+            }
+        }
+    }
+    out
 }
 
 /// Camera pose of a prediction as position and `q_wc` (camera → world), for trajectories.

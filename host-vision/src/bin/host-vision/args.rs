@@ -146,19 +146,37 @@ pub struct FramesArgs {
 #[derive(clap::Args, Debug)]
 #[command(allow_negative_numbers = true)]
 pub struct TrackArgs {
-    /// Dataset folder (holding mav0/).
+    /// Dataset folder (holding mav0/). Without mav0/imu0 it is tracked vision-only.
     #[arg(long, required_unless_present_any = ["video", "images"])]
     pub dataset: Option<PathBuf>,
-    /// Not available yet: vision-only tracking of a video needs the core's vision-only model
-    /// (issue 14). `host-vision frames --video FILE` checks a video now.
+    /// Track a video or a live V4L2 camera vision-only (no IMU): decoded by the ffmpeg
+    /// program into grey frames with the container's time stamps; needs the camera
+    /// (--camera, --calib or --intrinsics), the model (--model) and the start pose
+    /// (--start-pose).
     #[arg(long, conflicts_with_all = ["dataset", "images"])]
     pub video: Option<PathBuf>,
-    /// Not available yet: vision-only tracking of an image folder (as --video).
+    /// Track an image folder vision-only (as --video): PNG/JPG in name order at --fps, or a
+    /// EuRoC cam0 folder with its data.csv time stamps.
     #[arg(long, conflicts_with = "dataset")]
     pub images: Option<PathBuf>,
     /// Frame rate of a plain --images folder [Hz].
     #[arg(long, requires = "images")]
     pub fps: Option<f64>,
+    /// The camera of --video/--images: a camera.json (pinhole, no distortion: model, width,
+    /// height, fx, fy, cx, cy).
+    #[arg(long, conflicts_with_all = ["intrinsics", "calib"])]
+    pub camera: Option<PathBuf>,
+    /// The camera of --video/--images: a Kalibr camchain YAML (its first camera) or a EuRoC
+    /// sensor.yaml, distortion included.
+    #[arg(long, conflicts_with = "intrinsics")]
+    pub calib: Option<PathBuf>,
+    /// The camera of --video/--images: pinhole intrinsics without distortion `fx,fy,cx,cy`
+    /// [px], for frames of the size the first frame has.
+    #[arg(long, value_parser = host_vision::camera::parse_intrinsics, allow_hyphen_values = true)]
+    pub intrinsics: Option<host_vision::camera::Pinhole>,
+    /// Stop after this many frames (vision-only; a live camera never ends by itself).
+    #[arg(long)]
+    pub max_frames: Option<usize>,
     /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/); not inside
     /// the dataset.
     #[arg(long)]
@@ -171,9 +189,9 @@ pub struct TrackArgs {
     pub model: Option<PathBuf>,
     #[arg(long, default_value = "sim", help = LINK_HELP, long_help = LINK_LONG_HELP)]
     pub link: LinkSpec,
-    /// Filter model.
-    #[arg(long, value_enum, default_value = "acc")]
-    pub filter: FilterArg,
+    /// Filter model (default: acc; vision for --video, --images and datasets without an IMU).
+    #[arg(long, value_enum)]
+    pub filter: Option<FilterArg>,
     /// IMU pacing.
     #[arg(long, value_enum, default_value = "lock-step")]
     pub pacing: host_vision::track::Pacing,
@@ -202,16 +220,18 @@ pub struct TrackArgs {
     #[arg(long, conflicts_with_all = ["start_position", "start_yaw"])]
     pub start_pose: Option<PathBuf>,
     /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
-    /// synthetic dataset's manifest, else 10).
+    /// synthetic dataset's manifest, else 10 for a hand-held camera, 5 for an object turned by
+    /// hand in --video/--images).
     #[arg(long)]
     pub expected_accel: Option<f64>,
     /// The core's accelerometer measurement noise, a standard deviation per sample [m/s²]
     /// (default: per model). Not synth's --accel-noise, which is the sensor's noise density.
     #[arg(long)]
     pub accel_meas_noise: Option<f64>,
-    /// Angular-acceleration noise density of the core's motion model [rad/s²/√Hz].
-    #[arg(long, default_value_t = 10.0)]
-    pub angular_noise: f64,
+    /// Angular-acceleration noise density of the core's motion model [rad/s²/√Hz] (default:
+    /// 10 for a hand-held camera, 6 for an object turned by hand in --video/--images).
+    #[arg(long)]
+    pub angular_noise: Option<f64>,
     /// Write an overlay image every N frames (0: none).
     #[arg(long, default_value_t = 25)]
     pub overlay_every: usize,
@@ -233,6 +253,8 @@ pub enum FilterArg {
     Gravity,
     /// Constant acceleration, gyro and accelerometer updates.
     Acc,
+    /// No IMU: constant velocity advanced by time alone (an IMU in the dataset is withheld).
+    Vision,
 }
 
 impl From<FilterArg> for protocol::ModelKind {
@@ -241,6 +263,7 @@ impl From<FilterArg> for protocol::ModelKind {
             FilterArg::Gyro => protocol::ModelKind::Gyro,
             FilterArg::Gravity => protocol::ModelKind::Gravity,
             FilterArg::Acc => protocol::ModelKind::Acc,
+            FilterArg::Vision => protocol::ModelKind::Vision,
         }
     }
 }

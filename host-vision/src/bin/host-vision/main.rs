@@ -62,26 +62,43 @@ fn frame_input(
     }
 }
 
-/// `track --video/--images`: the input is checked (its first frame decoded), then refused,
-/// since the core has no model without an IMU yet.
-fn vision_only_unavailable(input: &host_vision::frames::FrameInput) -> Result<Done, Failure> {
-    use host_vision::frames::VideoOptions;
-    let mut source = input.open(&VideoOptions::default())?;
-    let size = match source.next() {
-        Some(frame) => {
-            let (w, h) = frame?.image.dimensions();
-            format!("its first frame, {w}x{h}, decodes")
+/// The camera of a `track --video/--images` run, from `--camera`, `--calib` or `--intrinsics`
+/// (the last needs the frame size: the input's first frame is decoded for it).
+fn track_camera(
+    a: &TrackArgs,
+    input: &host_vision::frames::FrameInput,
+) -> Result<Option<host_vision::camera::Camera>, Failure> {
+    use host_vision::camera::{
+        pinhole_camera, read_camera_json, read_euroc_sensor_yaml, read_kalibr_camchain,
+    };
+    if let Some(path) = &a.camera {
+        return Ok(Some(read_camera_json(path)?));
+    }
+    if let Some(path) = &a.calib {
+        let calib = match read_kalibr_camchain(path) {
+            Ok(mut cams) if !cams.is_empty() => cams.swap_remove(0),
+            _ => read_euroc_sensor_yaml(path)?,
+        };
+        return Ok(Some(calib.camera));
+    }
+    let Some(p) = a.intrinsics else {
+        return Ok(None);
+    };
+    let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
+    let (w, h) = match source.next() {
+        Some(frame) => frame?.image.dimensions(),
+        None => {
+            return Err(Failure {
+                error: anyhow::anyhow!("{}: no frames", input.path().display()),
+                code: exit::FAILED,
+            });
         }
-        None => "it holds no frame".into(),
     };
     drop(source);
-    Err(Failure {
-        error: anyhow::anyhow!(
-            "{}: {size}, but vision-only tracking (without an IMU) is not available yet: it needs issue 14's vision-only model in the fusion core. `host-vision frames` reports the input's frames; `track --dataset` tracks EuRoC datasets with an IMU",
-            input.path().display()
-        ),
-        code: exit::FAILED,
-    })
+    Ok(Some(pinhole_camera(w, h, p).map_err(|e| Failure {
+        error: anyhow::anyhow!("--intrinsics: {e}"),
+        code: exit::USAGE,
+    })?))
 }
 
 fn frames(a: &FramesArgs) -> Result<Done, Failure> {
@@ -142,15 +159,44 @@ fn frames(a: &FramesArgs) -> Result<Done, Failure> {
 
 fn track(a: &TrackArgs) -> Result<Done, Failure> {
     use host_vision::track::{self, Faults, Start, TrackError};
-    if let Some(input) = frame_input(&a.video, &a.images, a.fps) {
-        return vision_only_unavailable(&input);
-    }
-    let Some(dataset) = &a.dataset else {
-        return Err(Failure {
-            error: anyhow::anyhow!("give --dataset DIR"),
-            code: exit::USAGE,
-        });
+    let input = frame_input(&a.video, &a.images, a.fps);
+    let dataset = match (&input, &a.dataset) {
+        (Some(i), _) => i.path().to_owned(),
+        (None, Some(d)) => d.clone(),
+        (None, None) => {
+            return Err(Failure {
+                error: anyhow::anyhow!("give --dataset DIR, --video FILE or --images DIR"),
+                code: exit::USAGE,
+            });
+        }
     };
+    let camera = match &input {
+        Some(i) => track_camera(a, i)?,
+        None if a.camera.is_some() || a.calib.is_some() || a.intrinsics.is_some() => {
+            return Err(Failure {
+                error: anyhow::anyhow!(
+                    "--camera, --calib and --intrinsics give the camera of --video or --images; a dataset has its own (mav0/cam0/sensor.yaml)"
+                ),
+                code: exit::USAGE,
+            });
+        }
+        None => None,
+    };
+    // Without an IMU (a video, an image folder, a dataset without mav0/imu0) the model is
+    // vision-only, and a run says so.
+    let has_imu = input.is_none() && dataset.join("mav0/imu0/data.csv").exists();
+    let filter: protocol::ModelKind = match a.filter {
+        Some(f) => f.into(),
+        None if has_imu => protocol::ModelKind::Acc,
+        None => {
+            note!(
+                "{}: no IMU: tracking vision-only (--filter vision)",
+                dataset.display()
+            );
+            protocol::ModelKind::Vision
+        }
+    };
+    let dataset = &dataset;
     let pose = a
         .start_pose
         .as_deref()
@@ -162,7 +208,10 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     let mut o = host_vision::eval::options_for(dataset, a.out.clone());
     o.model = a.model.clone();
     o.link = a.link.clone();
-    o.filter = a.filter.into();
+    o.filter = filter;
+    o.frames = input;
+    o.camera = camera;
+    o.max_frames = a.max_frames;
     o.pacing = a.pacing;
     o.latency = a.latency;
     o.vision.map.subset_size = a.features;
@@ -173,10 +222,17 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         yaw: a.start_yaw.map(f64::to_radians),
         pose,
     };
+    // A video or image folder usually shows an object moved by a hand in front of a camera.
+    if o.frames.is_some() {
+        o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
+        o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
+    }
     if let Some(accel) = a.expected_accel {
         o.tuning.expected_accel = accel;
     }
-    o.tuning.angular_noise = a.angular_noise;
+    if let Some(angular) = a.angular_noise {
+        o.tuning.angular_noise = angular;
+    }
     o.tuning.accel_noise = a.accel_meas_noise;
     o.overlay_every = a.overlay_every;
     o.faults = Faults {

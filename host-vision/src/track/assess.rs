@@ -1,0 +1,203 @@
+//! Whether a frame is really tracked, judged without ground truth from the pose the core
+//! estimated with the frame's update:
+//!
+//! - the **reprojection rms** of the frame's registered features at that pose: their model
+//!   points projected, against the pixels the KLT registered (self-consistency of the update);
+//! - the **rendered-vs-live correlation**: the textured model rendered at that pose against the
+//!   live image, a normalised cross-correlation over the model's mask. A low rms alone can be a
+//!   consistent but wrong pose (a few features agreeing on the wrong orientation); the rendering
+//!   shows whether the whole model sits where the image has it.
+//!
+//! A frame is **tracked** when both hold ([`TrackedRule`]).
+
+use image::GrayImage;
+use nalgebra::{Vector2, Vector3};
+use serde::Serialize;
+
+use crate::camera::{Camera, CameraPose};
+
+/// What the assessment of one frame found.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Assessment {
+    /// Registered features whose model point projects in front of the camera.
+    pub features: usize,
+    /// Their reprojection rms at the estimated pose [px].
+    pub rms_px: Option<f64>,
+    /// Normalised cross-correlation of the rendering at the estimated pose with the live
+    /// image over the rendered model's pixels (`None` when fewer than [`MIN_NCC_PIXELS`]).
+    pub ncc: Option<f64>,
+    /// Model pixels the correlation ran over.
+    pub ncc_pixels: usize,
+}
+
+/// Fewest model pixels for a correlation worth reporting (a model a few pixels wide says
+/// nothing about the pose).
+pub const MIN_NCC_PIXELS: usize = 200;
+
+/// Reprojection rms [px] of `registered` (pixel, model point) pairs at `pose`, and how many
+/// project in front of the camera.
+pub fn reprojection_rms(
+    camera: &Camera,
+    pose: &CameraPose,
+    registered: &[(Vector2<f64>, Vector3<f64>)],
+) -> (usize, Option<f64>) {
+    let mut sum = 0.0;
+    let mut n = 0usize;
+    for (px, p_w) in registered {
+        if let Some(proj) = camera.project(pose.world_to_camera(p_w)) {
+            sum += (proj - px).norm_squared();
+            n += 1;
+        }
+    }
+    (n, (n > 0).then(|| (sum / n as f64).sqrt()))
+}
+
+/// `Σ(a−ā)(b−b̄) / √(Σ(a−ā)² Σ(b−b̄)²)` over the pixels where `mask` is set, with its pixel
+/// count; `None` below [`MIN_NCC_PIXELS`] or on a flat patch (zero variance).
+pub fn masked_ncc(
+    rendered: &GrayImage,
+    live: &GrayImage,
+    mask: &GrayImage,
+) -> (usize, Option<f64>) {
+    if rendered.dimensions() != live.dimensions() || mask.dimensions() != live.dimensions() {
+        return (0, None);
+    }
+    let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for ((a, b), m) in rendered.pixels().zip(live.pixels()).zip(mask.pixels()) {
+        if m.0[0] == 0 {
+            continue;
+        }
+        let (a, b) = (f64::from(a.0[0]), f64::from(b.0[0]));
+        n += 1;
+        sa += a;
+        sb += b;
+        saa += a * a;
+        sbb += b * b;
+        sab += a * b;
+    }
+    if n < MIN_NCC_PIXELS {
+        return (n, None);
+    }
+    let k = n as f64;
+    let cov = sab - sa * sb / k;
+    let va = saa - sa * sa / k;
+    let vb = sbb - sb * sb / k;
+    let denom = (va * vb).sqrt();
+    (n, (denom > 1e-9).then(|| cov / denom))
+}
+
+/// When a frame counts as tracked (issue 14's rule).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TrackedRule {
+    /// Largest reprojection rms [px].
+    pub max_rms_px: f64,
+    /// Fewest registered features.
+    pub min_features: usize,
+    /// Smallest rendered-vs-live correlation.
+    pub min_ncc: f64,
+}
+
+impl Default for TrackedRule {
+    /// 1.5 px with at least 10 features, as the issue sets it. The correlation threshold
+    /// 0.3: a correctly posed, unoccluded textured model correlates at about 0.6 with the
+    /// live image (lighting, blur and the texture's own photograph keep it well below 1),
+    /// a wrong pose at about 0. Half the unoccluded value still passes a model half hidden by
+    /// an occluder that is itself uncorrelated (the mug), so a half-visible model at the right
+    /// pose counts, a wrong pose does not.
+    fn default() -> Self {
+        TrackedRule {
+            max_rms_px: 1.5,
+            min_features: 10,
+            min_ncc: 0.3,
+        }
+    }
+}
+
+impl TrackedRule {
+    /// Whether `a` is a tracked frame.
+    pub fn holds(&self, a: &Assessment) -> bool {
+        a.features >= self.min_features
+            && a.rms_px.is_some_and(|r| r <= self.max_rms_px)
+            && a.ncc.is_some_and(|c| c >= self.min_ncc)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{Pinhole, pinhole_camera};
+    use nalgebra::UnitQuaternion;
+
+    #[test]
+    fn ncc_is_one_for_an_affine_copy_zero_for_noise_and_ignores_the_background() {
+        let (w, h) = (40, 30);
+        let a = GrayImage::from_fn(w, h, |x, y| image::Luma([((x * 7 + y * 13) % 200) as u8]));
+        let b = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([(f64::from(a.get_pixel(x, y).0[0]) * 0.5 + 40.0) as u8])
+        });
+        let mut mask = GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 20 { 255 } else { 0 }]));
+        let (n, c) = masked_ncc(&a, &b, &mask);
+        assert_eq!(n, 600);
+        assert!(c.unwrap() > 0.999, "{c:?}");
+        // Outside the mask anything goes.
+        let mut b2 = b.clone();
+        for y in 0..h {
+            for x in 20..w {
+                b2.put_pixel(x, y, image::Luma([((x * 31 + y * 17) % 256) as u8]));
+            }
+        }
+        assert_eq!(masked_ncc(&a, &b2, &mask).1, c);
+        // An uncorrelated image.
+        let noise = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([((x.wrapping_mul(2654435761) ^ y.wrapping_mul(40503)) % 251) as u8])
+        });
+        assert!(masked_ncc(&a, &noise, &mask).1.unwrap().abs() < 0.2);
+        // Too few pixels, or another size: no figure.
+        mask.fill(0);
+        assert_eq!(masked_ncc(&a, &b, &mask), (0, None));
+        assert_eq!(masked_ncc(&a, &GrayImage::new(3, 3), &mask), (0, None));
+    }
+
+    #[test]
+    fn rms_of_exact_points_is_zero_and_counts_only_points_in_front() {
+        let camera = pinhole_camera(
+            640,
+            480,
+            Pinhole {
+                fx: 500.0,
+                fy: 500.0,
+                cx: 320.0,
+                cy: 240.0,
+                skew: 0.0,
+            },
+        )
+        .unwrap();
+        let pose = CameraPose {
+            q_cw: UnitQuaternion::identity(),
+            c_w: Vector3::zeros(),
+        };
+        let p = Vector3::new(0.1, -0.05, 1.0);
+        let px = camera.project(p).unwrap();
+        let pairs = [
+            (px, p),
+            (px + Vector2::new(3.0, 4.0), p),
+            (px, Vector3::new(0.0, 0.0, -1.0)),
+        ];
+        let (n, rms) = reprojection_rms(&camera, &pose, &pairs);
+        assert_eq!(n, 2);
+        assert!((rms.unwrap() - (25.0f64 / 2.0).sqrt()).abs() < 1e-9);
+        let rule = TrackedRule::default();
+        let mut a = Assessment {
+            features: 12,
+            rms_px: Some(1.0),
+            ncc: Some(0.5),
+            ncc_pixels: 5000,
+        };
+        assert!(rule.holds(&a));
+        a.ncc = Some(0.05);
+        assert!(!rule.holds(&a));
+        a.ncc = Some(0.5);
+        a.features = 9;
+        assert!(!rule.holds(&a));
+    }
+}

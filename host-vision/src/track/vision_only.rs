@@ -1,0 +1,259 @@
+//! Tracking without an IMU: the frames of a video, a camera, an image folder or a dataset's
+//! `cam0` drive the core's vision-only model by `Tick`s (protocol 2.1).
+//!
+//! Per frame, in lock-step:
+//! 1. `Tick { t, trigger }` at the frame's time stamp: the core answers with the prediction;
+//! 2. the vision worker analyses the frame at the prediction, and its correspondences go to
+//!    the core (which applies them at once: no later tick exists yet);
+//! 3. `Tick { t + 1 µs }`: the core's `State` then holds the pose estimated with the frame;
+//! 4. the worker judges that pose ([`super::assess`]): the registered features' reprojection
+//!    rms, and the model rendered there against the live image.
+//!
+//! Each frame is analysed before the next is read. A live camera (`--video /dev/video0`) is
+//! paced by the camera through the same pipe; when the analysis is slower than the camera,
+//! ffmpeg's pipe buffers the frames, so the tracker then runs late rather than dropping any.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use protocol::{HostToCore, Init, InitAttitude, Tick};
+
+use super::config::vision_config;
+use super::{
+    FrameImage, FrameJob, Pending, Progress, Session, Start, TrackError, TrackOptions, VisionWorker,
+};
+use crate::dataset::Dataset;
+use crate::frames::{Frame, FrameSource};
+
+/// Longest interval between two ticks [µs]: frames further apart (a stalled camera, dropped
+/// frames) are bridged by ticks without a trigger, as the core refuses clock gaps of a
+/// second.
+const MAX_TICK_GAP_US: u64 = 500_000;
+
+/// Frame rate assumed when the input states none [Hz].
+const DEFAULT_CAMERA_RATE_HZ: f64 = 30.0;
+
+/// The dataset a run reads: a EuRoC folder, or, for a video or image folder, one built from
+/// the camera given on the command line.
+pub(super) fn open_dataset(options: &TrackOptions) -> Result<Dataset, TrackError> {
+    match &options.frames {
+        None => {
+            let mut dataset = Dataset::open(&options.dataset)?;
+            if let Some(camera) = options.camera {
+                dataset.camera.camera = camera;
+            }
+            Ok(dataset)
+        }
+        Some(input) => {
+            let camera = options.camera.ok_or_else(|| {
+                TrackError::Option(format!(
+                    "{}: give the camera's intrinsics: --camera camera.json, --calib (Kalibr or EuRoC YAML) or --intrinsics fx,fy,cx,cy",
+                    input.path().display()
+                ))
+            })?;
+            if !input.path().exists() {
+                return Err(crate::frames::FrameError::Missing {
+                    path: input.path().to_owned(),
+                }
+                .into());
+            }
+            Ok(Dataset::frames_only(input.path(), camera))
+        }
+    }
+}
+
+impl Session<'_> {
+    /// The start of a vision-only run: the given pose, or the ground truth's camera pose at the
+    /// first frame (a dataset whose IMU is withheld).
+    fn vision_init(&self, first_stamp: u64) -> Result<Init, TrackError> {
+        let pose = match (
+            &self.options.start.pose,
+            self.dataset.groundtruth_at(first_stamp),
+        ) {
+            (Some(pose), _) => *pose,
+            (None, Some((p, q))) => {
+                let (c_w, q_cw) = self.dataset.hand_eye.camera_pose(&p, &q);
+                crate::camera::CameraPose { q_cw, c_w }
+            }
+            (None, None) => {
+                return Err(TrackError::Option(
+                    "no start pose: give --start-pose (no ground truth at the first frame)".into(),
+                ));
+            }
+        };
+        let (s_w, q_sw) = Start::imu_pose_of_camera(&pose, &self.core_hand_eye);
+        let q = q_sw.quaternion();
+        Ok(Init {
+            position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
+            attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
+        })
+    }
+
+    /// Sends one tick at `t_us` after the first frame (stamp `stamp0` [ns]) and records its
+    /// stamp.
+    fn tick(
+        &mut self,
+        link: &mut super::CoreLink,
+        stamp0: u64,
+        t_us: u64,
+        trigger: bool,
+    ) -> Result<(), TrackError> {
+        link.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
+        self.clock.push(stamp0 + t_us * 1000);
+        self.streamed = self.clock.len();
+        Ok(())
+    }
+
+    /// Runs a vision-only session over `source`; `Ok(false)` when interrupted.
+    pub(super) fn drive_vision(
+        &mut self,
+        link: &mut super::CoreLink,
+        worker: &VisionWorker,
+        source: &mut FrameSource,
+        interrupt: &AtomicBool,
+        progress: Progress,
+    ) -> Result<bool, TrackError> {
+        let ack = self.handshake(link)?;
+        let total = source.len_hint().unwrap_or(0);
+        let rate = source
+            .nominal_rate_hz()
+            .or(self.dataset.camera.rate_hz)
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
+        let config = vision_config(self.dataset, rate, &self.options.tuning);
+        super::check_latency(0.0, &ack.capacities, &config)?;
+        // The first frame fixes the clock (and, with a ground truth, the start pose).
+        let Some(first) = source.next() else {
+            return Err(TrackError::Option(format!(
+                "{}: no frames",
+                self.dataset.root.display()
+            )));
+        };
+        let first = first?;
+        let (w, h) = first.image.dimensions();
+        let camera = &self.dataset.camera.camera;
+        if (w, h) != (camera.width, camera.height) {
+            return Err(TrackError::Option(format!(
+                "{}: the frames are {w}x{h} pixels, the camera's intrinsics are for {}x{}",
+                self.dataset.root.display(),
+                camera.width,
+                camera.height
+            )));
+        }
+        let t0_ns = first.t_ns;
+        let first_stamp = u64::try_from(t0_ns).unwrap_or(0);
+        link.send(&HostToCore::Configure(config))?;
+        link.send(&HostToCore::Init(self.vision_init(first_stamp)?))?;
+        self.barrier(link)?;
+        if let Some(e) = self.log.errors.first() {
+            return Err(TrackError::Core(format!(
+                "refused the configuration: {}",
+                e.code
+            )));
+        }
+
+        let mut next = Some(Ok(first));
+        let mut frames = 0usize;
+        let mut last_us: Option<u64> = None;
+        while let Some(frame) = next.take().or_else(|| source.next()) {
+            if interrupt.load(Ordering::Relaxed) {
+                self.barrier(link)?;
+                return Ok(false);
+            }
+            let frame: Frame = frame?;
+            let t_us = u64::try_from((frame.t_ns - t0_ns) / 1000).unwrap_or(0);
+            if self.options.duration.is_some_and(|d| t_us as f64 > d * 1e6)
+                || self.options.max_frames.is_some_and(|m| frames >= m)
+            {
+                break;
+            }
+            if last_us.is_some_and(|l| t_us <= l + 1) {
+                self.frame_errors.push((
+                    self.results.len(),
+                    format!(
+                        "frame {}: time stamp {} µs is within 1 µs of the previous frame's: skipped",
+                        frame.index, t_us
+                    ),
+                ));
+                continue;
+            }
+            if let Some(mut at) = last_us {
+                while t_us - at > MAX_TICK_GAP_US {
+                    at += MAX_TICK_GAP_US;
+                    self.tick(link, first_stamp, at, false)?;
+                }
+            }
+            self.tick(link, first_stamp, t_us, true)?;
+            last_us = Some(t_us);
+            self.barrier(link)?;
+            frames += 1;
+            if let Some(p) = self.log.predictions.get(&t_us).copied() {
+                let every = self.options.overlay_every;
+                let omega_c = self
+                    .log
+                    .states
+                    .last()
+                    .filter(|s| s.t_us == t_us)
+                    .map(|s| nalgebra::Vector3::from(s.omega_s.map(f64::from)));
+                worker.send(FrameJob {
+                    index: frame.index,
+                    stamp: first_stamp + t_us * 1000,
+                    image: FrameImage::Decoded(frame.image),
+                    prediction: p,
+                    keep_image: every > 0 && frame.index.is_multiple_of(every),
+                    omega_c,
+                })?;
+                let result = worker.recv()?;
+                let analysed = result.is_ok();
+                self.deliver(
+                    link,
+                    Pending {
+                        frame_id: p.frame_id,
+                        trigger_us: t_us,
+                        due: 0,
+                    },
+                    result,
+                )?;
+                // The pose estimated with this frame, just after it.
+                self.tick(link, first_stamp, t_us + 1, false)?;
+                last_us = Some(t_us + 1);
+                self.barrier(link)?;
+                let updated = self.log.states.last().filter(|s| s.t_us == t_us + 1);
+                if let (true, Some(s)) = (analysed, updated) {
+                    let (c_w, q_wc) = super::camera_of_state(s, &self.core_hand_eye);
+                    let pose = crate::camera::CameraPose {
+                        q_cw: q_wc.inverse(),
+                        c_w,
+                    };
+                    // Which correspondences the core applied: its reports' residuals, part
+                    // by part in the order sent, within the gate.
+                    let gate = f64::from(config.gate);
+                    let mut reports = self
+                        .log
+                        .updates
+                        .get(&p.frame_id)
+                        .cloned()
+                        .unwrap_or_default();
+                    reports.sort_by_key(|r| r.part);
+                    let applied: Vec<bool> = reports
+                        .iter()
+                        .flat_map(|r| r.residuals.iter())
+                        .map(|&s_i| f64::from(s_i) <= gate)
+                        .collect();
+                    let a = worker.assess(pose, applied)?;
+                    self.assessments.insert(p.frame_id, a);
+                }
+            }
+            if frames.is_multiple_of(10) {
+                progress(frames, total, self.results.len(), self.log.mode());
+            }
+        }
+        self.barrier(link)?;
+        progress(
+            frames,
+            total.max(frames),
+            self.results.len(),
+            self.log.mode(),
+        );
+        Ok(true)
+    }
+}
