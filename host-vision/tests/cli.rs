@@ -939,35 +939,55 @@ fn p17_a_non_rigid_start_pose_is_refused_with_the_flag() {
     );
 }
 
-/// Issue 14: what would need vision-only tracking is refused, saying so, not pretended: a
-/// dataset without imu0, `--video`, `--images`.
+/// Issue 14: inputs without an IMU are tracked vision-only, and say so: a dataset without
+/// `imu0` (from its ground truth), its `cam0` as `--images` (with `--start-pose` and the
+/// camera given); an inertial model on them is refused; missing intrinsics and missing files
+/// are named, and nothing is written.
 #[test]
-fn p18_inputs_without_an_imu_are_refused_until_vision_only_tracking_exists() {
+fn p18_inputs_without_an_imu_are_tracked_vision_only() {
     let ds = dataset();
     let no_imu = tmp("p18-no-imu");
     copy_dir(&ds, &no_imu, "imu0");
     let out = tmp("p18-out");
-    let (_, se) = expect(&track_args(&no_imu, &out, &[]), 1);
+    let (so, se) = expect(&track_args(&no_imu, &out, &["--overlay-every", "0"]), 0);
     assert!(
-        se.contains("vision-only tracking without an IMU is not available yet"),
+        se.contains("no IMU: tracking vision-only (--filter vision)"),
         "{se}"
     );
-    assert!(!out.exists());
+    assert!(so.contains("(vision-only: no IMU used)"), "{so}");
+    let sum = summary(&out);
+    assert_eq!(sum["model"], "vision");
+    assert_eq!(sum["imu_used"], false);
+    assert!(sum["tracked"]["frames"].as_u64().unwrap() > 20, "{sum}");
+    let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    assert!(csv.lines().next().unwrap().ends_with(",rms_px,ncc,tracked"));
+
+    // An inertial model needs the IMU.
+    let out2 = tmp("p18-acc");
+    let (_, se) = expect(&track_args(&no_imu, &out2, &["--filter", "acc"]), 1);
+    assert!(
+        se.contains("missing (IMU samples): the acc model needs an IMU; `--filter vision` tracks the camera alone"),
+        "{se}"
+    );
+    assert!(!out2.exists());
+
+    // The camera folder as --images: the intrinsics and the start pose must be given.
     let cam0 = no_imu.join("mav0/cam0");
-    let (_, se) = expect(&["track", "--images", s(&cam0), "--out", s(&out)], 1);
+    let (_, se) = expect(&["track", "--images", s(&cam0), "--out", s(&out2)], 2);
     assert!(
-        se.contains("its first frame, 160x120, decodes, but vision-only tracking (without an IMU) is not available yet"),
+        se.contains("give the camera's intrinsics: --camera camera.json, --calib (Kalibr or EuRoC YAML) or --intrinsics fx,fy,cx,cy"),
         "{se}"
     );
-    assert!(!out.exists());
+    assert!(!out2.exists());
     let (_, se) = expect(
-        &["track", "--video", "/nonexistent.mp4", "--out", s(&out)],
+        &["track", "--video", "/nonexistent.mp4", "--out", s(&out2)],
         1,
     );
     assert!(
         se.contains("/nonexistent.mp4: no such file or folder"),
         "{se}"
     );
+    assert!(!out2.exists());
     // The frames themselves are readable.
     let (so, _) = expect(&["frames", "--images", s(&cam0)], 0);
     assert!(so.contains("frames:        38 of 160x120 px"), "{so}");

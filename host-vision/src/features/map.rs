@@ -23,6 +23,9 @@ use crate::render::{Frame, RenderView};
 /// than about a window share most of their pixels.
 pub const MIN_CELL_SIZE: usize = 12;
 
+/// Share of the image below which a rendered model counts as small ([`FeatureMap::grid_for`]).
+pub const SMALL_MODEL_SHARE: f64 = 0.25;
+
 /// Map management parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MapConfig {
@@ -233,14 +236,20 @@ impl FeatureMap {
         visible.len() < self.config.min_visible
     }
 
-    /// The extraction grid for a rendering: the configured cells, or smaller ones for a model
-    /// that covers little of the image (a small object, or one far away), so that its mask
-    /// still holds about twice `min_visible` cells (down to [`MIN_CELL_SIZE`]).
+    /// The extraction grid for a rendering: the configured cells, or, for a model that covers
+    /// less than [`SMALL_MODEL_SHARE`] of the image (a small object, or one far away), smaller
+    /// ones, so that its mask still holds about twice `min_visible` cells (down to
+    /// [`MIN_CELL_SIZE`]). A scene that fills the view keeps the configured cells, however
+    /// small the image.
     pub fn grid_for(&self, mask: &image::GrayImage) -> GridConfig {
         let model_px = mask.pixels().filter(|p| p.0[0] > 0).count() as f64;
+        let mut grid = self.config.grid;
+        let image_px = f64::from(mask.width()) * f64::from(mask.height());
+        if model_px >= SMALL_MODEL_SHARE * image_px {
+            return grid;
+        }
         let wanted = 2.0 * self.config.min_visible.max(1) as f64;
         let side = (model_px / wanted).sqrt().floor() as usize;
-        let mut grid = self.config.grid;
         grid.cell_size = grid.cell_size.min(side.max(MIN_CELL_SIZE));
         grid
     }

@@ -44,18 +44,18 @@ pub(super) fn open_dataset(options: &TrackOptions) -> Result<Dataset, TrackError
             Ok(dataset)
         }
         Some(input) => {
-            let camera = options.camera.ok_or_else(|| {
-                TrackError::Option(format!(
-                    "{}: give the camera's intrinsics: --camera camera.json, --calib (Kalibr or EuRoC YAML) or --intrinsics fx,fy,cx,cy",
-                    input.path().display()
-                ))
-            })?;
             if !input.path().exists() {
                 return Err(crate::frames::FrameError::Missing {
                     path: input.path().to_owned(),
                 }
                 .into());
             }
+            let camera = options.camera.ok_or_else(|| {
+                TrackError::Option(format!(
+                    "{}: give the camera's intrinsics: --camera camera.json, --calib (Kalibr or EuRoC YAML) or --intrinsics fx,fy,cx,cy",
+                    input.path().display()
+                ))
+            })?;
             Ok(Dataset::frames_only(input.path(), camera))
         }
     }

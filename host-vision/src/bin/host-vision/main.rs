@@ -184,10 +184,12 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     };
     // Without an IMU (a video, an image folder, a dataset without mav0/imu0) the model is
     // vision-only, and a run says so.
-    let has_imu = input.is_none() && dataset.join("mav0/imu0/data.csv").exists();
+    let camera_only = input.is_some()
+        || (dataset.join("mav0/cam0/data.csv").exists()
+            && !dataset.join("mav0/imu0/data.csv").exists());
     let filter: protocol::ModelKind = match a.filter {
         Some(f) => f.into(),
-        None if has_imu => protocol::ModelKind::Acc,
+        None if !camera_only => protocol::ModelKind::Acc,
         None => {
             note!(
                 "{}: no IMU: tracking vision-only (--filter vision)",
