@@ -43,6 +43,19 @@ def symbols(path):
     return found
 
 
+def builtin_ranges(path):
+    """Address ranges of memcpy/memset and their helpers (their callers are profiled too)."""
+    out = subprocess.run(["llvm-nm", "-S", "-C", path], capture_output=True, text=True,
+                         check=True).stdout
+    ranges = []
+    for line in out.splitlines():
+        parts = line.split(None, 3)
+        if len(parts) == 4 and re.search(r"compiler_builtins::mem|__aeabi_mem", parts[3]):
+            a = int(parts[0], 16) & ~1
+            ranges.append((a, a + int(parts[1], 16)))
+    return ranges
+
+
 def run(path, marks):
     """(phase -> {(pc, cflags): executions}), (pc, cflags) -> instruction addresses."""
     tmp = tempfile.mkdtemp()
@@ -57,6 +70,9 @@ def run(path, marks):
     counts = collections.defaultdict(collections.Counter)
     occurrences = collections.Counter()
     pending = []  # instruction addresses of the last translated block
+    ranges = builtin_ranges(path)
+    callers = collections.defaultdict(collections.Counter)
+    prev_pc, caller, in_builtin = 0, 0, False
     phase = None
     session = 0
     seen_counted = False
@@ -93,12 +109,19 @@ def run(path, marks):
                     occurrences[phase] += 1
                 elif phase is not None:
                     counts[phase][key] += 1
+                    builtin = any(a <= pc < b for a, b in ranges)
+                    if builtin and not in_builtin:
+                        caller = prev_pc
+                    if builtin:
+                        callers[phase][(caller, key)] += 1
+                    in_builtin = builtin
+                prev_pc = pc
             elif line.startswith("0x"):
                 pending.append(int(line[2:10], 16))
     qemu.wait()
     os.unlink(fifo)
     os.rmdir(tmp)
-    return counts, blocks, occurrences
+    return counts, blocks, occurrences, callers
 
 
 # Frames that are plumbing, not the project's code: an instruction is charged to the innermost
@@ -135,6 +158,17 @@ def symbolize(path, addrs):
     return names
 
 
+def caller_names(path, addrs):
+    """Inline chain (outermost last) of each block address, as function names."""
+    proc = subprocess.run(["llvm-symbolizer", "--inlining", "--functions=linkage", "--obj=" + path],
+                          input="\n".join(hex(a) for a in addrs) + "\n", capture_output=True,
+                          text=True, check=True)
+    groups = [g.splitlines() for g in proc.stdout.strip("\n").split("\n\n")]
+    return {a: " < ".join(short(demangle(f)).split("::")[-1] + "@" + w.split("/")[-1]
+                          for f, w in zip(g[0::2], g[1::2]) if not PLUMBING.search(short(demangle(f))))
+            for a, g in zip(addrs, groups)}
+
+
 def short(fn):
     """A demangled Rust name without its hash and crate-internal noise."""
     fn = re.sub(r"::h[0-9a-f]{16}$", "", fn)
@@ -143,7 +177,7 @@ def short(fn):
 
 def main():
     marks = symbols(BENCH)
-    counts, blocks, occurrences = run(BENCH, marks)
+    counts, blocks, occurrences, callers = run(BENCH, marks)
     addrs = set()
     for per in counts.values():
         for key in per:
@@ -177,6 +211,15 @@ def main():
             if n < 0.005 * total:
                 break
             print(f"{n / occ:10.0f}  {100 * n / total:5.1f}%  {fn}")
+        # memcpy/memset by calling block (the block that branched into them).
+        by_caller = collections.Counter()
+        for (c, key), k in callers[phase].items():
+            by_caller[c] += k * len(blocks.get(key, ()))
+        top = [(c, k) for c, k in by_caller.most_common(8) if k >= 0.005 * total]
+        if top:
+            where = caller_names(BENCH, [c for c, _ in top])
+            for c, k in top:
+                print(f"{k / occ:10.0f}  memcpy/memset called from {hex(c)} {where[c]}")
 
 
 if __name__ == "__main__":

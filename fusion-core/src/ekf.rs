@@ -193,8 +193,8 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
             }
             *wj = w;
             let mut dx = T::zero();
-            for m in 0..M {
-                dx += w[m] * self.e[m];
+            for (&wm, &em) in w.iter().zip(&self.e) {
+                dx += wm * em;
             }
             *xj += dx;
         }
@@ -262,8 +262,8 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     #[inline(always)]
     fn dot_sub(p: T, w: &[T; M], c: &[T; M]) -> T {
         let mut acc = p;
-        for m in 0..M {
-            acc -= w[m] * c[m];
+        for (&wm, &cm) in w.iter().zip(c) {
+            acc -= wm * cm;
         }
         acc
     }
