@@ -22,7 +22,7 @@ use protocol::StatusReason;
 
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::State;
+use crate::state::{N, State, all_finite};
 
 /// State of the monitor.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -77,10 +77,12 @@ impl<T: Scalar> Monitor<T> {
     }
 
     /// Test 3 and finiteness, after every IMU step (cheap: a non-finite covariance shows on
-    /// its diagonal within a step).
+    /// its diagonal within a step; the diagonal is tested as [`all_finite`] does).
     pub fn step(st: &State<T>, quat_norm_error: T, prm: &Params<T>) -> Option<StatusReason> {
-        let diag_finite = (0..prm.n).all(|i| st.p[(i, i)].is_finite());
-        if !diag_finite || !st.x.iter().all(|v| v.is_finite()) {
+        let zero = T::zero();
+        let diag = st.p.as_slice().iter().step_by(N + 1).take(prm.n);
+        let diag_finite = diag.fold(zero, |acc, &v| acc + v * zero) == zero;
+        if !diag_finite || !all_finite(st.x.as_slice()) {
             Some(StatusReason::NonFiniteState)
         } else if quat_norm_error > prm.quat_norm_threshold {
             Some(StatusReason::QuaternionNorm)

@@ -172,10 +172,9 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// update `K = U S⁻¹`, `P ← P − K S Kᵀ` in symmetric form, i.e. the sequence of scalar updates
     /// `P ← P − w wᵀ / d` (each symmetric, each removing variance only along its row).
     ///
-    /// One pass over the upper triangle of the active block: row `j` of `W` is made just
-    /// before column `j` of `P` needs it, every `P_ij` is loaded and stored once, and the pass
-    /// also mirrors it into the lower triangle and applies the variance floor (the work of
-    /// [`condition`]).
+    /// The rows of `W` and the mean step come first; then one pass over the upper triangle of
+    /// the active block, two columns at a time, updates every `P_ij` once, mirrors it into the
+    /// lower triangle and applies the variance floor (the work of [`condition`]).
     ///
     /// Returns the step's component along the quaternion (see [`radial_step`]) for the
     /// divergence monitor.
@@ -183,11 +182,8 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
         let q0 = st.q();
         let n = n.min(N);
         let r = self.rank;
-        let floor = T::c(T::VARIANCE_FLOOR);
-        let p = st.p.as_mut_slice();
-        let x = st.x.as_mut_slice();
-        for j in 0..n {
-            let mut w = u[j];
+        for (wj, xj) in u.iter_mut().zip(st.x.as_mut_slice()).take(n) {
+            let mut w = *wj;
             w[r..].fill(T::zero());
             // Rows of L past the rank are zero.
             for m in 1..M {
@@ -195,34 +191,81 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
                     w[m] -= self.l[m][t] * w[t];
                 }
             }
-            u[j] = w;
+            *wj = w;
             let mut dx = T::zero();
-            let mut c = [T::zero(); M];
-            for m in 0..M {
-                dx += w[m] * self.e[m];
-                c[m] = w[m] * self.d_inv[m];
+            for (&wm, &em) in w.iter().zip(&self.e) {
+                dx += wm * em;
             }
-            x[j] += dx;
-            let (left, rest) = p.split_at_mut(j * N);
-            let col = &mut rest[..=j];
-            for (pij, wi) in col.iter_mut().zip(u.iter()) {
-                let mut acc = *pij;
-                for m in 0..M {
-                    acc -= wi[m] * c[m];
-                }
-                *pij = acc;
-            }
-            if let Some(d) = col.last_mut()
-                && *d < floor
-            {
-                *d = floor;
-            }
-            // P[j, i] (column i, row j) ← P[i, j] for i < j.
-            for (other, &v) in left.chunks_exact_mut(N).zip(&*col) {
-                other[j] = v;
-            }
+            *xj += dx;
         }
+        self.downdate(&mut st.p, n, u);
         radial_step(&q0, &st.q())
+    }
+
+    /// `P ← P − W D⁻¹ Wᵀ` over the upper triangle of the first `n` columns, mirrored, with the
+    /// variance floor. Two columns at a time: each row of `W` is loaded once for both (the
+    /// pass is load-bound on the MCU), and the mirrored entries of a row pair are adjacent.
+    fn downdate(&self, p: &mut Cov<T>, n: usize, w: &Gains<T, M>) {
+        let floor = T::c(T::VARIANCE_FLOOR);
+        let p = p.as_mut_slice();
+        let mut j = 0;
+        while j < n {
+            let (left, rest) = p.split_at_mut(j * N);
+            let pair = j + 1 < n;
+            let (col0, col1) = rest.split_at_mut(N);
+            let c0 = self.scaled(&w[j]);
+            if pair {
+                let c1 = self.scaled(&w[j + 1]);
+                for ((other, (a, b)), wi) in left
+                    .chunks_exact_mut(N)
+                    .zip(col0.iter_mut().zip(col1.iter_mut()))
+                    .zip(w)
+                {
+                    let va = Self::dot_sub(*a, wi, &c0);
+                    let vb = Self::dot_sub(*b, wi, &c1);
+                    *a = va;
+                    *b = vb;
+                    // P[j, i], P[j + 1, i] (column i, rows j and j + 1) ← P[i, j], P[i, j + 1].
+                    if let Some([oa, ob]) = other.get_mut(j..j + 2) {
+                        *oa = va;
+                        *ob = vb;
+                    }
+                }
+                // Row j: P_jj, and P_j,j+1 mirrored into P_j+1,j; then P_j+1,j+1.
+                let djj = Self::dot_sub(col0[j], &w[j], &c0);
+                col0[j] = if djj < floor { floor } else { djj };
+                let pj1 = Self::dot_sub(col1[j], &w[j], &c1);
+                col1[j] = pj1;
+                col0[j + 1] = pj1;
+                let d11 = Self::dot_sub(col1[j + 1], &w[j + 1], &c1);
+                col1[j + 1] = if d11 < floor { floor } else { d11 };
+            } else {
+                for ((other, a), wi) in left.chunks_exact_mut(N).zip(col0.iter_mut()).zip(w) {
+                    let va = Self::dot_sub(*a, wi, &c0);
+                    *a = va;
+                    other[j] = va;
+                }
+                let djj = Self::dot_sub(col0[j], &w[j], &c0);
+                col0[j] = if djj < floor { floor } else { djj };
+            }
+            j += 2;
+        }
+    }
+
+    /// `w D⁻¹`, a column's coefficients in [`Self::downdate`].
+    #[inline(always)]
+    fn scaled(&self, w: &[T; M]) -> [T; M] {
+        core::array::from_fn(|m| w[m] * self.d_inv[m])
+    }
+
+    /// `p − w · c`, subtracting term by term in the order of the rows.
+    #[inline(always)]
+    fn dot_sub(p: T, w: &[T; M], c: &[T; M]) -> T {
+        let mut acc = p;
+        for (&wm, &cm) in w.iter().zip(c) {
+            acc -= wm * cm;
+        }
+        acc
     }
 }
 

@@ -78,15 +78,32 @@ impl<T: Scalar> State<T> {
         self.x.fixed_rows_mut::<4>(QUAT).copy_from(q);
     }
 
-    /// Frobenius norm of the covariance.
+    /// Frobenius norm of the covariance, from its upper triangle (the covariance is
+    /// symmetric): `‖P‖² = Σ P_ii² + 2 Σ_{i<j} P_ij²`, half the work of all entries.
     pub fn cov_frobenius(&self) -> T {
-        self.p.norm()
+        let mut diag = T::zero();
+        let mut off = T::zero();
+        for (j, col) in self.p.as_slice().chunks_exact(N).enumerate() {
+            for &v in &col[..j] {
+                off += v * v;
+            }
+            diag += col[j] * col[j];
+        }
+        (diag + off * T::c(2.0)).sqrt()
     }
 
     /// Whether every entry of mean and covariance is finite.
     pub fn is_finite(&self) -> bool {
-        self.x.iter().chain(self.p.iter()).all(|v| v.is_finite())
+        all_finite(self.x.as_slice()) && all_finite(self.p.as_slice())
     }
+}
+
+/// Whether every value is finite, branch-free: `v · 0` is `±0` for a finite `v` and NaN for
+/// `±∞` and NaN, so the sum of those products is zero exactly when all are finite (one
+/// multiply-add per value instead of a compare and branch).
+pub fn all_finite<T: Scalar>(values: &[T]) -> bool {
+    let zero = T::zero();
+    values.iter().fold(zero, |acc, &v| acc + v * zero) == zero
 }
 
 /// Hand-eye calibration, converted to the filter's scalar.

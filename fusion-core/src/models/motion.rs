@@ -68,29 +68,36 @@ fn propagate_covariance<T: Scalar>(
     f_qq: &Matrix4<T>,
     f_qw: &Matrix4x3<T>,
 ) {
-    // Plain arrays: `apply_f` indexes them for every column and row.
-    let mut fq = [[T::zero(); 7]; 4];
-    for (r, row) in fq.iter_mut().enumerate() {
-        for c in 0..4 {
-            row[c] = f_qq[(r, c)];
-        }
-        for c in 0..3 {
-            row[4 + c] = f_qw[(r, c)];
-        }
-    }
+    let f = Transition {
+        acc_model,
+        dt,
+        half_dt2: dt * dt * T::c(0.5),
+        // ∂q'/∂q = L(δq): its first column is δq itself.
+        dq: [f_qq[(0, 0)], f_qq[(1, 0)], f_qq[(2, 0)], f_qq[(3, 0)]],
+        f_qw: core::array::from_fn(|r| [f_qw[(r, 0)], f_qw[(r, 1)], f_qw[(r, 2)]]),
+    };
     let n = n.min(N);
     let p = st.p.as_mut_slice();
+    // One loop over the columns with `f` inlined, so that its 16 coefficients stay in
+    // registers rather than being reloaded for every column.
     for chunk in p.chunks_exact_mut(N).take(n) {
         if let Ok(col) = <&mut [T; N]>::try_from(chunk) {
-            apply_f(col, acc_model, dt, &fq);
+            f.apply(col);
         }
     }
+    // Row i of M: only the entries `F` reads, position to ω and, in the acc model, the
+    // acceleration (the rest of `row` is never used; every model has at least 13 states).
     let mut row = [T::zero(); N];
     for i in 0..F_ROWS {
-        for (v, col) in row.iter_mut().zip(p.chunks_exact(N)).take(n) {
+        for (v, col) in row[..OMEGA + 3].iter_mut().zip(p.chunks_exact(N)) {
             *v = col[i];
         }
-        apply_f(&mut row, acc_model, dt, &fq);
+        if acc_model {
+            for (v, col) in row[ACC..].iter_mut().zip(p.chunks_exact(N).skip(ACC)) {
+                *v = col[i];
+            }
+        }
+        f.apply(&mut row);
         for (&v, col) in row.iter().zip(p.chunks_exact_mut(N)).take(F_ROWS) {
             col[i] = v;
         }
@@ -104,33 +111,45 @@ fn propagate_covariance<T: Scalar>(
     }
 }
 
-/// `v ← F v`, for a column of `P` or a row of `M` (see [`propagate_covariance`]).
-#[inline(never)]
-fn apply_f<T: Scalar>(v: &mut [T; N], acc_model: bool, dt: T, fq: &[[T; 7]; 4]) {
-    let half_dt2 = dt * dt * T::c(0.5);
-    // Position first (it reads the old velocity).
-    for k in 0..3 {
-        let mut pos = v[POS + k] + v[VEL + k] * dt;
-        if acc_model {
-            pos += v[ACC + k] * half_dt2;
-            v[VEL + k] += v[ACC + k] * dt;
+/// The rows of `F` that differ from the identity (see [`propagate_covariance`]).
+struct Transition<T: Scalar> {
+    acc_model: bool,
+    dt: T,
+    half_dt2: T,
+    /// `δq = [w, x, y, z]`: `∂q'/∂q = L(δq)` ([`quat::left`]).
+    dq: [T; 4],
+    /// `∂q'/∂ω`, by rows.
+    f_qw: [[T; 3]; 4],
+}
+
+impl<T: Scalar> Transition<T> {
+    /// `v ← F v`, for a column of `P` or a row of `M` (see [`propagate_covariance`]).
+    #[inline(always)]
+    fn apply(&self, v: &mut [T; N]) {
+        let (dt, half_dt2) = (self.dt, self.half_dt2);
+        // Position first (it reads the old velocity).
+        for k in 0..3 {
+            let mut pos = v[POS + k] + v[VEL + k] * dt;
+            if self.acc_model {
+                pos += v[ACC + k] * half_dt2;
+                v[VEL + k] += v[ACC + k] * dt;
+            }
+            v[POS + k] = pos;
         }
-        v[POS + k] = pos;
-    }
-    let old = [
-        v[QUAT],
-        v[QUAT + 1],
-        v[QUAT + 2],
-        v[QUAT + 3],
-        v[OMEGA],
-        v[OMEGA + 1],
-        v[OMEGA + 2],
-    ];
-    for (r, f) in fq.iter().enumerate() {
-        v[QUAT + r] = f
-            .iter()
-            .zip(&old)
-            .fold(T::zero(), |acc, (&a, &b)| acc + a * b);
+        let [q0, q1, q2, q3] = [v[QUAT], v[QUAT + 1], v[QUAT + 2], v[QUAT + 3]];
+        let om = [v[OMEGA], v[OMEGA + 1], v[OMEGA + 2]];
+        let [w, x, y, z] = self.dq;
+        // The rows of L(δq) = [[w, −x, −y, −z], [x, w, −z, y], [y, z, w, −x], [z, −y, x, w]]
+        // (signs applied by subtracting, which rounds the same), then ∂q'/∂ω ω.
+        let lq = [
+            w * q0 - x * q1 - y * q2 - z * q3,
+            x * q0 + w * q1 - z * q2 + y * q3,
+            y * q0 + z * q1 + w * q2 - x * q3,
+            z * q0 - y * q1 + x * q2 + w * q3,
+        ];
+        for (r, (l, fw)) in lq.into_iter().zip(&self.f_qw).enumerate() {
+            v[QUAT + r] = l + fw[0] * om[0] + fw[1] * om[1] + fw[2] * om[2];
+        }
     }
 }
 
