@@ -106,10 +106,13 @@ fn assert_desktop_fast_accuracy(run: &TrackRun) {
     }
 }
 
+/// The paper's Table 2 on the fast desktop sequence, and, with the IMU withheld, the
+/// vision-only model (issue 14): the acc model predicts at least twice as well as every other,
+/// vision-only included (measured: acc 0.17 px, vision-only 0.93 px).
 #[test]
 fn desktop_fast_the_acc_model_predicts_twice_as_well_and_meets_the_papers_accuracy() {
     let ds = dataset(ScenarioName::DesktopFast, 12.0);
-    let runs: Vec<(ModelKind, TrackRun)> = ModelKind::INERTIAL
+    let runs: Vec<(ModelKind, TrackRun)> = ModelKind::ALL
         .iter()
         .map(|&m| {
             let name = format!("desktop-fast-{m:?}");
@@ -118,13 +121,22 @@ fn desktop_fast_the_acc_model_predicts_twice_as_well_and_meets_the_papers_accura
         .collect();
     let px = |m: ModelKind| mean_px(&runs.iter().find(|(k, _)| *k == m).unwrap().1);
     println!(
-        "desktop-fast mean prediction error: gyro {:.3} px, gravity {:.3} px, acc {:.3} px",
+        "desktop-fast mean prediction error: gyro {:.3} px, gravity {:.3} px, acc {:.3} px, vision-only {:.3} px",
         px(ModelKind::Gyro),
         px(ModelKind::Gravity),
-        px(ModelKind::Acc)
+        px(ModelKind::Acc),
+        px(ModelKind::Vision)
     );
     assert!(px(ModelKind::Acc) <= 0.5 * px(ModelKind::Gyro));
     assert!(px(ModelKind::Acc) <= 0.5 * px(ModelKind::Gravity));
+    assert!(px(ModelKind::Acc) <= 0.5 * px(ModelKind::Vision));
+    let (_, vision) = runs.iter().find(|(k, _)| *k == ModelKind::Vision).unwrap();
+    assert!(!vision.summary.imu_used);
+    let t = vision
+        .summary
+        .tracked
+        .expect("vision-only frames are judged");
+    assert!(t.share > 0.9, "{t:?}");
     let (_, acc) = runs.iter().find(|(k, _)| *k == ModelKind::Acc).unwrap();
     assert!(acc.summary.divergences.is_empty());
     assert_desktop_fast_accuracy(acc);

@@ -19,7 +19,7 @@ pub use self::stats::DecodeStats;
 pub use self::video::{VideoFrames, VideoOptions};
 
 /// One grey frame.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
     /// Position in the stream, from 0.
     pub index: usize,
@@ -133,6 +133,16 @@ pub enum FrameInput {
         /// Frame rate of a plain folder [Hz].
         fps: Option<f64>,
     },
+    /// Frames a program already holds (decoded elsewhere, or once for benchmarks), with the
+    /// name reports give them. They get the checks of every source.
+    Decoded {
+        /// What to call them.
+        name: PathBuf,
+        /// The frames, in order.
+        frames: std::sync::Arc<Vec<Frame>>,
+        /// Their nominal rate [Hz], if known.
+        fps: Option<f64>,
+    },
 }
 
 impl FrameInput {
@@ -141,6 +151,13 @@ impl FrameInput {
         Ok(match self {
             FrameInput::Video(path) => FrameSource::Video(VideoFrames::open(path, video)?),
             FrameInput::Images { dir, fps } => FrameSource::Images(ImageFolder::open(dir, *fps)?),
+            FrameInput::Decoded { name, frames, fps } => FrameSource::Decoded {
+                name: name.clone(),
+                frames: frames.clone(),
+                next: 0,
+                fps: *fps,
+                check: StreamCheck::default(),
+            },
         })
     }
 
@@ -149,6 +166,7 @@ impl FrameInput {
         match self {
             FrameInput::Video(p) => p,
             FrameInput::Images { dir, .. } => dir,
+            FrameInput::Decoded { name, .. } => name,
         }
     }
 }
@@ -160,6 +178,19 @@ pub enum FrameSource {
     Video(VideoFrames),
     /// Read from a folder.
     Images(ImageFolder),
+    /// Held in memory ([`FrameInput::Decoded`]).
+    Decoded {
+        /// What to call them.
+        name: PathBuf,
+        /// The frames.
+        frames: std::sync::Arc<Vec<Frame>>,
+        /// The next one.
+        next: usize,
+        /// Their nominal rate [Hz].
+        fps: Option<f64>,
+        /// Size and order checks.
+        check: StreamCheck,
+    },
 }
 
 impl FrameSource {
@@ -168,6 +199,7 @@ impl FrameSource {
         match self {
             FrameSource::Video(v) => v.nominal_rate_hz(),
             FrameSource::Images(f) => f.fps(),
+            FrameSource::Decoded { fps, .. } => *fps,
         }
     }
 
@@ -176,6 +208,7 @@ impl FrameSource {
         match self {
             FrameSource::Video(_) => None,
             FrameSource::Images(f) => Some(f.len()),
+            FrameSource::Decoded { frames, .. } => Some(frames.len()),
         }
     }
 }
@@ -187,13 +220,28 @@ impl Iterator for FrameSource {
         match self {
             FrameSource::Video(v) => v.next(),
             FrameSource::Images(f) => f.next(),
+            FrameSource::Decoded {
+                name,
+                frames,
+                next,
+                check,
+                ..
+            } => {
+                let frame = frames.get(*next)?.clone();
+                *next += 1;
+                Some(
+                    check
+                        .check(name, frame.index, frame.image.dimensions(), frame.t_ns)
+                        .map(|()| frame),
+                )
+            }
         }
     }
 }
 
 /// The checks every source applies to each frame: one size for all, increasing time stamps.
 #[derive(Debug, Clone, Default)]
-struct StreamCheck {
+pub struct StreamCheck {
     first_size: Option<(u32, u32)>,
     last_ns: Option<i64>,
 }

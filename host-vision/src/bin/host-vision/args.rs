@@ -95,7 +95,8 @@ pub struct EvalArgs {
     /// Scenarios (repeatable; default: all four).
     #[arg(long = "scenario", value_enum)]
     pub scenarios: Vec<ScenarioName>,
-    /// Models (repeatable; default: gyro, gravity, acc).
+    /// Models (repeatable; default: gyro, gravity, acc and vision, the last with the IMU
+    /// withheld).
     #[arg(long = "filter", value_enum)]
     pub filters: Vec<FilterArg>,
     /// Shorter scenarios [s] (default: their nominal lengths).

@@ -392,7 +392,8 @@ fn eval(a: &EvalArgs) -> Result<Done, Failure> {
             a.scenarios.clone()
         },
         models: if a.filters.is_empty() {
-            protocol::ModelKind::INERTIAL.to_vec()
+            // The paper's three models, and vision-only with the IMU withheld.
+            protocol::ModelKind::ALL.to_vec()
         } else {
             a.filters.iter().map(|&f| f.into()).collect()
         },
