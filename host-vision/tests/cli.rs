@@ -992,3 +992,80 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
     let (so, _) = expect(&["frames", "--images", s(&cam0)], 0);
     assert!(so.contains("frames:        38 of 160x120 px"), "{so}");
 }
+
+/// Issue 14: bad vision-only input is named, before anything is written: a file ffmpeg cannot
+/// decode, a camera for another frame size, a malformed camera file, a start pose that is not
+/// rigid.
+#[test]
+fn p19_bad_vision_only_input_is_named_and_nothing_is_written() {
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let pose = tmp("p19-pose.json");
+    std::fs::write(
+        &pose,
+        r#"{"cMo": [[1,0,0,0],[0,1,0,0],[0,0,1,0.5],[0,0,0,1]]}"#,
+    )
+    .unwrap();
+    let camera = |name: &str, w: u32, h: u32| {
+        let p = tmp(name);
+        std::fs::write(
+            &p,
+            format!(
+                r#"{{"model": "pinhole", "width": {w}, "height": {h}, "fx": 100, "fy": 100, "cx": {}, "cy": {}, "distortion": "none"}}"#,
+                w / 2,
+                h / 2
+            ),
+        )
+        .unwrap();
+        p
+    };
+    let out = tmp("p19-out");
+    let model = ds.join("model/scene.obj");
+    let vision = |input: &[&str], cam: &Path, pose: &Path| -> Vec<String> {
+        let mut a: Vec<String> = vec!["track".into()];
+        a.extend(input.iter().map(|v| v.to_string()));
+        for (flag, v) in [
+            ("--camera", s(cam)),
+            ("--model", s(&model)),
+            ("--start-pose", s(pose)),
+            ("--out", s(&out)),
+        ] {
+            a.push(flag.into());
+            a.push(v.into());
+        }
+        a
+    };
+    let run = |args: Vec<String>, code: i32| {
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (_, se) = expect(&refs, code);
+        assert!(!out.exists(), "outputs were written:\n{se}");
+        se
+    };
+    // A camera for 640x480 frames, with 160x120 frames.
+    let wrong = camera("p19-camera-640.json", 640, 480);
+    let se = run(vision(&["--images", s(&cam0)], &wrong, &pose), 2);
+    assert!(
+        se.contains("the frames are 160x120 pixels, the camera's intrinsics are for 640x480"),
+        "{se}"
+    );
+    // A camera file that is not one.
+    let broken = tmp("p19-camera-broken.json");
+    std::fs::write(&broken, "{\"model\": \"pinhole\", \"width\": 160").unwrap();
+    let se = run(vision(&["--images", s(&cam0)], &broken, &pose), 1);
+    assert!(se.contains("p19-camera-broken.json"), "{se}");
+    // A video ffmpeg cannot decode.
+    let right = camera("p19-camera-160.json", 160, 120);
+    let junk = tmp("p19-junk.mp4");
+    std::fs::write(&junk, b"not a video, just bytes that end early").unwrap();
+    let se = run(vision(&["--video", s(&junk)], &right, &pose), 1);
+    assert!(se.contains("p19-junk.mp4: ffmpeg cannot decode it"), "{se}");
+    // A start pose that is not rigid.
+    let skew = tmp("p19-skew.json");
+    std::fs::write(
+        &skew,
+        r#"{"cMo": [[1,0.2,0,0],[0,1,0,0],[0,0,1,0.5],[0,0,0,1]]}"#,
+    )
+    .unwrap();
+    let se = run(vision(&["--images", s(&cam0)], &right, &skew), 2);
+    assert!(se.contains("is not a rigid transform"), "{se}");
+}
