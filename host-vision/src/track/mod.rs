@@ -533,7 +533,6 @@ pub fn run(
         rng: StdRng::seed_from_u64(options.faults.seed),
         injected_outliers: 0,
         sent_correspondences: 0,
-        streamed: 0,
         wall: Instant::now(),
         axes: ready.axes,
     };
@@ -543,7 +542,7 @@ pub fn run(
     };
     worker.stop();
     let closed = link.close();
-    if session.streamed == 0 {
+    if session.clock.is_empty() {
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
         return Err(match (outcome, closed) {
             (Err(e), _) | (Ok(_), Err(e)) => e,
@@ -785,8 +784,6 @@ pub struct Session<'a> {
     pub injected_outliers: usize,
     /// Correspondences sent.
     pub sent_correspondences: usize,
-    /// IMU samples sent to the core.
-    pub streamed: usize,
     wall: Instant,
     /// Where the overlays draw the model's axes, and their length.
     pub axes: (Vector3<f64>, f64),
@@ -939,7 +936,6 @@ impl Session<'_> {
                 trigger: frame.is_some(),
             }))?;
             self.clock.push(row.stamp);
-            self.streamed = k + 1;
             if let Some(f) = frame {
                 if lock_step {
                     self.barrier(link)?;

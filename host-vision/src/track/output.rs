@@ -540,13 +540,11 @@ pub(super) fn write_all(
         let path = out.join("groundtruth.tum");
         write_tum(
             &path,
-            session.clock[..session.streamed]
-                .iter()
-                .filter_map(|&stamp| {
-                    let (p, q) = dataset.groundtruth_at(stamp)?;
-                    let (c, q_cw) = he.camera_pose(&p, &q);
-                    Some((stamp, c, q_cw.inverse()))
-                }),
+            session.clock.iter().filter_map(|&stamp| {
+                let (p, q) = dataset.groundtruth_at(stamp)?;
+                let (c, q_cw) = he.camera_pose(&p, &q);
+                Some((stamp, c, q_cw.inverse()))
+            }),
         )?;
         written.push(path);
     }
@@ -706,9 +704,8 @@ pub(super) fn write_all(
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
     let duration_s = session
-        .streamed
-        .checked_sub(1)
-        .and_then(|k| session.clock.get(k))
+        .clock
+        .last()
         .map_or(0.0, |&stamp| (stamp - stamp0) as f64 / 1e9);
     let summary = Summary {
         dataset: dataset.root.display().to_string(),

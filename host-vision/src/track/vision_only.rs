@@ -99,7 +99,6 @@ impl Session<'_> {
     ) -> Result<(), TrackError> {
         link.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
         self.clock.push(stamp0 + t_us * 1000);
-        self.streamed = self.clock.len();
         Ok(())
     }
 
