@@ -325,3 +325,49 @@ fn correspondences_carry_normalised_points_and_propagated_covariances() {
     let too_many: Vec<_> = (0..1000).map(|_| c).collect();
     assert!(correspondence::frame_messages(7, 0, &too_many).is_err());
 }
+
+/// A small object wholly in view gets cells small enough for about `2 × min_visible` of them
+/// on it (down to 12 px), when asked for (vision-only runs); a model cut by the image border,
+/// one that covers a quarter of the image, or the default configuration keep the 32-px cells.
+#[test]
+fn small_objects_get_smaller_cells_when_asked() {
+    let square = |x0: u32, side: u32| {
+        image::GrayImage::from_fn(640, 480, |x, y| {
+            image::Luma([
+                if (x0..x0 + side).contains(&x) && (200..200 + side).contains(&y) {
+                    255
+                } else {
+                    0
+                },
+            ])
+        })
+    };
+    let small = square(300, 160);
+    let adaptive = FeatureMap::new(MapConfig {
+        small_object_cells: true,
+        ..MapConfig::default()
+    });
+    // 160² px / (2 × 40) = 320 px² per cell: 17 px.
+    assert_eq!(adaptive.grid_for(&small).cell_size, 17);
+    assert_eq!(
+        FeatureMap::new(MapConfig::default())
+            .grid_for(&small)
+            .cell_size,
+        32
+    );
+    assert_eq!(
+        adaptive.grid_for(&square(0, 160)).cell_size,
+        32,
+        "cut by the border"
+    );
+    assert_eq!(
+        adaptive.grid_for(&square(100, 279)).cell_size,
+        32,
+        "a quarter of the image"
+    );
+    assert_eq!(
+        adaptive.grid_for(&square(300, 40)).cell_size,
+        12,
+        "the smallest cell"
+    );
+}

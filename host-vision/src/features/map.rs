@@ -51,6 +51,10 @@ pub struct MapConfig {
     pub corner_sigma_px: f64,
     /// Extraction of new features.
     pub grid: GridConfig,
+    /// Smaller extraction cells for a small object wholly in view ([`FeatureMap::grid_for`]).
+    /// On in vision-only runs, where no IMU bridges frames with few features; the inertial
+    /// runs keep the paper's fixed grid.
+    pub small_object_cells: bool,
 }
 
 impl Default for MapConfig {
@@ -66,6 +70,7 @@ impl Default for MapConfig {
             depth_tolerance: 0.02,
             corner_sigma_px: 0.5,
             grid: GridConfig::default(),
+            small_object_cells: false,
         }
     }
 }
@@ -236,16 +241,24 @@ impl FeatureMap {
         visible.len() < self.config.min_visible
     }
 
-    /// The extraction grid for a rendering: the configured cells, or, for a model that covers
-    /// less than [`SMALL_MODEL_SHARE`] of the image (a small object, or one far away), smaller
-    /// ones, so that its mask still holds about twice `min_visible` cells (down to
-    /// [`MIN_CELL_SIZE`]). A scene that fills the view keeps the configured cells, however
-    /// small the image.
+    /// The extraction grid for a rendering: the configured cells, or, with
+    /// [`MapConfig::small_object_cells`], for a small object wholly in view (its rendering
+    /// covers less than [`SMALL_MODEL_SHARE`] of the image and touches no image border),
+    /// smaller ones, so that its mask still holds about twice `min_visible` cells (down to
+    /// [`MIN_CELL_SIZE`]). A scene that fills the view, or a model cut by the border, keeps the
+    /// configured cells.
     pub fn grid_for(&self, mask: &image::GrayImage) -> GridConfig {
-        let model_px = mask.pixels().filter(|p| p.0[0] > 0).count() as f64;
         let mut grid = self.config.grid;
+        if !self.config.small_object_cells {
+            return grid;
+        }
+        let model_px = mask.pixels().filter(|p| p.0[0] > 0).count() as f64;
         let image_px = f64::from(mask.width()) * f64::from(mask.height());
-        if model_px >= SMALL_MODEL_SHARE * image_px {
+        let (w, h) = mask.dimensions();
+        let on = |x: u32, y: u32| mask.get_pixel(x, y).0[0] > 0;
+        let touches_border = (0..w).any(|x| on(x, 0) || on(x, h.saturating_sub(1)))
+            || (0..h).any(|y| on(0, y) || on(w.saturating_sub(1), y));
+        if model_px >= SMALL_MODEL_SHARE * image_px || touches_border {
             return grid;
         }
         let wanted = 2.0 * self.config.min_visible.max(1) as f64;

@@ -514,8 +514,9 @@ pub fn run(
     // The vision worker owns the renderer: created once, on its own thread, and always shut
     // down and joined before this function returns (a renderer torn down by the process's
     // exit crashes in the driver).
-    let (mut worker, ready) =
-        VisionWorker::start(dataset.camera.camera, model_path, options.vision)?;
+    let mut vision = options.vision;
+    vision.map.small_object_cells |= options.vision_only();
+    let (mut worker, ready) = VisionWorker::start(dataset.camera.camera, model_path, vision)?;
     let adapter = ready.adapter;
     let mut session = Session {
         options,
