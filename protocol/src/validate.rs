@@ -309,7 +309,6 @@ mod tests {
         );
         // The vision-only model measures with neither: zero noises are fine, bad ones not.
         let vision = |edit: fn(&mut Config)| {
-            configure(|c| c.model = ModelKind::Vision)?;
             let mut c = samples::config();
             c.model = ModelKind::Vision;
             edit(&mut c);

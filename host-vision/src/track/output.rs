@@ -550,6 +550,7 @@ pub(super) fn write_all(
     }
 
     // Frames.
+    let rule = super::TrackedRule::default();
     let mut rows = Vec::with_capacity(session.results.len());
     for (frame_id, r) in &session.results {
         let reports = log.updates.get(frame_id);
@@ -562,7 +563,6 @@ pub(super) fn write_all(
             Some((c - c_true).norm())
         });
         let judged = session.assessments.get(frame_id);
-        let rule = super::TrackedRule::default();
         rows.push(FrameRow {
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
@@ -738,7 +738,7 @@ pub(super) fn write_all(
                 frames: judged.len(),
                 tracked,
                 share: tracked as f64 / judged.len().max(1) as f64,
-                rule: super::TrackedRule::default(),
+                rule,
             }
         }),
         divergences,

@@ -431,10 +431,9 @@ impl Vision {
         } else {
             Vec::new()
         };
-        self.last = Some(LastFrame {
-            live: live.clone(),
-            registered,
-        });
+        // The live image stays for the judgement; only an overlay's frame needs a copy.
+        let image = job.keep_image.then(|| live.clone());
+        self.last = Some(LastFrame { live, registered });
         times.total = t0.elapsed().as_secs_f64();
         Ok(FrameResult {
             visible: visible.len(),
@@ -445,7 +444,7 @@ impl Vision {
             prediction_error_px: (error_count > 0).then(|| error_sum / error_count as f64),
             model_coverage,
             times,
-            image: job.keep_image.then_some(live),
+            image,
             outline,
             job,
         })
