@@ -5,9 +5,10 @@
 //!
 //! What the frames show (judged from the run's overlays, `--overlay-every 10`): the cube stands
 //! still until frame 92, is pushed (92-150), turned (210-250, 320-410), and from frame 548 the
-//! mug slides in front of it; by frame 600 it covers the cube, which the hand moves to another
-//! place behind it. After the mug it is lifted and turned in the air. Once it reappears
-//! elsewhere, only a search of the whole image (the cold-start issue) can find it again.
+//! hand brings the mug in front of it and moves both to the right; until about frame 750 the
+//! mug covers half of the cube or more, and the tracker follows the part still visible. After the
+//! mug the cube is lifted and turned in the air. The frames judged at least half visible are
+//! all but 548-749.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -43,7 +44,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 }
 
 #[test]
-fn the_cube_video_is_tracked_vision_only_until_the_mug_hides_it() {
+fn the_cube_video_is_tracked_vision_only_through_pushes_turns_and_the_mug() {
     let Some(dir) = data() else { return };
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("visp-cube");
     let video = dir.join("cube_video.mp4");
@@ -82,50 +83,41 @@ fn the_cube_video_is_tracked_vision_only_until_the_mug_hides_it() {
     );
     assert!(share(&rest) >= 0.9, "{}", share(&rest));
     assert!(ncc > 0.55 && rms < 1.0, "{ncc} {rms}");
-    // While the mug covers the cube no pose is reported as tracked.
-    let hidden = by_index(600, 700);
-    assert!(!hidden.is_empty());
-    assert!(
-        hidden.iter().all(|r| r.tracked != Some(true)),
-        "a hidden cube counted as tracked"
+    // While the mug covers most of the cube, the rendering at the estimate correlates poorly
+    // with the live image: those frames are not reported as tracked. The pose itself stays on
+    // the visible part (the overlays show the outline on the cube), so tracking resumes after
+    // the mug without a new start.
+    let behind_mug = by_index(600, 700);
+    assert!(!behind_mug.is_empty());
+    println!(
+        "behind the mug (600-699): {:.1} % tracked",
+        100.0 * share(&behind_mug)
     );
-    // Through the pushes and turns the margin is thin: Mesa's GL renderer (xtask's second
-    // pass) draws the texture slightly differently from its Vulkan one, and with it the cube
-    // is lost in the first push (4.7 s here) and not found again. The shares below are
-    // asserted for the Vulkan renderer, and printed for both (issue 14's note).
-    let vulkan = s.adapter.contains("Vulkan");
+    assert!(share(&behind_mug) <= 0.3, "{}", share(&behind_mug));
+    let half_visible: Vec<&FrameRow> = rows
+        .iter()
+        .copied()
+        .filter(|r| !(548..750).contains(&r.index))
+        .collect();
     let lost_at = s
         .track_losses
         .iter()
         .find(|l| !l.recovered)
         .map(|l| l.start);
     println!(
-        "{}: first unrecovered loss at {lost_at:?} s, {:.1} % of the frames before the mug (0-547) tracked, {:.1} % of the whole video",
+        "{}: first unrecovered loss at {lost_at:?} s; tracked: {:.1} % of the frames judged at least half visible, {:.1} % before the mug (0-547), {:.1} % after it (750-), {:.1} % of the whole video",
         s.adapter,
+        100.0 * share(&half_visible),
         100.0 * share(&by_index(0, 548)),
+        100.0 * share(&by_index(750, usize::MAX)),
         100.0 * share(&rows)
     );
-    if !vulkan {
-        return;
-    }
-    // The loss is reported where the mug covers it, and it is the first that does not recover.
-    let loss = s
-        .track_losses
-        .iter()
-        .find(|l| !l.recovered)
-        .expect("a loss is reported");
-    let lost_at = loss.start;
-    println!("first unrecovered loss at {lost_at:.2} s");
-    assert!((18.0..21.0).contains(&lost_at), "{lost_at}");
-    let before: Vec<&FrameRow> = rows.iter().copied().filter(|r| r.t < lost_at).collect();
-    let visible = by_index(0, 548);
-    println!(
-        "tracked: {:.1} % of the frames before the first unrecovered loss, {:.1} % of the frames before the mug (0-547), {:.1} % of the whole video",
-        100.0 * share(&before),
-        100.0 * share(&visible),
-        100.0 * share(&rows)
-    );
-    // Measured 83.4 % (0-547); the frames missing are fast pushes and turns whose registrations
-    // fit no rigid pose better than 1.5-2.7 px (see the issue's closing note).
-    assert!(share(&visible) >= 0.8, "{}", share(&visible));
+    // Measured 97.1 % of the half-visible frames under Mesa's Vulkan renderer (95.8 % before the
+    // mug, 100 % after it) and 96.1 % under its GL renderer (xtask's second pass, which draws
+    // the texture slightly differently): the frames missing are the hardest moments of the
+    // pushes and turns.
+    assert_eq!(lost_at, None, "tracking lost for good");
+    assert!(share(&half_visible) >= 0.9, "{}", share(&half_visible));
+    assert!(share(&by_index(0, 548)) >= 0.9);
+    assert!(share(&by_index(750, usize::MAX)) >= 0.9);
 }

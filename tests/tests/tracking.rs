@@ -135,6 +135,7 @@ fn desktop_fast_the_acc_model_predicts_twice_as_well_and_meets_the_papers_accura
     let t = vision
         .summary
         .tracked
+        .as_ref()
         .expect("vision-only frames are judged");
     assert!(t.share > 0.9, "{t:?}");
     let (_, acc) = runs.iter().find(|(k, _)| *k == ModelKind::Acc).unwrap();

@@ -129,6 +129,9 @@ pub enum Outcome {
     Success,
     /// Failed, with the reason.
     Failure(KltFailure),
+    /// Registered, but no rigid pose explains it with the frame's other registrations
+    /// ([`crate::features::outliers`]): not sent, and counted as a failure.
+    Outlier,
 }
 
 /// The feature map.
@@ -309,7 +312,7 @@ impl FeatureMap {
                     s.consecutive_failures = 0;
                     s.last_success_frame = Some(frame_index);
                 }
-                Outcome::Failure(_) => {
+                Outcome::Failure(_) | Outcome::Outlier => {
                     s.consecutive_failures = s.consecutive_failures.saturating_add(1);
                 }
             }

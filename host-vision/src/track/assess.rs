@@ -11,10 +11,10 @@
 //! A frame is **tracked** when both hold ([`TrackedRule`]).
 
 use image::GrayImage;
-use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
 
 use crate::camera::{Camera, CameraPose};
+use crate::features::outliers::Registration;
 
 /// What the assessment of one frame found.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -39,7 +39,7 @@ pub const MIN_NCC_PIXELS: usize = 200;
 pub fn reprojection_rms(
     camera: &Camera,
     pose: &CameraPose,
-    registered: &[(Vector2<f64>, Vector3<f64>)],
+    registered: &[Registration],
 ) -> (usize, Option<f64>) {
     let mut sum = 0.0;
     let mut n = 0usize;
@@ -126,7 +126,7 @@ impl TrackedRule {
 mod tests {
     use super::*;
     use crate::camera::{Pinhole, pinhole_camera};
-    use nalgebra::UnitQuaternion;
+    use nalgebra::{UnitQuaternion, Vector2, Vector3};
 
     #[test]
     fn ncc_is_one_for_an_affine_copy_zero_for_noise_and_ignores_the_background() {

@@ -79,7 +79,7 @@ pub struct FrameRow {
 }
 
 /// How many frames a vision-only run tracked ([`super::TrackedRule`]).
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct TrackedShare {
     /// Frames judged.
     pub frames: usize,
@@ -89,6 +89,31 @@ pub struct TrackedShare {
     pub share: f64,
     /// The rule.
     pub rule: super::TrackedRule,
+    /// Stretches of consecutive judged frames not tracked, `[first, last]` frame times [s]:
+    /// occlusions, fast motion, or a wrong pose.
+    pub untracked: Vec<[f64; 2]>,
+}
+
+/// `[first, last]` times of the runs of consecutive judged rows not tracked.
+fn untracked_stretches(rows: &[FrameRow]) -> Vec<[f64; 2]> {
+    let mut out: Vec<[f64; 2]> = Vec::new();
+    let mut open = false;
+    for r in rows {
+        match r.tracked {
+            Some(false) if open => {
+                if let Some(last) = out.last_mut() {
+                    last[1] = r.t;
+                }
+            }
+            Some(false) => {
+                out.push([r.t, r.t]);
+                open = true;
+            }
+            Some(true) => open = false,
+            None => {}
+        }
+    }
+    out
 }
 
 /// Accuracy against ground truth.
@@ -332,6 +357,21 @@ impl fmt::Display for Summary {
                 t.rule.min_features,
                 t.rule.min_ncc
             )?;
+            if !t.untracked.is_empty() {
+                let mut longest = t.untracked.clone();
+                longest.sort_by(|a, b| (b[1] - b[0]).total_cmp(&(a[1] - a[0])));
+                let shown: Vec<String> = longest
+                    .iter()
+                    .take(5)
+                    .map(|s| format!("{:.2}-{:.2} s", s[0], s[1]))
+                    .collect();
+                writeln!(
+                    f,
+                    "not tracked  {} stretches, the longest: {}",
+                    t.untracked.len(),
+                    shown.join(", ")
+                )?;
+            }
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
@@ -739,6 +779,7 @@ pub(super) fn write_all(
                 tracked,
                 share: tracked as f64 / judged.len().max(1) as f64,
                 rule,
+                untracked: untracked_stretches(&rows),
             }
         }),
         divergences,

@@ -12,8 +12,11 @@ use protocol::{Correspondence, PosePrediction};
 
 use crate::camera::{Camera, CameraPose, UndistortMap};
 use crate::features::correspondence::correspondence;
+use crate::features::map::MapFeature;
+use crate::features::outliers::{Registration, outliers};
 use crate::features::{
-    FeatureMap, GrayF32, KltConfig, KltFailure, MapConfig, Mask, Outcome, TemplatePyramid, register,
+    FeatureMap, GrayF32, KltConfig, KltFailure, KltResult, MapConfig, Mask, Outcome, OutlierRule,
+    Predicted, TemplatePyramid, register,
 };
 use crate::model::Model;
 use crate::render::{RenderView, Renderer};
@@ -37,6 +40,9 @@ pub struct VisionOptions {
     pub exposure: f64,
     /// Standard deviation of the registration error per pixel of blur extent.
     pub blur_sigma_per_px: f64,
+    /// Registrations that no rigid pose explains with the frame's others are not sent
+    /// (`None`: all are sent, the core's gate alone judges them).
+    pub outliers: Option<OutlierRule>,
 }
 
 impl Default for VisionOptions {
@@ -48,6 +54,7 @@ impl Default for VisionOptions {
             clip: (0.05, 50.0),
             exposure: 0.008,
             blur_sigma_per_px: 0.5,
+            outliers: Some(OutlierRule::default()),
         }
     }
 }
@@ -153,7 +160,7 @@ pub struct FrameResult {
 struct LastFrame {
     live: GrayImage,
     /// Registered pixel and model point of each correspondence sent, in the order sent.
-    registered: Vec<(Vector2<f64>, Vector3<f64>)>,
+    registered: Vec<Registration>,
 }
 
 /// The host's image analysis, with its renderer and feature map.
@@ -216,7 +223,7 @@ impl Vision {
         let Some(last) = &self.last else {
             return Ok(Assessment::default());
         };
-        let used: Vec<(Vector2<f64>, Vector3<f64>)> = last
+        let used: Vec<Registration> = last
             .registered
             .iter()
             .zip(applied)
@@ -364,46 +371,69 @@ impl Vision {
             times.pyramids = t.elapsed().as_secs_f64();
 
             let t = Instant::now();
+            // Register until `wanted` succeeded; then judge the successes together.
+            let mut attempts: Vec<(&Predicted, MapFeature, Result<KltResult, KltFailure>)> =
+                Vec::with_capacity(selected.len());
             let mut succeeded = 0usize;
             for p in &selected {
                 if succeeded >= wanted {
                     break;
                 }
-                let position = [p.pixel.x, p.pixel.y];
+                let Some(feature) = self.map.get(p.id).copied() else {
+                    continue;
+                };
                 let result = register(
                     &template.image,
                     Some(&template.mask),
                     &target,
-                    position,
+                    [p.pixel.x, p.pixel.y],
                     [0.0, 0.0],
                     klt,
                 );
-                let Some(feature) = self.map.get(p.id).copied() else {
-                    continue;
-                };
+                succeeded += usize::from(result.is_ok());
+                attempts.push((p, feature, result));
+            }
+            let pairs: Vec<Registration> = attempts
+                .iter()
+                .filter_map(|(_, f, r)| {
+                    let r = r.as_ref().ok()?;
+                    Some((Vector2::new(r.position[0], r.position[1]), f.p_w))
+                })
+                .collect();
+            let mut outlier = match &self.options.outliers {
+                Some(rule) => outliers(&self.ideal, &pose, &pairs, rule),
+                None => vec![false; pairs.len()],
+            }
+            .into_iter();
+            for (p, feature, result) in attempts {
+                let position = [p.pixel.x, p.pixel.y];
                 let outcome = match result {
                     Ok(r) => {
-                        succeeded += 1;
                         let px = Vector2::new(r.position[0], r.position[1]);
                         error_sum += (px - p.pixel).norm();
                         error_count += 1;
-                        let cov: Matrix2<f64> =
-                            r.covariance + self.blur_covariance(job.omega_c.as_ref(), &p.pixel);
-                        let sent = match correspondence(
-                            &self.ideal,
-                            px,
-                            &cov,
-                            &feature.p_w,
-                            &feature.cov_w,
-                        ) {
-                            Ok(c) => {
-                                correspondences.push(c);
-                                registered.push((px, feature.p_w));
-                                true
+                        let sent = if outlier.next().unwrap_or(false) {
+                            self.map.record(p.id, Outcome::Outlier, frame_index);
+                            false
+                        } else {
+                            self.map.record(p.id, Outcome::Success, frame_index);
+                            let cov: Matrix2<f64> =
+                                r.covariance + self.blur_covariance(job.omega_c.as_ref(), &p.pixel);
+                            match correspondence(
+                                &self.ideal,
+                                px,
+                                &cov,
+                                &feature.p_w,
+                                &feature.cov_w,
+                            ) {
+                                Ok(c) => {
+                                    correspondences.push(c);
+                                    registered.push((px, feature.p_w));
+                                    true
+                                }
+                                Err(_) => false,
                             }
-                            Err(_) => false,
                         };
-                        self.map.record(p.id, Outcome::Success, frame_index);
                         FeatureOutcome {
                             id: p.id,
                             predicted: position,
