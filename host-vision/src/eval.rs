@@ -353,6 +353,11 @@ pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, 
         }
         for features in runs {
             for &model in &options.models {
+                // Two features cannot fix a pose without an IMU: the experiment (the paper's
+                // Fig. 6) is about what the inertial models keep of the attitude.
+                if features == 2 && !model.has_imu() {
+                    continue;
+                }
                 if stop() {
                     break 'scenarios;
                 }
