@@ -17,6 +17,7 @@ pub mod eval;
 pub mod features;
 pub mod frames;
 pub mod link;
+pub mod locate;
 pub mod model;
 pub mod out_folder;
 pub mod render;

@@ -1069,3 +1069,92 @@ fn p19_bad_vision_only_input_is_named_and_nothing_is_written() {
     let se = run(vision(&["--images", s(&cam0)], &right, &skew), 2);
     assert!(se.contains("is not a rigid transform"), "{se}");
 }
+
+#[test]
+fn p20_locate_finds_the_model_in_a_frame_and_names_bad_input() {
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let mut frames: Vec<PathBuf> = std::fs::read_dir(cam0.join("data"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    frames.sort();
+    let (calib, model) = (cam0.join("sensor.yaml"), ds.join("model/scene.obj"));
+    let (cache, out) = (tmp("p20-cache"), tmp("p20-out"));
+    let (so, _) = expect(
+        &[
+            "locate",
+            "--image",
+            s(&frames[0]),
+            "--calib",
+            s(&calib),
+            "--model",
+            s(&model),
+            "--cache",
+            s(&cache),
+            "--out",
+            s(&out),
+        ],
+        0,
+    );
+    for line in ["database", "attempt", "verified", "pose"] {
+        assert!(so.contains(line), "{so}");
+    }
+    assert!(
+        so.contains("built"),
+        "the first run builds the database: {so}"
+    );
+    assert!(out.join("locate.json").exists());
+    // Again: refused without --overwrite, then the cached database.
+    let again = |extra: &[&str], code: i32| {
+        let mut a = vec![
+            "locate",
+            "--image",
+            s(&frames[0]),
+            "--calib",
+            s(&calib),
+            "--model",
+            s(&model),
+            "--cache",
+            s(&cache),
+            "--out",
+            s(&out),
+        ];
+        a.extend_from_slice(extra);
+        expect(&a, code)
+    };
+    let (_, se) = again(&[], 1);
+    assert!(se.contains("--overwrite"), "{se}");
+    let (so, _) = again(&["--overwrite"], 0);
+    assert!(so.contains("cached"), "{so}");
+    // No camera; a missing image.
+    let (_, se) = expect(
+        &[
+            "locate",
+            "--image",
+            s(&frames[0]),
+            "--model",
+            s(&model),
+            "--out",
+            s(&out),
+        ],
+        2,
+    );
+    assert!(se.contains("--camera"), "{se}");
+    let missing = tmp("p20-none.png");
+    let (_, se) = expect(
+        &[
+            "locate",
+            "--image",
+            s(&missing),
+            "--calib",
+            s(&calib),
+            "--model",
+            s(&model),
+            "--out",
+            s(&tmp("p20-out2")),
+        ],
+        1,
+    );
+    assert!(se.contains("p20-none.png"), "{se}");
+}

@@ -13,7 +13,7 @@ use protocol::{Correspondence, PosePrediction};
 use crate::camera::{Camera, CameraPose, UndistortMap};
 use crate::features::correspondence::correspondence;
 use crate::features::map::MapFeature;
-use crate::features::outliers::{Registration, outliers};
+use crate::features::outliers::{Registration, outliers, robust_fit};
 use crate::features::{
     FeatureMap, GrayF32, KltConfig, KltFailure, KltResult, MapConfig, Mask, Outcome, OutlierRule,
     Predicted, TemplatePyramid, register,
@@ -155,6 +155,21 @@ pub struct FrameResult {
     pub outline: Vec<[u32; 2]>,
 }
 
+/// Rounds of registration and re-fitting in [`Vision::verify`]: the first starts from a pose a
+/// few pixels off, the second from one the registrations fit.
+const VERIFY_ROUNDS: usize = 2;
+
+/// A pose verified by [`Vision::verify`].
+#[derive(Debug, Clone)]
+pub struct Verified {
+    /// The pose re-fitted to the registrations.
+    pub pose: CameraPose,
+    /// The judgement there.
+    pub assessment: Assessment,
+    /// The last round's analysis (its prediction is the pose of the round before).
+    pub result: Option<FrameResult>,
+}
+
 /// The last analysed frame, kept for [`Vision::assess`].
 #[derive(Debug, Clone)]
 struct LastFrame {
@@ -244,6 +259,60 @@ impl Vision {
             rms_px,
             ncc,
             ncc_pixels,
+        })
+    }
+
+    /// The live image of `raw` undistorted into the ideal camera the analysis works in.
+    pub fn undistort(&self, raw: &GrayImage) -> Result<GrayImage, TrackError> {
+        Ok(self.undistort.remap_gray(raw)?)
+    }
+
+    /// Verifies a pose found without a prediction (docs/notes/issue15-cold-start.md §5): with
+    /// a fresh feature map, the model rendered at `pose` is registered in `raw` and the pose
+    /// re-fitted to the registrations (eq. R1); once more from there; then the frame is judged
+    /// at the re-fitted pose ([`Vision::assess`]). The map keeps the features of the last
+    /// round, ready for tracking to go on from the verified pose.
+    /// With `keep_image`, the last round's analysis keeps its image (for an overlay).
+    pub fn verify(
+        &mut self,
+        raw: &GrayImage,
+        pose: &CameraPose,
+        keep_image: bool,
+    ) -> Result<Verified, TrackError> {
+        let mut pose = *pose;
+        let mut registered = 0;
+        let mut result = None;
+        for round in 0..VERIFY_ROUNDS {
+            self.map = FeatureMap::new(*self.map.config());
+            let q = pose.q_cw;
+            let job = FrameJob {
+                index: 0,
+                stamp: 0,
+                image: FrameImage::Decoded(raw.clone()),
+                prediction: PosePrediction {
+                    frame_id: 0,
+                    t_us: 0,
+                    c_w: [pose.c_w.x as f32, pose.c_w.y as f32, pose.c_w.z as f32],
+                    q_cw: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
+                    cov: [0.0; 21],
+                },
+                keep_image: keep_image && round + 1 == VERIFY_ROUNDS,
+                omega_c: None,
+            };
+            result = Some(self.process(job)?);
+            let Some(last) = &self.last else { break };
+            registered = last.registered.len();
+            match robust_fit(&self.ideal, &pose, &last.registered) {
+                Some((fitted, _)) if last.registered.len() >= 6 => pose = fitted,
+                _ => break,
+            }
+        }
+        let applied = vec![true; registered];
+        let assessment = self.assess(&pose, &applied)?;
+        Ok(Verified {
+            pose,
+            assessment,
+            result,
         })
     }
 

@@ -44,6 +44,47 @@ pub enum Command {
     /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
     /// gyro models over the simulated serial link, prints the summary and where the images are.
     Demo(Box<DemoArgs>),
+    /// Finds the model in one image with no pose given (the cold start): prints the pose and
+    /// the verification figures, and writes pose.json (a --start-pose file), overlay.png and
+    /// locate.json.
+    Locate(Box<LocateArgs>),
+}
+
+/// Options of `locate`.
+#[derive(clap::Args, Debug)]
+pub struct LocateArgs {
+    /// The image (PNG or JPEG).
+    #[arg(long, required_unless_present = "video", conflicts_with = "video")]
+    pub image: Option<PathBuf>,
+    /// A video, with --frame.
+    #[arg(long)]
+    pub video: Option<PathBuf>,
+    /// The frame of --video, from 0.
+    #[arg(long, default_value_t = 0, requires = "video")]
+    pub frame: usize,
+    /// The model file (.obj, .gltf, .glb), textured.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The camera: a camera.json (pinhole, no distortion).
+    #[arg(long, conflicts_with_all = ["intrinsics", "calib"])]
+    pub camera: Option<PathBuf>,
+    /// The camera: a Kalibr camchain YAML (its first camera) or a EuRoC sensor.yaml.
+    #[arg(long, conflicts_with = "intrinsics")]
+    pub calib: Option<PathBuf>,
+    /// The camera: pinhole intrinsics without distortion `fx,fy,cx,cy` [px].
+    #[arg(long, value_parser = host_vision::camera::parse_intrinsics, allow_hyphen_values = true)]
+    pub intrinsics: Option<host_vision::camera::Pinhole>,
+    /// Folder of the viewpoint database's cache (default: the user's cache folder,
+    /// $XDG_CACHE_HOME/host-vision or ~/.cache/host-vision); rebuilt when the model or the
+    /// settings change.
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
+    /// Output folder.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier run in --out.
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 /// The help of every `--link`.

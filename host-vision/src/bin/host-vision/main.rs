@@ -12,7 +12,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use clap::Parser as _;
 use firmware_sim::sim::scenario::ScenarioName;
 
-use args::{Cli, Command, DemoArgs, EvalArgs, FramesArgs, SynthArgs, TrackArgs};
+use args::{Cli, Command, DemoArgs, EvalArgs, FramesArgs, LocateArgs, SynthArgs, TrackArgs};
 use console::{Failure, exit, note, say};
 use progress::Bar;
 
@@ -68,37 +68,104 @@ fn track_camera(
     a: &TrackArgs,
     input: &host_vision::frames::FrameInput,
 ) -> Result<Option<host_vision::camera::Camera>, Failure> {
+    camera_from(&a.camera, &a.calib, a.intrinsics, || {
+        let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
+        match source.next() {
+            Some(frame) => Ok(frame?.image.dimensions()),
+            None => Err(Failure {
+                error: anyhow::anyhow!("{}: no frames", input.path().display()),
+                code: exit::FAILED,
+            }),
+        }
+    })
+}
+
+/// The camera from a camera.json, a calibration file, or pinhole intrinsics for images of the
+/// size `size` reads.
+fn camera_from(
+    camera: &Option<std::path::PathBuf>,
+    calib: &Option<std::path::PathBuf>,
+    intrinsics: Option<host_vision::camera::Pinhole>,
+    size: impl FnOnce() -> Result<(u32, u32), Failure>,
+) -> Result<Option<host_vision::camera::Camera>, Failure> {
     use host_vision::camera::{
         pinhole_camera, read_camera_json, read_euroc_sensor_yaml, read_kalibr_camchain,
     };
-    if let Some(path) = &a.camera {
+    if let Some(path) = camera {
         return Ok(Some(read_camera_json(path)?));
     }
-    if let Some(path) = &a.calib {
+    if let Some(path) = calib {
         let calib = match read_kalibr_camchain(path) {
             Ok(mut cams) if !cams.is_empty() => cams.swap_remove(0),
             _ => read_euroc_sensor_yaml(path)?,
         };
         return Ok(Some(calib.camera));
     }
-    let Some(p) = a.intrinsics else {
+    let Some(p) = intrinsics else {
         return Ok(None);
     };
-    let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
-    let (w, h) = match source.next() {
-        Some(frame) => frame?.image.dimensions(),
-        None => {
-            return Err(Failure {
-                error: anyhow::anyhow!("{}: no frames", input.path().display()),
-                code: exit::FAILED,
-            });
-        }
-    };
-    drop(source);
+    let (w, h) = size()?;
     Ok(Some(pinhole_camera(w, h, p).map_err(|e| Failure {
         error: anyhow::anyhow!("--intrinsics: {e}"),
         code: exit::USAGE,
     })?))
+}
+
+/// `locate`: the model found in one image with no pose given.
+fn locate(a: &LocateArgs) -> Result<Done, Failure> {
+    use host_vision::locate::database::{DatabaseConfig, default_cache_dir};
+    use host_vision::locate::run::{LocateInput, LocateOptions, run};
+    let input = match (&a.image, &a.video) {
+        (Some(p), _) => LocateInput::Image(p.clone()),
+        (None, Some(v)) => LocateInput::VideoFrame {
+            video: v.clone(),
+            frame: a.frame,
+        },
+        (None, None) => {
+            return Err(Failure {
+                error: anyhow::anyhow!("give --image FILE, or --video FILE with --frame N"),
+                code: exit::USAGE,
+            });
+        }
+    };
+    let camera = camera_from(&a.camera, &a.calib, a.intrinsics, || match &input {
+        LocateInput::Image(p) => {
+            Ok(image::image_dimensions(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?)
+        }
+        LocateInput::VideoFrame { video, .. } => {
+            let input = host_vision::frames::FrameInput::Video(video.clone());
+            let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
+            match source.next() {
+                Some(frame) => Ok(frame?.image.dimensions()),
+                None => Err(anyhow::anyhow!("{}: no frames", video.display()).into()),
+            }
+        }
+    })?
+    .ok_or_else(|| Failure {
+        error: anyhow::anyhow!("give the camera: --camera, --calib or --intrinsics"),
+        code: exit::USAGE,
+    })?;
+    let options = LocateOptions {
+        input,
+        model: a.model.clone(),
+        camera,
+        cache: a.cache.clone().unwrap_or_else(default_cache_dir),
+        out: a.out.clone(),
+        overwrite: a.overwrite,
+        database: DatabaseConfig::default(),
+        locate: Default::default(),
+    };
+    let mut bar = Bar::new(EVAL_BAR);
+    let report = run(&options, &mut |done, total| {
+        bar.update(
+            "building the viewpoint database (cached for the next run)",
+            done as u64,
+            total as u64,
+        )
+    })?;
+    bar.finish();
+    say!("{report}");
+    Ok(Done::Complete)
 }
 
 fn frames(a: &FramesArgs) -> Result<Done, Failure> {
@@ -513,6 +580,7 @@ fn main() -> ExitCode {
         Command::Frames(args) => frames(&args),
         Command::Eval(args) => eval(&args),
         Command::Demo(args) => demo(&args),
+        Command::Locate(args) => locate(&args),
     };
     match done {
         Ok(Done::Complete) => ExitCode::SUCCESS,

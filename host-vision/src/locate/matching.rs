@@ -1,0 +1,147 @@
+//! Descriptor matching against the viewpoint database (docs/notes/issue15-cold-start.md §3):
+//! nearest neighbour by Hamming distance, Lowe's ratio test against the nearest neighbour of
+//! *another* model point (the database holds each point once per view that saw it, so the
+//! runner-up is often the same point), and a mutual check.
+
+use super::orb::{Descriptor, hamming};
+
+/// Matching settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchConfig {
+    /// Largest accepted ratio best / runner-up (of another point).
+    pub ratio: f32,
+    /// Largest accepted Hamming distance of 256 bits.
+    pub max_distance: u32,
+    /// Entries whose model points lie closer than this are one point [m].
+    pub same_point_m: f32,
+}
+
+impl Default for MatchConfig {
+    fn default() -> Self {
+        Self {
+            ratio: 0.85,
+            max_distance: 80,
+            same_point_m: 0.003,
+        }
+    }
+}
+
+/// A live keypoint matched to a database entry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Match {
+    /// Index of the live keypoint.
+    pub query: usize,
+    /// Index of the database entry.
+    pub entry: usize,
+    /// Hamming distance.
+    pub distance: u32,
+}
+
+/// Candidates kept per query while scanning, to find the runner-up of another point.
+const KEEP: usize = 8;
+
+/// Matches `query` descriptors against the database's (`train`, with each entry's model
+/// point `points`).
+pub fn match_descriptors(
+    query: &[Descriptor],
+    train: &[Descriptor],
+    points: &[[f32; 3]],
+    config: &MatchConfig,
+) -> Vec<Match> {
+    if train.len() != points.len() {
+        return Vec::new();
+    }
+    // Best query per entry, for the mutual check.
+    let mut best_for_entry = vec![(u32::MAX, usize::MAX); train.len()];
+    let mut candidates = Vec::with_capacity(query.len());
+    for (qi, q) in query.iter().enumerate() {
+        // The KEEP nearest, sorted by distance.
+        let mut near: Vec<(u32, usize)> = Vec::with_capacity(KEEP + 1);
+        for (ti, t) in train.iter().enumerate() {
+            let d = hamming(q, t);
+            if d < best_for_entry[ti].0 {
+                best_for_entry[ti] = (d, qi);
+            }
+            if near.len() < KEEP || d < near[near.len() - 1].0 {
+                let at = near.partition_point(|&(e, _)| e <= d);
+                near.insert(at, (d, ti));
+                near.truncate(KEEP);
+            }
+        }
+        let Some(&(d0, t0)) = near.first() else {
+            continue;
+        };
+        let p0 = points[t0];
+        let far = |ti: usize| {
+            let p = points[ti];
+            let d2: f32 = (0..3).map(|k| (p[k] - p0[k]).powi(2)).sum();
+            d2 > config.same_point_m * config.same_point_m
+        };
+        // Without a runner-up of another point among the nearest, the match is unambiguous
+        // as far as the list reaches: compare with the farthest kept.
+        let runner_up = near
+            .iter()
+            .skip(1)
+            .find(|&&(_, ti)| far(ti))
+            .or(near.last())
+            .map_or(u32::MAX, |&(d, _)| d);
+        if d0 <= config.max_distance && (d0 as f32) < config.ratio * runner_up as f32 {
+            candidates.push(Match {
+                query: qi,
+                entry: t0,
+                distance: d0,
+            });
+        }
+    }
+    candidates.retain(|m| best_for_entry[m.entry].1 == m.query);
+    candidates
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn desc(seed: u64) -> Descriptor {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut next = || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        [next(), next(), next(), next()]
+    }
+
+    fn flip(mut d: Descriptor, bits: usize) -> Descriptor {
+        for b in 0..bits {
+            d[b % 4] ^= 1 << (b * 7 % 64);
+        }
+        d
+    }
+
+    #[test]
+    fn near_copies_match_and_ambiguity_is_refused() {
+        let train: Vec<Descriptor> = (0..200).map(desc).collect();
+        let mut points: Vec<[f32; 3]> = (0..200).map(|i| [i as f32 * 0.01, 0.0, 0.0]).collect();
+        // Entry 7 seen twice (two views of one point): the nearer copy matches, and the other
+        // is no runner-up.
+        let mut train = train;
+        train.push(flip(train[7], 3));
+        points.push(points[7]);
+        let query = vec![flip(train[5], 10), flip(train[7], 8), desc(9999)];
+        let m = match_descriptors(&query, &train, &points, &MatchConfig::default());
+        assert_eq!(
+            m.iter().map(|m| (m.query, m.entry)).collect::<Vec<_>>(),
+            vec![(0, 5), (1, 200)]
+        );
+        // Two different points with the same descriptor: ambiguous, refused.
+        let mut train2 = train.clone();
+        train2[6] = flip(train[5], 1);
+        let m = match_descriptors(&query[..1], &train2, &points, &MatchConfig::default());
+        assert!(m.is_empty(), "{m:?}");
+        // Mismatched lengths: nothing.
+        assert!(
+            match_descriptors(&query, &train, &points[..3], &MatchConfig::default()).is_empty()
+        );
+    }
+}

@@ -1,0 +1,222 @@
+//! Finding the model in an image with no pose given (the cold start; the method and its
+//! equations are in docs/notes/issue15-cold-start.md):
+//!
+//! 1. [`database`]: the textured model rendered offline from viewpoints around it, with ORB
+//!    keypoints ([`orb`]) and their model points, cached on disk;
+//! 2. ORB keypoints of the live (undistorted) image, [`matching`] against the database;
+//! 3. the pose by P3P ([`p3p`]) inside RANSAC ([`ransac`]), refined on the inliers;
+//! 4. verification before use ([`crate::track::vision::Vision::verify`]): the model rendered
+//!    at the pose, its features registered with the photometric KLT, the pose re-fitted, and
+//!    the tracked rule ([`crate::track::TrackedRule`]) applied. Only a verified pose is used.
+
+pub mod database;
+pub mod matching;
+pub mod orb;
+pub mod p3p;
+pub mod ransac;
+pub mod run;
+
+use std::time::Instant;
+
+use image::GrayImage;
+use nalgebra::{Vector2, Vector3};
+use serde::Serialize;
+
+use crate::camera::CameraPose;
+use crate::track::TrackError;
+use crate::track::TrackedRule;
+use crate::track::vision::{FrameResult, Vision};
+use database::Database;
+use matching::{MatchConfig, match_descriptors};
+use orb::{Descriptor, Orb, OrbConfig};
+use ransac::{RansacConfig, ransac_pose};
+
+/// Settings of an attempt.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LocateConfig {
+    /// Keypoints of the live image.
+    pub orb: OrbConfig,
+    /// Matching.
+    pub matching: MatchConfig,
+    /// Pose estimation.
+    pub ransac: RansacConfig,
+    /// Acceptance of the verified pose.
+    pub rule: TrackedRule,
+}
+
+impl Default for LocateConfig {
+    fn default() -> Self {
+        Self {
+            orb: OrbConfig {
+                max_keypoints: 1500,
+                ..OrbConfig::default()
+            },
+            matching: MatchConfig::default(),
+            ransac: RansacConfig::default(),
+            // Stricter on the count than tracking's rule: a pose found from nothing must be
+            // confirmed by many features (a wrong pose must be rare enough never to be seen).
+            rule: TrackedRule {
+                min_features: 20,
+                ..TrackedRule::default()
+            },
+        }
+    }
+}
+
+/// Time per stage of an attempt [s].
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct AttemptTimes {
+    /// Undistortion, detection and description of the live image.
+    pub detect: f64,
+    /// Matching against the database.
+    pub matching: f64,
+    /// RANSAC and refinement.
+    pub ransac: f64,
+    /// Verification (renderings, registration, judgement).
+    pub verify: f64,
+}
+
+/// What an attempt found.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Attempt {
+    /// Keypoints in the live image.
+    pub keypoints: usize,
+    /// Matches that passed the ratio and mutual tests.
+    pub matches: usize,
+    /// RANSAC inliers (0 without a pose).
+    pub inliers: usize,
+    /// RANSAC iterations.
+    pub iterations: usize,
+    /// Features the verification registered.
+    pub registered: usize,
+    /// Their reprojection rms at the verified pose [px].
+    pub rms_px: Option<f64>,
+    /// Rendered-vs-live correlation at the verified pose.
+    pub ncc: Option<f64>,
+    /// The verified pose, when it passed the rule.
+    #[serde(skip)]
+    pub pose: Option<CameraPose>,
+    /// The pose RANSAC found, verified or not.
+    #[serde(skip)]
+    pub candidate: Option<CameraPose>,
+    /// Stage times.
+    pub times: AttemptTimes,
+}
+
+impl Attempt {
+    /// Whether a pose was accepted.
+    pub fn accepted(&self) -> bool {
+        self.pose.is_some()
+    }
+}
+
+/// The database ready for matching.
+#[derive(Debug, Clone)]
+pub struct Locator {
+    orb: Orb,
+    descriptors: Vec<Descriptor>,
+    points: Vec<[f32; 3]>,
+    config: LocateConfig,
+}
+
+impl Locator {
+    /// A locator over `db`.
+    pub fn new(db: &Database, config: LocateConfig) -> Self {
+        Self {
+            orb: Orb::new(config.orb),
+            descriptors: db.descriptors(),
+            points: db.points(),
+            config,
+        }
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &LocateConfig {
+        &self.config
+    }
+
+    /// One attempt on the raw live image `raw`, with `vision` (its camera, renderer and
+    /// feature map: a verified pose leaves the map ready for tracking from it). With
+    /// `keep_image`, the verification's analysis comes back with its image, for an overlay.
+    pub fn attempt(
+        &self,
+        vision: &mut Vision,
+        raw: &GrayImage,
+        keep_image: bool,
+    ) -> Result<(Attempt, Option<FrameResult>), TrackError> {
+        let mut times = AttemptTimes::default();
+        let t = Instant::now();
+        let live = vision.undistort(raw)?;
+        let keypoints = self.orb.detect(&live, None);
+        times.detect = t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let query: Vec<Descriptor> = keypoints.iter().map(|k| k.descriptor).collect();
+        let matches = match_descriptors(
+            &query,
+            &self.descriptors,
+            &self.points,
+            &self.config.matching,
+        );
+        times.matching = t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let pin = vision.ideal_camera().pinhole;
+        let u: Vec<Vector2<f64>> = matches
+            .iter()
+            .map(|m| {
+                let k = &keypoints[m.query];
+                Vector2::new(f64::from(k.x), f64::from(k.y))
+            })
+            .collect();
+        let x_w: Vec<Vector3<f64>> = matches
+            .iter()
+            .map(|m| {
+                let p = self.points[m.entry];
+                Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
+            })
+            .collect();
+        let found = ransac_pose(
+            [pin.fx, pin.fy, pin.cx, pin.cy],
+            &u,
+            &x_w,
+            &self.config.ransac,
+        );
+        times.ransac = t.elapsed().as_secs_f64();
+        let mut attempt = Attempt {
+            keypoints: keypoints.len(),
+            matches: matches.len(),
+            inliers: 0,
+            iterations: 0,
+            registered: 0,
+            rms_px: None,
+            ncc: None,
+            pose: None,
+            candidate: None,
+            times,
+        };
+        let Some(found) = found else {
+            return Ok((attempt, None));
+        };
+        attempt.inliers = found.inliers.iter().filter(|&&i| i).count();
+        attempt.iterations = found.iterations;
+        // x_c = R x_w + t  ⇒  the camera centre is −Rᵀ t.
+        let candidate = CameraPose {
+            q_cw: found.q_cw,
+            c_w: -(found.q_cw.inverse() * found.t),
+        };
+        attempt.candidate = Some(candidate);
+
+        let t = Instant::now();
+        let verified = vision.verify(raw, &candidate, keep_image)?;
+        attempt.times.verify = t.elapsed().as_secs_f64();
+        let a = verified.assessment;
+        attempt.registered = a.features;
+        attempt.rms_px = a.rms_px;
+        attempt.ncc = a.ncc;
+        if self.config.rule.holds(&a) {
+            attempt.pose = Some(verified.pose);
+        }
+        Ok((attempt, verified.result))
+    }
+}

@@ -1,0 +1,701 @@
+//! RANSAC pose estimation from 2D-3D matches over the Lambda Twist P3P solver.
+//!
+//! Hypotheses come from random minimal samples of three matches. Each is scored by the pixel
+//! reprojection error: inlier count first, then the sum of truncated squared errors (MSAC) to
+//! break ties. The number of samples adapts to the best inlier ratio seen so far. The winner is
+//! refined by Gauss-Newton on the pixel error of its inliers, and its inliers are counted
+//! again.
+
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector2, Vector3, Vector6};
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+
+use super::p3p::p3p;
+
+/// Gauss-Newton iterations of the final refinement, per round.
+const REFINE_ITERATIONS: usize = 10;
+/// Refine / recount rounds: the inlier set may grow once the pose is better.
+const REFINE_ROUNDS: usize = 2;
+/// Points closer than this to the camera plane (in world units, along the optical axis)
+/// count as behind it: their projection is meaningless.
+const MIN_DEPTH: f64 = 1e-9;
+
+/// Settings of [`ransac_pose`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RansacConfig {
+    /// Largest reprojection error of an inlier, in pixels.
+    pub threshold_px: f64,
+    /// Most minimal samples drawn.
+    pub max_iterations: usize,
+    /// Wanted probability of drawing at least one all-inlier sample, for the adaptive stop.
+    /// Not in (0, 1) or not finite: no early stop.
+    pub confidence: f64,
+    /// Fewest inliers of an accepted pose.
+    pub min_inliers: usize,
+    /// Seed of the sampler: the same input and seed give the same result.
+    pub seed: u64,
+}
+
+impl Default for RansacConfig {
+    /// 3 px, 2000 samples at most, 99.9 % confidence, 8 inliers, a fixed seed.
+    fn default() -> Self {
+        Self {
+            threshold_px: 3.0,
+            max_iterations: 2000,
+            confidence: 0.999,
+            min_inliers: 8,
+            seed: 0x0c01_d57a_2700_5eed,
+        }
+    }
+}
+
+/// Result of [`ransac_pose`].
+#[derive(Clone, Debug)]
+pub struct RansacPose {
+    /// World-to-camera rotation: `x_c = q_cw * x_w + t`.
+    pub q_cw: UnitQuaternion<f64>,
+    /// World-to-camera translation.
+    pub t: Vector3<f64>,
+    /// Per match: reprojects within the threshold, in front of the camera (after refinement).
+    pub inliers: Vec<bool>,
+    /// Minimal samples drawn.
+    pub iterations: usize,
+}
+
+/// Pixels `u[i]` (undistorted, pinhole fx, fy, cx, cy) matched to world points `x_w[i]`.
+///
+/// Returns `None` when there are fewer than 4 matches, the lengths differ, the intrinsics or
+/// the threshold are unusable, or the best pose has fewer than `cfg.min_inliers` inliers.
+/// Matches with non-finite values are never inliers and never sampled.
+pub fn ransac_pose(
+    pinhole: [f64; 4],
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    cfg: &RansacConfig,
+) -> Option<RansacPose> {
+    let n = u.len();
+    if n < 4 || x_w.len() != n {
+        return None;
+    }
+    let cam = Pinhole::new(pinhole)?;
+    let thr2 = cfg.threshold_px * cfg.threshold_px;
+    if !(cfg.threshold_px > 0.0 && thr2.is_finite()) {
+        return None;
+    }
+
+    // Bearings of the usable matches; the rest stay out of the samples.
+    let bearings: Vec<Option<Vector3<f64>>> = u
+        .iter()
+        .zip(x_w)
+        .map(|(ui, xi)| {
+            if !(ui.iter().chain(xi.iter()).all(|v| v.is_finite())) {
+                return None;
+            }
+            let b = cam.bearing(ui);
+            b.iter().all(|v| v.is_finite()).then_some(b)
+        })
+        .collect();
+    let usable: Vec<usize> = (0..n).filter(|&i| bearings[i].is_some()).collect();
+    if usable.len() < 3 {
+        return None;
+    }
+
+    let mut rng = StdRng::seed_from_u64(cfg.seed);
+    let mut best: Option<Hypothesis> = None;
+    let mut needed = cfg.max_iterations;
+    let mut iterations = 0;
+    let m = usable.len();
+    while iterations < needed.min(cfg.max_iterations) {
+        iterations += 1;
+        let [i0, i1, i2] = draw3(&mut rng, m);
+        let idx = [usable[i0], usable[i1], usable[i2]];
+        let (Some(y0), Some(y1), Some(y2)) = (bearings[idx[0]], bearings[idx[1]], bearings[idx[2]])
+        else {
+            continue;
+        };
+        for (q, t) in p3p(&[y0, y1, y2], &[x_w[idx[0]], x_w[idx[1]], x_w[idx[2]]]) {
+            let h = score(&cam, u, x_w, &q, &t, thr2);
+            if best.as_ref().is_none_or(|b| h.better_than(b)) {
+                // Adaptive stop: samples for `confidence` of one all-inlier draw (ratio w).
+                needed = samples_needed(cfg.confidence, h.count as f64 / n as f64)
+                    .unwrap_or(cfg.max_iterations);
+                best = Some(h);
+            }
+        }
+    }
+
+    let mut best = best?;
+    // Refine on the inliers, recount, and keep the refined pose unless it scores worse.
+    for _ in 0..REFINE_ROUNDS {
+        let Some((q, t)) = refine(&cam, u, x_w, &best.inliers, best.q, best.t) else {
+            break;
+        };
+        let h = score(&cam, u, x_w, &q, &t, thr2);
+        if h.cost > best.cost {
+            break;
+        }
+        let same_set = h.inliers == best.inliers;
+        best = h;
+        if same_set {
+            break;
+        }
+    }
+    (best.count >= cfg.min_inliers).then_some(RansacPose {
+        q_cw: best.q,
+        t: best.t,
+        inliers: best.inliers,
+        iterations,
+    })
+}
+
+/// Samples needed so that one of them is all inliers with probability `confidence`, for an
+/// inlier ratio `w` (`None`: no early stop).
+fn samples_needed(confidence: f64, w: f64) -> Option<usize> {
+    if !(confidence > 0.0 && confidence < 1.0) {
+        return None;
+    }
+    let p_good = w.clamp(0.0, 1.0).powi(3);
+    if p_good >= 1.0 {
+        return Some(1);
+    }
+    let denom = (-p_good).ln_1p(); // ln(1 − w³) < 0
+    if denom.is_nan() || denom >= 0.0 {
+        return None;
+    }
+    let k = ((1.0 - confidence).ln() / denom).ceil();
+    // `as` saturates at usize::MAX.
+    (k.is_finite() && k >= 0.0).then_some(k as usize)
+}
+
+/// Three distinct indices in `0..m` (`m >= 3`), uniformly, with one draw each: each later
+/// draw ranges over the values left and skips past the ones taken.
+fn draw3(rng: &mut StdRng, m: usize) -> [usize; 3] {
+    let i0 = rng.random_range(0..m);
+    let mut i1 = rng.random_range(0..m - 1);
+    if i1 >= i0 {
+        i1 += 1;
+    }
+    let mut i2 = rng.random_range(0..m - 2);
+    let (lo, hi) = if i0 < i1 { (i0, i1) } else { (i1, i0) };
+    if i2 >= lo {
+        i2 += 1;
+    }
+    if i2 >= hi {
+        i2 += 1;
+    }
+    [i0, i1, i2]
+}
+
+/// Pinhole intrinsics.
+#[derive(Clone, Copy)]
+struct Pinhole {
+    fx: f64,
+    fy: f64,
+    cx: f64,
+    cy: f64,
+}
+
+impl Pinhole {
+    /// `None` unless all finite and the focal lengths non-zero.
+    fn new([fx, fy, cx, cy]: [f64; 4]) -> Option<Self> {
+        let ok = [fx, fy, cx, cy].iter().all(|v| v.is_finite()) && fx != 0.0 && fy != 0.0;
+        ok.then_some(Self { fx, fy, cx, cy })
+    }
+
+    /// Unit bearing of a pixel.
+    fn bearing(&self, u: &Vector2<f64>) -> Vector3<f64> {
+        Vector3::new((u.x - self.cx) / self.fx, (u.y - self.cy) / self.fy, 1.0).normalize()
+    }
+
+    /// Pixel of a camera-frame point (in front of the camera).
+    fn project(&self, xc: &Vector3<f64>) -> Vector2<f64> {
+        Vector2::new(
+            self.fx * xc.x / xc.z + self.cx,
+            self.fy * xc.y / xc.z + self.cy,
+        )
+    }
+}
+
+/// A scored pose.
+struct Hypothesis {
+    q: UnitQuaternion<f64>,
+    t: Vector3<f64>,
+    inliers: Vec<bool>,
+    count: usize,
+    /// MSAC cost: Σ min(e², threshold²) in px².
+    cost: f64,
+}
+
+impl Hypothesis {
+    /// More inliers, or as many with a lower truncated cost.
+    fn better_than(&self, other: &Hypothesis) -> bool {
+        self.count > other.count || (self.count == other.count && self.cost < other.cost)
+    }
+}
+
+/// Squared pixel error of one match, `None` when behind the camera or not finite.
+fn sq_error(
+    cam: &Pinhole,
+    u: &Vector2<f64>,
+    x: &Vector3<f64>,
+    q: &UnitQuaternion<f64>,
+    t: &Vector3<f64>,
+) -> Option<f64> {
+    let xc = q * x + t;
+    if xc.z.is_nan() || xc.z <= MIN_DEPTH {
+        return None;
+    }
+    let e2 = (cam.project(&xc) - u).norm_squared();
+    e2.is_finite().then_some(e2)
+}
+
+/// Inliers and MSAC cost of a pose over all matches.
+fn score(
+    cam: &Pinhole,
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    q: &UnitQuaternion<f64>,
+    t: &Vector3<f64>,
+    thr2: f64,
+) -> Hypothesis {
+    let mut inliers = vec![false; u.len()];
+    let (mut count, mut cost) = (0, 0.0);
+    for ((ui, xi), inl) in u.iter().zip(x_w).zip(inliers.iter_mut()) {
+        match sq_error(cam, ui, xi, q, t) {
+            Some(e2) if e2 <= thr2 => {
+                *inl = true;
+                count += 1;
+                cost += e2;
+            }
+            _ => cost += thr2,
+        }
+    }
+    Hypothesis {
+        q: *q,
+        t: *t,
+        inliers,
+        count,
+        cost,
+    }
+}
+
+/// Gauss-Newton on the pixel reprojection error of the inliers, 6 dof: the update is
+/// `q ← exp(δω) q`, `t ← t + δt`, so `∂x_c/∂δω = −[x_c − t]ₓ` and `∂x_c/∂δt = I`.
+/// A step is kept only if it lowers the error; `None` if no step was kept.
+fn refine(
+    cam: &Pinhole,
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    inliers: &[bool],
+    mut q: UnitQuaternion<f64>,
+    mut t: Vector3<f64>,
+) -> Option<(UnitQuaternion<f64>, Vector3<f64>)> {
+    let cost_of = |q: &UnitQuaternion<f64>, t: &Vector3<f64>| -> Option<f64> {
+        let mut c = 0.0;
+        for ((ui, xi), _) in u.iter().zip(x_w).zip(inliers).filter(|(_, inl)| **inl) {
+            c += sq_error(cam, ui, xi, q, t)?;
+        }
+        Some(c)
+    };
+    let mut cost = cost_of(&q, &t)?;
+    let mut improved = false;
+    for _ in 0..REFINE_ITERATIONS {
+        let mut jtj = Matrix6::<f64>::zeros();
+        let mut jtr = Vector6::<f64>::zeros();
+        for ((ui, xi), _) in u.iter().zip(x_w).zip(inliers).filter(|(_, inl)| **inl) {
+            let rx = q * xi;
+            let xc = rx + t;
+            if xc.z.is_nan() || xc.z <= MIN_DEPTH {
+                return improved.then_some((q, t));
+            }
+            let r = cam.project(&xc) - ui;
+            let iz = 1.0 / xc.z;
+            // ∂pixel/∂x_c of the pinhole projection.
+            let dp = nalgebra::Matrix2x3::new(
+                cam.fx * iz,
+                0.0,
+                -cam.fx * xc.x * iz * iz,
+                0.0,
+                cam.fy * iz,
+                -cam.fy * xc.y * iz * iz,
+            );
+            let mut dx = nalgebra::Matrix3x6::<f64>::zeros();
+            dx.fixed_view_mut::<3, 3>(0, 0).copy_from(&(-skew(&rx)));
+            dx.fixed_view_mut::<3, 3>(0, 3)
+                .copy_from(&Matrix3::identity());
+            let j = dp * dx;
+            jtj += j.transpose() * j;
+            jtr += j.transpose() * r;
+        }
+        // A whisper of damping keeps the solve defined for near-degenerate inlier sets.
+        let damp = 1e-12 * jtj.trace().max(f64::MIN_POSITIVE);
+        for k in 0..6 {
+            jtj[(k, k)] += damp;
+        }
+        let Some(chol) = jtj.cholesky() else {
+            break;
+        };
+        let step = chol.solve(&(-jtr));
+        if !step.iter().all(|v| v.is_finite()) {
+            break;
+        }
+        let dw = Vector3::new(step[0], step[1], step[2]);
+        let dt = Vector3::new(step[3], step[4], step[5]);
+        let q_new = UnitQuaternion::from_scaled_axis(dw) * q;
+        let t_new = t + dt;
+        match cost_of(&q_new, &t_new) {
+            Some(c) if c < cost => {
+                let tiny = step.norm() < 1e-12 * (1.0 + t.norm());
+                q = q_new;
+                t = t_new;
+                cost = c;
+                improved = true;
+                if tiny {
+                    break;
+                }
+            }
+            _ => break,
+        }
+    }
+    improved.then_some((q, t))
+}
+
+/// Cross-product matrix: `skew(a) * b = a × b`.
+fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -a.z, a.y, a.z, 0.0, -a.x, -a.y, a.x, 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Quaternion, Vector4};
+
+    /// A 1280×960 camera, 65° horizontal field of view.
+    const PINHOLE: [f64; 4] = [1000.0, 1000.0, 640.0, 480.0];
+    const SIZE: [f64; 2] = [1280.0, 960.0];
+
+    fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
+        loop {
+            let v = Vector4::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            );
+            let n = v.norm();
+            if n > 0.1 && n <= 1.0 {
+                return UnitQuaternion::from_quaternion(Quaternion::from(v / n));
+            }
+        }
+    }
+
+    /// Standard normal by Box-Muller (rand_distr is not a dependency of this file).
+    fn gauss(rng: &mut StdRng) -> f64 {
+        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
+        let u2: f64 = rng.random_range(0.0..1.0);
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    /// An object about 1 m in front of a 640×480 camera, filling most of the view (points at
+    /// 0.6..1.4 m depth over the image), the world frame at a random rotation. The first `n_in`
+    /// matches are true with `noise_px` Gaussian noise, the rest random pixels.
+    /// Returns (pixels, world points, true q_cw, true t).
+    type Scene = (
+        Vec<Vector2<f64>>,
+        Vec<Vector3<f64>>,
+        UnitQuaternion<f64>,
+        Vector3<f64>,
+    );
+
+    fn scene(rng: &mut StdRng, n: usize, n_in: usize, noise_px: f64) -> Scene {
+        let cam = Pinhole {
+            fx: PINHOLE[0],
+            fy: PINHOLE[1],
+            cx: PINHOLE[2],
+            cy: PINHOLE[3],
+        };
+        let q = random_rotation(rng);
+        // The world origin (object centre) sits about 1 m ahead.
+        let t = Vector3::new(
+            rng.random_range(-0.05..0.05),
+            rng.random_range(-0.05..0.05),
+            1.0,
+        );
+        let mut u = Vec::with_capacity(n);
+        let mut x = Vec::with_capacity(n);
+        for i in 0..n {
+            let pix = Vector2::new(
+                rng.random_range(20.0..SIZE[0] - 20.0),
+                rng.random_range(20.0..SIZE[1] - 20.0),
+            );
+            let xc = cam.bearing(&pix) / cam.bearing(&pix).z * rng.random_range(0.6..1.4);
+            let xw = q.inverse() * (xc - t);
+            let px = if i < n_in {
+                cam.project(&(q * xw + t)) + Vector2::new(gauss(rng), gauss(rng)) * noise_px
+            } else {
+                Vector2::new(
+                    rng.random_range(0.0..SIZE[0]),
+                    rng.random_range(0.0..SIZE[1]),
+                )
+            };
+            u.push(px);
+            x.push(xw);
+        }
+        (u, x, q, t)
+    }
+
+    fn errors(p: &RansacPose, q: &UnitQuaternion<f64>, t: &Vector3<f64>) -> (f64, f64) {
+        let dt = (p.t - t).norm();
+        // Angle from the matrix difference: accurate for small angles, unlike acos.
+        let dr = (p.q_cw.to_rotation_matrix().into_inner() - q.to_rotation_matrix().into_inner())
+            .norm()
+            / 2f64.sqrt();
+        (dt, dr.to_degrees())
+    }
+
+    #[test]
+    fn recovers_pose_with_70_percent_outliers() {
+        let cfg = RansacConfig::default();
+        let (mut worst_t, mut worst_r, mut total_it, mut max_it) = (0.0f64, 0.0f64, 0, 0);
+        let mut worst_oracle = 0.0f64;
+        let trials = 20;
+        for s in 0..trials {
+            let mut rng = StdRng::seed_from_u64(1000 + s);
+            let (u, x, q, t) = scene(&mut rng, 200, 60, 0.5);
+            let Some(p) = ransac_pose(PINHOLE, &u, &x, &cfg) else {
+                panic!("scene {s}: no pose");
+            };
+            let (dt, dr) = errors(&p, &q, &t);
+            // The oracle: least squares on the true inliers from the true pose. 0.05° is close to
+            // this scene's statistical limit, so also check RANSAC reaches the oracle's accuracy.
+            let cam = Pinhole {
+                fx: PINHOLE[0],
+                fy: PINHOLE[1],
+                cx: PINHOLE[2],
+                cy: PINHOLE[3],
+            };
+            let truth: Vec<bool> = (0..200).map(|i| i < 60).collect();
+            let (qo, to) = refine(&cam, &u, &x, &truth, q, t).unwrap_or((q, t));
+            let (qo, to) = refine(&cam, &u, &x, &truth, qo, to).unwrap_or((qo, to));
+            let (dt_o, dr_o) = errors(&p, &qo, &to);
+            assert!(
+                dt_o < 5e-5 && dr_o < 5e-3,
+                "scene {s}: {dt_o:e} m, {dr_o}° from the oracle"
+            );
+            worst_oracle = worst_oracle.max(dr_o);
+            assert!(dt < 1e-3, "scene {s}: translation error {dt:e} m");
+            assert!(dr < 0.05, "scene {s}: rotation error {dr}°");
+            let true_in = p.inliers[..60].iter().filter(|b| **b).count();
+            let false_in = p.inliers[60..].iter().filter(|b| **b).count();
+            assert!(true_in >= 57, "scene {s}: {true_in}/60 true inliers");
+            assert!(false_in <= 2, "scene {s}: {false_in} outliers accepted");
+            worst_t = worst_t.max(dt);
+            worst_r = worst_r.max(dr);
+            total_it += p.iterations;
+            max_it = max_it.max(p.iterations);
+        }
+        println!(
+            "ransac 200 matches, 70% outliers, 0.5 px: worst |t-t*| {:.3} mm, worst rot {:.4}°, \
+             iterations mean {:.0} max {max_it} (w³ bound {}), worst rot from oracle {worst_oracle:.1e}°",
+            worst_t * 1e3,
+            worst_r,
+            total_it as f64 / trials as f64,
+            samples_needed(0.999, 0.3).unwrap_or(0)
+        );
+        // Performance sanity: the adaptive stop must kick in well before the cap.
+        assert!(max_it < 1000, "too many iterations: {max_it}");
+    }
+
+    #[test]
+    fn clean_data_stops_early_and_is_exact() {
+        let mut rng = StdRng::seed_from_u64(7);
+        let (u, x, q, t) = scene(&mut rng, 100, 100, 0.0);
+        let p = ransac_pose(PINHOLE, &u, &x, &RansacConfig::default());
+        let Some(p) = p else { panic!("no pose") };
+        let (dt, dr) = errors(&p, &q, &t);
+        println!(
+            "clean: {} iterations, |t-t*| {dt:.2e} m, rot {dr:.2e}°",
+            p.iterations
+        );
+        assert!(p.iterations <= 5);
+        assert!(dt < 1e-9 && dr < 1e-7);
+        assert!(p.inliers.iter().all(|b| *b));
+    }
+
+    #[test]
+    fn pure_outliers_and_too_few_return_none() {
+        let mut rng = StdRng::seed_from_u64(8);
+        let cfg = RansacConfig::default();
+        let (u, x, _, _) = scene(&mut rng, 200, 0, 0.0);
+        let r = ransac_pose(PINHOLE, &u, &x, &cfg);
+        assert!(
+            r.is_none(),
+            "pure outliers gave {:?} inliers",
+            r.map(|p| p.inliers.iter().filter(|b| **b).count())
+        );
+
+        let (u, x, _, _) = scene(&mut rng, 3, 3, 0.0);
+        assert!(ransac_pose(PINHOLE, &u, &x, &cfg).is_none());
+        let (u, x, _, _) = scene(&mut rng, 20, 20, 0.0);
+        assert!(ransac_pose(PINHOLE, &u, &x[..19], &cfg).is_none());
+        assert!(ransac_pose(PINHOLE, &[], &[], &cfg).is_none());
+        // Fewer inliers than asked for.
+        let strict = RansacConfig {
+            min_inliers: 21,
+            ..cfg
+        };
+        assert!(ransac_pose(PINHOLE, &u, &x, &strict).is_none());
+        assert!(ransac_pose(PINHOLE, &u, &x, &cfg).is_some());
+    }
+
+    #[test]
+    fn hostile_inputs_do_not_panic() {
+        let mut rng = StdRng::seed_from_u64(9);
+        let cfg = RansacConfig::default();
+        let (mut u, mut x, q, t) = scene(&mut rng, 60, 40, 0.3);
+        // A few NaN / infinite pixels and points among good matches: still a good pose.
+        u[0].x = f64::NAN;
+        u[1].y = f64::INFINITY;
+        x[2].z = f64::NAN;
+        let p = ransac_pose(PINHOLE, &u, &x, &cfg);
+        let Some(p) = p else { panic!("no pose") };
+        assert!(!p.inliers[0] && !p.inliers[1] && !p.inliers[2]);
+        let (dt, dr) = errors(&p, &q, &t);
+        assert!(dt < 2e-3 && dr < 0.1);
+
+        // Everything NaN, all points identical, all pixels identical, bad intrinsics.
+        let nan_u = vec![Vector2::new(f64::NAN, f64::NAN); 50];
+        assert!(ransac_pose(PINHOLE, &nan_u, &x[..50], &cfg).is_none());
+        let same_x = vec![Vector3::new(0.1, 0.2, 0.3); 50];
+        assert!(ransac_pose(PINHOLE, &u[..50], &same_x, &cfg).is_none());
+        let same_u = vec![Vector2::new(640.0, 480.0); 50];
+        let _ = ransac_pose(PINHOLE, &same_u, &x[..50], &cfg);
+        // Duplicated matches (each match four times).
+        let (u2, x2): (Vec<_>, Vec<_>) = u[3..]
+            .iter()
+            .zip(&x[3..])
+            .flat_map(|(a, b)| [(*a, *b); 4])
+            .unzip();
+        let p = ransac_pose(PINHOLE, &u2, &x2, &cfg);
+        assert!(p.is_some_and(|p| errors(&p, &q, &t).0 < 2e-3));
+        for bad in [
+            [0.0, 1e3, 640.0, 480.0],
+            [f64::NAN, 1e3, 640.0, 480.0],
+            [1e3, 1e3, f64::INFINITY, 480.0],
+        ] {
+            assert!(ransac_pose(bad, &u, &x, &cfg).is_none());
+        }
+        for thr in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(
+                ransac_pose(
+                    PINHOLE,
+                    &u,
+                    &x,
+                    &RansacConfig {
+                        threshold_px: thr,
+                        ..cfg
+                    }
+                )
+                .is_none()
+            );
+        }
+        // Zero iterations, odd confidences, huge min_inliers.
+        assert!(
+            ransac_pose(
+                PINHOLE,
+                &u,
+                &x,
+                &RansacConfig {
+                    max_iterations: 0,
+                    ..cfg
+                }
+            )
+            .is_none()
+        );
+        for conf in [0.0, 1.0, -3.0, f64::NAN, 2.0] {
+            let c = RansacConfig {
+                confidence: conf,
+                max_iterations: 300,
+                ..cfg
+            };
+            let _ = ransac_pose(PINHOLE, &u, &x, &c);
+        }
+        let c = RansacConfig {
+            min_inliers: usize::MAX,
+            ..cfg
+        };
+        assert!(ransac_pose(PINHOLE, &u, &x, &c).is_none());
+        // Points behind the camera only.
+        let behind: Vec<Vector3<f64>> = x.iter().map(|v| q.inverse() * (-(q * v + t))).collect();
+        let _ = ransac_pose(PINHOLE, &u, &behind, &cfg);
+    }
+
+    #[test]
+    fn deterministic_for_a_seed() {
+        let mut rng = StdRng::seed_from_u64(10);
+        let (u, x, _, _) = scene(&mut rng, 200, 60, 0.5);
+        let cfg = RansacConfig::default();
+        let a = ransac_pose(PINHOLE, &u, &x, &cfg);
+        let b = ransac_pose(PINHOLE, &u, &x, &cfg);
+        let (Some(a), Some(b)) = (a, b) else {
+            panic!("no pose")
+        };
+        assert_eq!(a.iterations, b.iterations);
+        assert_eq!(a.inliers, b.inliers);
+        assert_eq!(a.t, b.t);
+    }
+
+    #[test]
+    fn iteration_count_follows_inlier_ratio() {
+        // Performance sanity without timing: samples drawn versus the theoretical bound.
+        let cfg = RansacConfig::default();
+        for (n_in, bound) in [(200usize, 10usize), (100, 120), (60, 1000)] {
+            let mut total = 0;
+            for s in 0..10 {
+                let mut rng = StdRng::seed_from_u64(2000 + s);
+                let (u, x, _, _) = scene(&mut rng, 200, n_in, 0.5);
+                let Some(p) = ransac_pose(PINHOLE, &u, &x, &cfg) else {
+                    panic!("no pose")
+                };
+                assert!(
+                    p.iterations <= bound,
+                    "{n_in} inliers: {} iterations",
+                    p.iterations
+                );
+                total += p.iterations;
+            }
+            println!(
+                "inlier ratio {:.2}: mean iterations {:.1}, theory {}",
+                n_in as f64 / 200.0,
+                total as f64 / 10.0,
+                samples_needed(0.999, n_in as f64 / 200.0).unwrap_or(0)
+            );
+        }
+        assert_eq!(samples_needed(0.999, 1.0), Some(1));
+        assert_eq!(samples_needed(0.999, 0.0), None);
+        assert_eq!(samples_needed(1.0, 0.5), None);
+    }
+
+    #[test]
+    fn samples_are_distinct() {
+        // The three-index draw must never repeat an index (checked on small m).
+        let mut rng = StdRng::seed_from_u64(11);
+        for m in 3..8usize {
+            let mut hits = vec![0usize; m];
+            for _ in 0..3000 {
+                let [i0, i1, i2] = draw3(&mut rng, m);
+                assert!(i0 != i1 && i1 != i2 && i0 != i2 && i0 < m && i1 < m && i2 < m);
+                for i in [i0, i1, i2] {
+                    hits[i] += 1;
+                }
+            }
+            // Uniform: each index in about 3/m of the draws.
+            let expect = 9000.0 / m as f64;
+            assert!(
+                hits.iter()
+                    .all(|&h| (h as f64 - expect).abs() < 0.1 * expect),
+                "{hits:?}"
+            );
+        }
+    }
+}

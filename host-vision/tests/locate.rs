@@ -1,0 +1,358 @@
+//! The cold start (issue 15, first increment): the cube of the shared cube video found with no
+//! pose given, nothing found where it is not, and bad inputs named. Skipped, saying so, when
+//! `../shared/data` is not there.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use host_vision::camera::{Camera, CameraPose, read_camera_json, read_euroc_sensor_yaml};
+use host_vision::frames::{FrameInput, VideoOptions};
+use host_vision::locate::database::{Database, DatabaseConfig, DatabaseError, Provenance};
+use host_vision::locate::run::{LocateError, LocateInput, LocateOptions, run};
+use host_vision::locate::{LocateConfig, Locator};
+use host_vision::model::{self, Model};
+use host_vision::start_pose::read_start_pose;
+use host_vision::track::vision::{Vision, VisionOptions};
+use host_vision::track::{self, TrackOptions};
+use image::GrayImage;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use protocol::ModelKind;
+
+fn shared() -> Option<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
+    if dir.join("visp-cube/cube_video.mp4").exists() {
+        Some(dir)
+    } else {
+        println!("skipped: {} is not there", dir.display());
+        None
+    }
+}
+
+/// A cache shared by the tests of this file (each database is built once).
+fn cache() -> PathBuf {
+    PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache")
+}
+
+fn frames(video: &Path, wanted: &[usize]) -> Vec<(usize, GrayImage)> {
+    let source = FrameInput::Video(video.to_owned())
+        .open(&VideoOptions::default())
+        .unwrap();
+    source
+        .enumerate()
+        .filter(|(i, _)| wanted.contains(i))
+        .map(|(i, f)| (i, f.unwrap().image))
+        .collect()
+}
+
+fn cube_model(shared: &Path) -> Model {
+    model::load(&shared.join("visp-cube/model/cube.obj")).unwrap()
+}
+
+fn locator_and_vision(model: &Model, camera: Camera) -> (Locator, Vision) {
+    let (db, _) =
+        Database::load_or_build(model, &DatabaseConfig::default(), &cache(), &mut |_, _| {})
+            .unwrap();
+    let mut options = VisionOptions::default();
+    options.map.small_object_cells = true;
+    (
+        Locator::new(&db, LocateConfig::default()),
+        Vision::new(camera, model, options).unwrap(),
+    )
+}
+
+#[test]
+fn the_cube_is_found_on_frame_0_where_its_given_pose_puts_it() {
+    let Some(shared) = shared() else { return };
+    let dir = shared.join("visp-cube");
+    let out = tempfile::tempdir().unwrap();
+    let options = LocateOptions {
+        input: LocateInput::VideoFrame {
+            video: dir.join("cube_video.mp4"),
+            frame: 0,
+        },
+        model: dir.join("model/cube.obj"),
+        camera: read_camera_json(&dir.join("camera.json")).unwrap(),
+        cache: cache(),
+        out: out.path().join("frame0"),
+        overwrite: false,
+        database: DatabaseConfig::default(),
+        locate: LocateConfig::default(),
+    };
+    let report = run(&options, &mut |_, _| {}).unwrap();
+    println!("{report}");
+    assert!(report.accepted, "frame 0: no pose accepted");
+    let m = report.c_m_o.unwrap();
+    let found =
+        host_vision::start_pose::pose_of_cmo(&nalgebra::Matrix4::from_fn(|i, j| m[i][j])).unwrap();
+    // Against the given frame-0 pose (a render-and-compare fit of the silhouette and texture):
+    // the registered features' consensus lies about 25 mm from it, mostly a turn about the
+    // cube that a small object hardly shows (vision-only tracking from it settles there too:
+    // `the_cube_is_found_where_tracking_from_the_given_start_has_it`).
+    let given = read_start_pose(&dir.join("frame0_pose.json")).unwrap();
+    let (dc, da) = difference(&found, &given);
+    println!("against frame0_pose.json: {:.1} mm, {da:.2}°", dc * 1e3);
+    assert!(dc < 0.04 && da < 5.0, "{dc} m, {da}°");
+    let a = &report.attempt;
+    assert!(a.registered >= 20 && a.rms_px.unwrap() <= 1.5 && a.ncc.unwrap() >= 0.3);
+    for name in ["pose.json", "overlay.png", "locate.json"] {
+        assert!(out.path().join("frame0").join(name).exists(), "{name}");
+    }
+    // The pose file is a start pose.
+    let again = read_start_pose(&out.path().join("frame0/pose.json")).unwrap();
+    assert!((again.c_w - found.c_w).norm() < 1e-9);
+    // The second run reads the cache.
+    let second = run(
+        &LocateOptions {
+            out: out.path().join("second"),
+            ..options
+        },
+        &mut |_, _| panic!("the database is rebuilt"),
+    )
+    .unwrap();
+    assert!(second.database.built_because.is_none());
+}
+
+/// Camera-centre distance [m] and rotation angle [°] between two poses.
+fn difference(a: &CameraPose, b: &CameraPose) -> (f64, f64) {
+    (
+        (a.c_w - b.c_w).norm(),
+        a.q_cw.angle_to(&b.q_cw).to_degrees(),
+    )
+}
+
+/// Poses at the frames' times in a `trajectory_frames.tum` (camera in the model frame).
+fn tum_poses(path: &Path) -> Vec<(f64, CameraPose)> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            let q_wc = UnitQuaternion::from_quaternion(Quaternion::new(v[7], v[4], v[5], v[6]));
+            (
+                v[0],
+                CameraPose {
+                    q_cw: q_wc.inverse(),
+                    c_w: Vector3::new(v[1], v[2], v[3]),
+                },
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn the_cube_is_found_where_tracking_from_the_given_start_has_it() {
+    let Some(shared) = shared() else { return };
+    let dir = shared.join("visp-cube");
+    let video = dir.join("cube_video.mp4");
+    let out = tempfile::tempdir().unwrap();
+    let mut o = TrackOptions::new(video.clone(), out.path().join("track"));
+    o.filter = ModelKind::Vision;
+    o.frames = Some(FrameInput::Video(video.clone()));
+    o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
+    o.model = Some(dir.join("model/cube.obj"));
+    o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
+    o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
+    o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
+    o.overlay_every = 0;
+    o.max_frames = Some(90);
+    let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {}).unwrap();
+    let tracked = tum_poses(&out.path().join("track/trajectory_frames.tum"));
+    let model = cube_model(&shared);
+    let camera = o.camera.unwrap();
+    let (locator, mut vision) = locator_and_vision(&model, camera);
+    // From frame 30 on: tracking first settles from the given pose onto the features'
+    // consensus (about 25 mm away, see above), which takes it some twenty frames.
+    for (i, img) in frames(&video, &[30, 60, 89]) {
+        let row = run.frames.iter().find(|r| r.index == i).unwrap();
+        assert_eq!(
+            row.tracked,
+            Some(true),
+            "tracking does not hold on frame {i}"
+        );
+        let (_, at) = tracked
+            .iter()
+            .find(|(t, _)| (t - row.t).abs() < 1e-6)
+            .expect("a tracked pose at the frame's time");
+        let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
+        let found = a
+            .pose
+            .unwrap_or_else(|| panic!("frame {i}: no pose accepted: {a:?}"));
+        let (dc, da) = difference(&found, at);
+        println!(
+            "frame {i}: {} matches, {} inliers, {} registered, rms {:.2} px, ncc {:.3}; against tracking {:.1} mm, {da:.2}°",
+            a.matches,
+            a.inliers,
+            a.registered,
+            a.rms_px.unwrap_or(f64::NAN),
+            a.ncc.unwrap_or(f64::NAN),
+            dc * 1e3
+        );
+        assert!(dc < 0.01 && da < 2.0, "frame {i}: {dc} m, {da}°");
+    }
+}
+
+/// The image with the rectangle around the cube's projection at frame 0's pose (grown by
+/// 30 px) filled with the image's mean: the cube is not there. The cube stands still until
+/// frame 92.
+fn without_the_cube(img: &GrayImage, camera: &Camera, shared: &Path, model: &Model) -> GrayImage {
+    let pose = read_start_pose(&shared.join("visp-cube/frame0_pose.json")).unwrap();
+    let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
+    for p in model.meshes.iter().flat_map(|m| &m.positions) {
+        let p = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
+        if let Some(px) = camera.project(pose.world_to_camera(&p)) {
+            lo = [lo[0].min(px.x), lo[1].min(px.y)];
+            hi = [hi[0].max(px.x), hi[1].max(px.y)];
+        }
+    }
+    let mean = (img.pixels().map(|p| u64::from(p.0[0])).sum::<u64>() / img.len() as u64) as u8;
+    let mut out = img.clone();
+    for (x, y, p) in out.enumerate_pixels_mut() {
+        let (x, y) = (f64::from(x), f64::from(y));
+        if x > lo[0] - 30.0 && x < hi[0] + 30.0 && y > lo[1] - 30.0 && y < hi[1] + 30.0 {
+            p.0[0] = mean;
+        }
+    }
+    out
+}
+
+#[test]
+fn nothing_is_accepted_where_the_cube_is_not() {
+    let Some(shared) = shared() else { return };
+    let model = cube_model(&shared);
+    let camera = read_camera_json(&shared.join("visp-cube/camera.json")).unwrap();
+    let (locator, mut vision) = locator_and_vision(&model, camera);
+    let mut accepted = 0;
+    let mut tried = 0;
+    for (i, img) in frames(&shared.join("visp-cube/cube_video.mp4"), &[0, 30, 60, 90]) {
+        let masked = without_the_cube(&img, &camera, &shared, &model);
+        let (a, _) = locator.attempt(&mut vision, &masked, false).unwrap();
+        println!(
+            "cube frame {i}, cube masked out: {} keypoints, {} matches, {} inliers, {} registered",
+            a.keypoints, a.matches, a.inliers, a.registered
+        );
+        tried += 1;
+        accepted += usize::from(a.accepted());
+    }
+    // The 95 EuRoC frames of a room with no cube, through their own (distorted) camera.
+    let euroc = shared.join("euroc-v101-micro/mav0/cam0");
+    let calib = read_euroc_sensor_yaml(&euroc.join("sensor.yaml")).unwrap();
+    let (_, mut room) = locator_and_vision(&model, calib.camera);
+    let mut files: Vec<PathBuf> = std::fs::read_dir(euroc.join("data"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    assert_eq!(files.len(), 95);
+    let mut with_candidate = 0;
+    for f in &files {
+        let img = image::open(f).unwrap().into_luma8();
+        let (a, _) = locator.attempt(&mut room, &img, false).unwrap();
+        with_candidate += usize::from(a.candidate.is_some());
+        tried += 1;
+        accepted += usize::from(a.accepted());
+    }
+    println!(
+        "{tried} images without the cube: {accepted} poses accepted; {with_candidate} of the 95 room frames gave RANSAC a pose, none verified"
+    );
+    assert_eq!(accepted, 0);
+}
+
+#[test]
+fn bad_inputs_are_named_and_a_flat_image_is_a_failed_attempt() {
+    let Some(shared) = shared() else { return };
+    let dir = shared.join("visp-cube");
+    let camera = read_camera_json(&dir.join("camera.json")).unwrap();
+    let out = tempfile::tempdir().unwrap();
+    // An image of another size than the camera's: named, and no outputs left behind.
+    let small = out.path().join("small.png");
+    GrayImage::new(320, 240).save(&small).unwrap();
+    let options = LocateOptions {
+        input: LocateInput::Image(small.clone()),
+        model: dir.join("model/cube.obj"),
+        camera,
+        cache: cache(),
+        out: out.path().join("o"),
+        overwrite: false,
+        database: DatabaseConfig::default(),
+        locate: LocateConfig::default(),
+    };
+    let e = run(&options, &mut |_, _| {}).unwrap_err();
+    assert!(matches!(e, LocateError::ImageSize { .. }), "{e}");
+    assert!(e.to_string().contains("small.png"), "{e}");
+    assert!(
+        !out.path().join("o").exists(),
+        "a failed run left its folder"
+    );
+    // A missing image, a missing model.
+    let e = run(
+        &LocateOptions {
+            input: LocateInput::Image(out.path().join("none.png")),
+            ..options.clone()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("none.png"), "{e}");
+    let e = run(
+        &LocateOptions {
+            model: out.path().join("none.obj"),
+            ..options.clone()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("none.obj"), "{e}");
+    // A flat image: no keypoints, a failed attempt with its report, no pose.
+    let flat = out.path().join("flat.png");
+    GrayImage::from_pixel(640, 480, image::Luma([90]))
+        .save(&flat)
+        .unwrap();
+    let report = run(
+        &LocateOptions {
+            input: LocateInput::Image(flat),
+            ..options.clone()
+        },
+        &mut |_, _| {},
+    )
+    .unwrap();
+    assert_eq!(report.attempt.keypoints, 0);
+    assert!(!report.accepted);
+    assert!(!out.path().join("o/pose.json").exists());
+    // A model without texture is refused by name.
+    let mut plain = cube_model(&shared);
+    for m in &mut plain.materials {
+        m.texture = None;
+    }
+    let e = Database::build(&plain, &DatabaseConfig::default(), &mut |_, _| {}).unwrap_err();
+    assert!(matches!(e, DatabaseError::Untextured), "{e}");
+    // Other settings: a database of its own, built with the reason; a corrupt cache file:
+    // rebuilt, saying so.
+    let model = cube_model(&shared);
+    let other = DatabaseConfig {
+        directions: 20,
+        ..DatabaseConfig::default()
+    };
+    let dir = out.path().join("cache");
+    let (_, first) = Database::load_or_build(&model, &other, &dir, &mut |_, _| {}).unwrap();
+    assert!(matches!(first, Provenance::Built { .. }), "{first:?}");
+    let fewer = DatabaseConfig {
+        directions: 12,
+        ..DatabaseConfig::default()
+    };
+    let (_, p) = Database::load_or_build(&model, &fewer, &dir, &mut |_, _| {}).unwrap();
+    let Provenance::Built { why, path } = p else {
+        panic!("{p:?}")
+    };
+    assert!(why.contains("other models or other settings"), "{why}");
+    std::fs::write(&path, b"not a database").unwrap();
+    let (db, p) = Database::load_or_build(&model, &fewer, &dir, &mut |_, _| {}).unwrap();
+    let Provenance::Built { why, .. } = p else {
+        panic!("{p:?}")
+    };
+    assert!(why.contains("unreadable"), "{why}");
+    assert!(!db.entries.is_empty());
+    let (_, p) = Database::load_or_build(&model, &fewer, &dir, &mut |_, _| {}).unwrap();
+    assert!(matches!(p, Provenance::Cached(_)), "{p:?}");
+}
