@@ -3,6 +3,7 @@
 //! *another* model point (the database holds each point once per view that saw it, so the
 //! runner-up is often the same point), and a mutual check.
 
+use super::index::Index;
 use super::orb::{Descriptor, hamming};
 
 /// Matching settings.
@@ -14,6 +15,8 @@ pub struct MatchConfig {
     pub max_distance: u32,
     /// Entries whose model points lie closer than this are one point [m].
     pub same_point_m: f32,
+    /// Entries compared per query through the index (the nearest branches first).
+    pub checks: usize,
 }
 
 impl Default for MatchConfig {
@@ -22,6 +25,7 @@ impl Default for MatchConfig {
             ratio: 0.85,
             max_distance: 80,
             same_point_m: 0.003,
+            checks: 3000,
         }
     }
 }
@@ -41,32 +45,34 @@ pub struct Match {
 const KEEP: usize = 8;
 
 /// Matches `query` descriptors against the database's (`train`, with each entry's model
-/// point `points`).
+/// point `points`), through `index` (built over `train`) with [`MatchConfig::checks`]
+/// comparisons per query, or by a scan of all entries without one.
 pub fn match_descriptors(
     query: &[Descriptor],
     train: &[Descriptor],
     points: &[[f32; 3]],
+    index: Option<&Index>,
     config: &MatchConfig,
 ) -> Vec<Match> {
-    if train.len() != points.len() {
+    if train.len() != points.len() || index.is_some_and(|i| i.len() != train.len()) {
         return Vec::new();
     }
-    // Best query per entry, for the mutual check.
-    let mut best_for_entry = vec![(u32::MAX, usize::MAX); train.len()];
     let mut candidates = Vec::with_capacity(query.len());
+    // The KEEP nearest, sorted by distance.
+    let mut near: Vec<(u32, usize)> = Vec::with_capacity(KEEP + 1);
     for (qi, q) in query.iter().enumerate() {
-        // The KEEP nearest, sorted by distance.
-        let mut near: Vec<(u32, usize)> = Vec::with_capacity(KEEP + 1);
-        for (ti, t) in train.iter().enumerate() {
-            let d = hamming(q, t);
-            if d < best_for_entry[ti].0 {
-                best_for_entry[ti] = (d, qi);
-            }
+        near.clear();
+        let mut consider = |ti: usize| {
+            let d = hamming(q, &train[ti]);
             if near.len() < KEEP || d < near[near.len() - 1].0 {
                 let at = near.partition_point(|&(e, _)| e <= d);
                 near.insert(at, (d, ti));
                 near.truncate(KEEP);
             }
+        };
+        match index {
+            Some(index) => index.search(q, config.checks, &mut consider),
+            None => (0..train.len()).for_each(consider),
         }
         let Some(&(d0, t0)) = near.first() else {
             continue;
@@ -93,7 +99,16 @@ pub fn match_descriptors(
             });
         }
     }
-    candidates.retain(|m| best_for_entry[m.entry].1 == m.query);
+    // Mutual check: the entry's nearest query (the first of equals) must be this one.
+    candidates.retain(|m| {
+        let t = &train[m.entry];
+        let best = query
+            .iter()
+            .enumerate()
+            .min_by_key(|&(_, q)| hamming(q, t))
+            .map(|(i, _)| i);
+        best == Some(m.query)
+    });
     candidates
 }
 
@@ -129,7 +144,7 @@ mod tests {
         train.push(flip(train[7], 3));
         points.push(points[7]);
         let query = vec![flip(train[5], 10), flip(train[7], 8), desc(9999)];
-        let m = match_descriptors(&query, &train, &points, &MatchConfig::default());
+        let m = match_descriptors(&query, &train, &points, None, &MatchConfig::default());
         assert_eq!(
             m.iter().map(|m| (m.query, m.entry)).collect::<Vec<_>>(),
             vec![(0, 5), (1, 200)]
@@ -137,11 +152,16 @@ mod tests {
         // Two different points with the same descriptor: ambiguous, refused.
         let mut train2 = train.clone();
         train2[6] = flip(train[5], 1);
-        let m = match_descriptors(&query[..1], &train2, &points, &MatchConfig::default());
+        let m = match_descriptors(&query[..1], &train2, &points, None, &MatchConfig::default());
         assert!(m.is_empty(), "{m:?}");
         // Mismatched lengths: nothing.
-        assert!(
-            match_descriptors(&query, &train, &points[..3], &MatchConfig::default()).is_empty()
+        let cfg = MatchConfig::default();
+        assert!(match_descriptors(&query, &train, &points[..3], None, &cfg).is_empty());
+        // Through the index: the same matches here.
+        let index = Index::new(&train);
+        assert_eq!(
+            match_descriptors(&query, &train, &points, Some(&index), &cfg),
+            match_descriptors(&query, &train, &points, None, &cfg)
         );
     }
 }

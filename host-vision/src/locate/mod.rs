@@ -10,6 +10,7 @@
 //!    the tracked rule ([`crate::track::TrackedRule`]) applied. Only a verified pose is used.
 
 pub mod database;
+pub mod index;
 pub mod matching;
 pub mod orb;
 pub mod p3p;
@@ -27,6 +28,7 @@ use crate::track::TrackError;
 use crate::track::TrackedRule;
 use crate::track::vision::{FrameResult, Vision};
 use database::Database;
+use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
 use ransac::{RansacConfig, ransac_pose};
@@ -116,15 +118,18 @@ pub struct Locator {
     orb: Orb,
     descriptors: Vec<Descriptor>,
     points: Vec<[f32; 3]>,
+    index: Index,
     config: LocateConfig,
 }
 
 impl Locator {
     /// A locator over `db`.
     pub fn new(db: &Database, config: LocateConfig) -> Self {
+        let descriptors = db.descriptors();
         Self {
             orb: Orb::new(config.orb),
-            descriptors: db.descriptors(),
+            index: Index::new(&descriptors),
+            descriptors,
             points: db.points(),
             config,
         }
@@ -156,6 +161,7 @@ impl Locator {
             &query,
             &self.descriptors,
             &self.points,
+            Some(&self.index),
             &self.config.matching,
         );
         times.matching = t.elapsed().as_secs_f64();
