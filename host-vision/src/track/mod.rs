@@ -116,6 +116,17 @@ pub enum TrackError {
     /// The vision thread could not start or stopped.
     #[error("{0}")]
     Vision(String),
+    /// The cold start never found the model.
+    #[error(
+        "cold start: the model was not found in any of the {attempts} frames tried (is it in view, and is this its model?); `host-vision locate` on one frame shows the figures"
+    )]
+    NotFound {
+        /// Frames tried.
+        attempts: usize,
+    },
+    /// The cold start's viewpoint database.
+    #[error("cold start: {0}")]
+    Database(#[from] crate::locate::database::DatabaseError),
     /// A bad option (named by its command-line flag).
     #[error("{0}")]
     Option(String),
@@ -211,6 +222,10 @@ pub struct TrackOptions {
     pub camera: Option<crate::camera::Camera>,
     /// Stop after this many frames (vision-only; a live camera never ends by itself).
     pub max_frames: Option<usize>,
+    /// Folder of the cold start's viewpoint database ([`crate::locate`]): a vision-only run
+    /// with no start pose and no ground truth finds the model itself, frame by frame, until a
+    /// pose is verified.
+    pub cache: PathBuf,
 }
 
 impl TrackOptions {
@@ -235,6 +250,7 @@ impl TrackOptions {
             frames: None,
             camera: None,
             max_frames: None,
+            cache: crate::locate::database::default_cache_dir(),
         }
     }
 
@@ -249,7 +265,7 @@ impl TrackOptions {
         let bad = |m: String| Err(TrackError::Option(m));
         self.check_common()?;
         if self.vision_only() {
-            return self.check_vision(dataset).map(|()| 0);
+            return self.check_vision().map(|()| 0);
         }
         if !dataset.has_imu() {
             return Err(DatasetError::NoImu {
@@ -370,8 +386,9 @@ impl TrackOptions {
         Ok(())
     }
 
-    /// The vision-only run's checks: a whole start pose, and what its frames allow.
-    fn check_vision(&self, dataset: &Dataset) -> Result<(), TrackError> {
+    /// The vision-only run's checks: a whole start pose if one is given, and what its frames
+    /// allow.
+    fn check_vision(&self) -> Result<(), TrackError> {
         let bad = |m: String| Err(TrackError::Option(m));
         if let Some(d) = self.duration
             && !(d.is_finite() && d > 0.0)
@@ -396,12 +413,7 @@ impl TrackOptions {
                     .into(),
             );
         }
-        if self.start.pose.is_none() && dataset.groundtruth.is_none() {
-            return bad(format!(
-                "{}: no ground truth to start from: give the camera's pose in the first frame with --start-pose (cMo JSON or a TUM line)",
-                dataset.root.display()
-            ));
-        }
+        // Without a start pose or a ground truth, the cold start finds the model.
         Ok(())
     }
 }
@@ -536,6 +548,7 @@ pub fn run(
         sent_correspondences: 0,
         wall: Instant::now(),
         axes: ready.axes,
+        searches: Vec::new(),
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(&mut link, &worker, source, &interrupt, progress),
@@ -547,6 +560,9 @@ pub fn run(
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
         return Err(match (outcome, closed) {
             (Err(e), _) | (Ok(_), Err(e)) => e,
+            (Ok(true), Ok(_)) if !session.searches.is_empty() => TrackError::NotFound {
+                attempts: session.searches.len(),
+            },
             (Ok(_), Ok(_)) => TrackError::Interrupted,
         });
     }
@@ -594,12 +610,16 @@ enum WorkerJob {
     /// Judge the last analysed frame at the pose estimated with its update, over the
     /// correspondences the core applied.
     Assess(crate::camera::CameraPose, Vec<bool>),
+    /// Find the model in a raw frame with no pose given (the cold start), with the viewpoint
+    /// database of this cache folder.
+    Locate(image::GrayImage, PathBuf),
 }
 
 /// What the vision thread answers, in the order of the jobs.
 enum WorkerDone {
     Frame(Box<Result<FrameResult, TrackError>>),
     Assess(Result<Assessment, TrackError>),
+    Locate(Result<crate::locate::Attempt, TrackError>),
 }
 
 impl VisionWorker {
@@ -642,12 +662,14 @@ impl VisionWorker {
         TrackError::Vision("the vision thread stopped".into())
     }
 
+    fn out_of_order() -> TrackError {
+        TrackError::Vision("the vision thread answered out of order".into())
+    }
+
     fn recv(&self) -> Result<Result<FrameResult, TrackError>, TrackError> {
         match self.results.recv() {
             Ok(WorkerDone::Frame(r)) => Ok(*r),
-            Ok(WorkerDone::Assess(_)) => Err(TrackError::Vision(
-                "the vision thread answered out of order".into(),
-            )),
+            Ok(_) => Err(Self::out_of_order()),
             Err(_) => Err(Self::stopped()),
         }
     }
@@ -655,9 +677,21 @@ impl VisionWorker {
     fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
         match self.results.try_recv().ok()? {
             WorkerDone::Frame(r) => Some(*r),
-            WorkerDone::Assess(_) => Some(Err(TrackError::Vision(
-                "the vision thread answered out of order".into(),
-            ))),
+            _ => Some(Err(Self::out_of_order())),
+        }
+    }
+
+    /// One cold-start attempt on the raw frame `image` (no frame may be in flight).
+    fn locate(
+        &self,
+        image: image::GrayImage,
+        cache: PathBuf,
+    ) -> Result<crate::locate::Attempt, TrackError> {
+        self.send_job(WorkerJob::Locate(image, cache))?;
+        match self.results.recv() {
+            Ok(WorkerDone::Locate(r)) => r,
+            Ok(_) => Err(Self::out_of_order()),
+            Err(_) => Err(Self::stopped()),
         }
     }
 
@@ -671,9 +705,7 @@ impl VisionWorker {
         self.send_job(WorkerJob::Assess(pose, applied))?;
         match self.results.recv() {
             Ok(WorkerDone::Assess(r)) => r,
-            Ok(WorkerDone::Frame(_)) => Err(TrackError::Vision(
-                "the vision thread answered out of order".into(),
-            )),
+            Ok(_) => Err(Self::out_of_order()),
             Err(_) => Err(Self::stopped()),
         }
     }
@@ -701,30 +733,50 @@ fn vision_worker(
     results: Sender<WorkerDone>,
     ready: Sender<Result<Ready, TrackError>>,
 ) {
-    let setup = || -> Result<(Vision, Ready), TrackError> {
+    let setup = || -> Result<(Vision, Ready, crate::model::Model), TrackError> {
         let model = crate::model::load(&model_path)?;
         let vision = Vision::new(camera, &model, options)?;
         let ready = Ready {
             adapter: vision.adapter_summary(),
             axes: model_axes(&model),
         };
-        Ok((vision, ready))
+        Ok((vision, ready, model))
     };
-    let mut vision = match setup() {
-        Ok((v, r)) => {
+    let (mut vision, model) = match setup() {
+        Ok((v, r, m)) => {
             let _ = ready.send(Ok(r));
-            v
+            (v, m)
         }
         Err(e) => {
             let _ = ready.send(Err(e));
             return;
         }
     };
+    // The cold start's database, loaded (or built) on the first attempt.
+    let mut locator: Option<crate::locate::Locator> = None;
     // Ends when the session drops its sender.
     while let Ok(job) = jobs.recv() {
         let done = match job {
             WorkerJob::Frame(job) => WorkerDone::Frame(Box::new(vision.process(job))),
             WorkerJob::Assess(pose, applied) => WorkerDone::Assess(vision.assess(&pose, &applied)),
+            WorkerJob::Locate(image, cache) => {
+                let attempt = (|| {
+                    if locator.is_none() {
+                        let (db, _) = crate::locate::database::Database::load_or_build(
+                            &model,
+                            &crate::locate::database::DatabaseConfig::default(),
+                            &cache,
+                            &mut |_, _| {},
+                        )?;
+                        locator = Some(crate::locate::Locator::new(&db, Default::default()));
+                    }
+                    match &locator {
+                        Some(l) => Ok(l.attempt(&mut vision, &image, false)?.0),
+                        None => Err(TrackError::Vision("no cold-start database".into())),
+                    }
+                })();
+                WorkerDone::Locate(attempt)
+            }
         };
         if results.send(done).is_err() {
             return;
@@ -788,6 +840,21 @@ pub struct Session<'a> {
     wall: Instant,
     /// Where the overlays draw the model's axes, and their length.
     pub axes: (Vector3<f64>, f64),
+    /// The cold start's attempts, in order (vision-only runs with no start pose).
+    pub searches: Vec<Search>,
+}
+
+/// One cold-start attempt of a tracking run.
+#[derive(Debug, Clone, Copy)]
+pub struct Search {
+    /// The frame's index in the input.
+    pub index: usize,
+    /// Its time [s from the first frame].
+    pub t: f64,
+    /// Wall time of the attempt, with the frame's transfer to the vision thread [ms].
+    pub wall_ms: f64,
+    /// What it found.
+    pub attempt: crate::locate::Attempt,
 }
 
 impl Session<'_> {

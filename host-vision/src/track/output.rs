@@ -116,6 +116,37 @@ fn untracked_stretches(rows: &[FrameRow]) -> Vec<[f64; 2]> {
     out
 }
 
+/// The cold start of a run: attempts until a pose was verified.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct ColdStart {
+    /// Attempts made (one per frame until one was accepted).
+    pub attempts: usize,
+    /// The frame the model was found in, and its time [s], if it was.
+    pub found: Option<(usize, f64)>,
+    /// Mean and longest wall time of an attempt [ms].
+    pub mean_ms: f64,
+    /// Longest attempt [ms].
+    pub max_ms: f64,
+}
+
+impl ColdStart {
+    fn of(searches: &[super::Search]) -> Option<Self> {
+        if searches.is_empty() {
+            return None;
+        }
+        let ms: Vec<f64> = searches.iter().map(|s| s.wall_ms).collect();
+        Some(Self {
+            attempts: searches.len(),
+            found: searches
+                .iter()
+                .find(|s| s.attempt.accepted())
+                .map(|s| (s.index, s.t)),
+            mean_ms: ms.iter().sum::<f64>() / ms.len() as f64,
+            max_ms: ms.iter().copied().fold(0.0, f64::max),
+        })
+    }
+}
+
 /// Accuracy against ground truth.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Accuracy {
@@ -264,6 +295,9 @@ pub struct Summary {
     pub divergences: Vec<Event>,
     /// Stretches after snap-on without vision (dead reckoning), `[start, end]` [s].
     pub without_vision: Vec<[f64; 2]>,
+    /// The cold start (vision-only runs with no start pose): its attempts and where it found
+    /// the model.
+    pub cold_start: Option<ColdStart>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
     pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
@@ -371,6 +405,20 @@ impl fmt::Display for Summary {
                     t.untracked.len(),
                     shown.join(", ")
                 )?;
+            }
+        }
+        if let Some(c) = &self.cold_start {
+            match c.found {
+                Some((frame, t)) => writeln!(
+                    f,
+                    "cold start   model found in frame {frame} ({t:.2} s) after {} attempts, {:.0} ms per attempt (longest {:.0} ms)",
+                    c.attempts, c.mean_ms, c.max_ms
+                )?,
+                None => writeln!(
+                    f,
+                    "cold start   model not found in {} attempts ({:.0} ms each): nothing tracked",
+                    c.attempts, c.mean_ms
+                )?,
             }
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
@@ -784,6 +832,7 @@ pub(super) fn write_all(
         }),
         divergences,
         without_vision,
+        cold_start: ColdStart::of(&session.searches),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0

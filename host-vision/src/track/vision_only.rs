@@ -14,13 +14,16 @@
 //! ffmpeg's pipe buffers the frames, so the tracker then runs late rather than dropping any.
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 use protocol::{HostToCore, Init, InitAttitude, Tick};
 
 use super::config::vision_config;
 use super::{
-    FrameImage, FrameJob, Pending, Progress, Session, Start, TrackError, TrackOptions, VisionWorker,
+    FrameImage, FrameJob, Pending, Progress, Search, Session, Start, TrackError, TrackOptions,
+    VisionWorker,
 };
+use crate::camera::CameraPose;
 use crate::dataset::Dataset;
 use crate::frames::{Frame, FrameSource};
 
@@ -63,29 +66,29 @@ pub(super) fn open_dataset(options: &TrackOptions) -> Result<Dataset, TrackError
 
 impl Session<'_> {
     /// The start of a vision-only run: the given pose, or the ground truth's camera pose at the
-    /// first frame (a dataset whose IMU is withheld).
-    fn vision_init(&self, first_stamp: u64) -> Result<Init, TrackError> {
-        let pose = match (
+    /// first frame (a dataset whose IMU is withheld); `None`: the cold start finds it.
+    fn vision_start(&self, first_stamp: u64) -> Option<CameraPose> {
+        match (
             &self.options.start.pose,
             self.dataset.groundtruth_at(first_stamp),
         ) {
-            (Some(pose), _) => *pose,
+            (Some(pose), _) => Some(*pose),
             (None, Some((p, q))) => {
                 let (c_w, q_cw) = self.dataset.hand_eye.camera_pose(&p, &q);
-                crate::camera::CameraPose { q_cw, c_w }
+                Some(CameraPose { q_cw, c_w })
             }
-            (None, None) => {
-                return Err(TrackError::Option(
-                    "no start pose: give --start-pose (no ground truth at the first frame)".into(),
-                ));
-            }
-        };
-        let (s_w, q_sw) = Start::imu_pose_of_camera(&pose, &self.core_hand_eye);
+            (None, None) => None,
+        }
+    }
+
+    /// The core's `Init` for the camera at `pose`.
+    fn vision_init(&self, pose: &CameraPose) -> Init {
+        let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.core_hand_eye);
         let q = q_sw.quaternion();
-        Ok(Init {
+        Init {
             position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
             attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
-        })
+        }
     }
 
     /// Sends one tick at `t_us` after the first frame (stamp `stamp0` [ns]) and records its
@@ -142,7 +145,12 @@ impl Session<'_> {
         let t0_ns = first.t_ns;
         let first_stamp = u64::try_from(t0_ns).unwrap_or(0);
         link.send(&HostToCore::Configure(config))?;
-        link.send(&HostToCore::Init(self.vision_init(first_stamp)?))?;
+        // Without a start pose the core is initialised once the cold start found the model.
+        let start = self.vision_start(first_stamp);
+        let mut started = start.is_some();
+        if let Some(pose) = &start {
+            link.send(&HostToCore::Init(self.vision_init(pose)))?;
+        }
         self.barrier(link)?;
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
@@ -175,6 +183,27 @@ impl Session<'_> {
                     ),
                 ));
                 continue;
+            }
+            if !started {
+                // The cold start: one attempt per frame until a pose is verified; the frame
+                // it was found in is then tracked from it.
+                let wall = Instant::now();
+                let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
+                self.searches.push(Search {
+                    index: frame.index,
+                    t: t_us as f64 * 1e-6,
+                    wall_ms: wall.elapsed().as_secs_f64() * 1e3,
+                    attempt: a,
+                });
+                let Some(pose) = a.pose else {
+                    frames += 1;
+                    if frames.is_multiple_of(10) {
+                        progress(frames, total, self.results.len(), self.log.mode());
+                    }
+                    continue;
+                };
+                link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                started = true;
             }
             if let Some(mut at) = last_us {
                 while t_us - at > MAX_TICK_GAP_US {
@@ -220,7 +249,7 @@ impl Session<'_> {
                 let updated = self.log.states.last().filter(|s| s.t_us == t_us + 1);
                 if let (true, Some(s)) = (analysed, updated) {
                     let (c_w, q_wc) = super::camera_of_state(s, &self.core_hand_eye);
-                    let pose = crate::camera::CameraPose {
+                    let pose = CameraPose {
                         q_cw: q_wc.inverse(),
                         c_w,
                     };

@@ -193,8 +193,8 @@ pub struct TrackArgs {
     pub dataset: Option<PathBuf>,
     /// Track a video or a live V4L2 camera vision-only (no IMU): decoded by the ffmpeg
     /// program into grey frames with the container's time stamps; needs the camera
-    /// (--camera, --calib or --intrinsics), the model (--model) and the start pose
-    /// (--start-pose).
+    /// (--camera, --calib or --intrinsics) and the model (--model); without --start-pose the
+    /// model is found in the frames (the cold start).
     #[arg(long, conflicts_with_all = ["dataset", "images"])]
     pub video: Option<PathBuf>,
     /// Track an image folder vision-only (as --video): PNG/JPG in name order at --fps, or a
@@ -219,6 +219,11 @@ pub struct TrackArgs {
     /// Stop after this many frames (vision-only; a live camera never ends by itself).
     #[arg(long)]
     pub max_frames: Option<usize>,
+    /// Folder of the cold start's viewpoint database (vision-only without --start-pose or
+    /// ground truth: the model is found frame by frame until a pose is verified); default: the
+    /// user's cache folder ($XDG_CACHE_HOME/host-vision or ~/.cache/host-vision).
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
     /// Output folder (trajectories, frames.csv, summary.json, overlays/, plots/); not inside
     /// the dataset.
     #[arg(long)]

@@ -281,6 +281,9 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     o.frames = input;
     o.camera = camera;
     o.max_frames = a.max_frames;
+    if let Some(c) = &a.cache {
+        o.cache = c.clone();
+    }
     o.pacing = a.pacing;
     o.latency = a.latency;
     o.vision.map.subset_size = a.features;
