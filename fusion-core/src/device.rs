@@ -512,6 +512,11 @@ impl<T: Scalar> Device<T> {
             .camera_period_us
             .saturating_mul(u64::from(NO_VISION_FRAMES));
         if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us {
+            // The residual monitor's memory ends with tracking: the frames before the gap
+            // judged the tracked state, the ones after it judge a dead-reckoned prediction
+            // (DESIGN.md §4.6 test 1; docs/notes/issue18-robustness.md). Two consecutive
+            // outlier frames after the gap still fire it.
+            self.monitor = Monitor::default();
             self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
         }
         let every = self.config.map_or(0, |c| c.state_every);

@@ -10,7 +10,9 @@
 //!    (`λτ/2 + (1−λ)c = τ`), two consecutive frames of nothing but outliers always do
 //!    (`(1−λ)(1+λ)c = τ(1 + λ(1−λ)/2) > τ`), and so does a sustained share of outliers above
 //!    `τ/c = 2(1−λ)/(2−λ)` (a third at λ = 0.8). The frame that fires is not applied: its
-//!    snapshot is dropped with the re-initialisation;
+//!    snapshot is dropped with the re-initialisation. The device restarts the monitor when
+//!    tracking ends (dead reckoning, [`crate::device::NO_VISION_FRAMES`] camera periods without
+//!    accepted vision): frames on either side of a gap are not consecutive looks at one state;
 //! 2. the Frobenius norm of the state covariance exceeds a threshold (catches the unbounded
 //!    uncertainty growth of dead reckoning without vision);
 //! 3. a measurement update moves the quaternion off the sphere: the radial part of its step

@@ -496,3 +496,54 @@ fn defect_09_the_advertised_latency_limit_is_the_real_one() {
         "{applied} applied, {too_old} too old"
     );
 }
+
+/// Issue 18, on the real `imu_april` data: the grid's last views before a gap were mostly
+/// gated, and the first frame after it (a dead-reckoned prediction, off as expected) fired the
+/// residual monitor with them, as if the frames had been consecutive. The monitor's memory now
+/// ends with tracking: after three camera periods without accepted vision (dead reckoning) it
+/// starts afresh, so one outlier frame before a gap and one after it do not fire it; two
+/// consecutive outlier frames after the gap still do (`divergence` module's promise).
+#[test]
+fn issue_18_the_residual_monitor_does_not_span_a_dead_reckoning_gap() {
+    for lambda in [0.5, 0.8] {
+        let mut sc = scenes::standard(ModelKind::Acc, 20.0, 2.0, 8);
+        sc.config.divergence.residual_lowpass = lambda;
+        let mut d = Driver::<f32>::new(&sc);
+        while (d.k as f64) < 5.0 * sc.imu_rate_hz {
+            step_answering(&mut d, false);
+        }
+        assert_eq!(d.device.mode(), Mode::Tracking);
+        let frame = sc.camera_every;
+        // One outlier frame, then a gap of five camera periods without correspondences.
+        for _ in 0..frame {
+            step_answering(&mut d, true);
+        }
+        for _ in 0..5 * frame {
+            let msg = d.next_imu();
+            d.send(&msg);
+        }
+        assert_eq!(d.device.mode(), Mode::DeadReckoning, "λ {lambda}");
+        // One outlier frame after the gap: with the frame before it, two in a row of frames
+        // with correspondences, which fired the monitor before.
+        for _ in 0..frame {
+            step_answering(&mut d, true);
+        }
+        assert_eq!(divergences(&d.out), 0, "λ {lambda}: fired across the gap");
+        // A second one, right after: two consecutive outlier frames fire it.
+        for _ in 0..frame {
+            step_answering(&mut d, true);
+        }
+        let fired: Vec<_> = d
+            .out
+            .statuses
+            .iter()
+            .filter(|s| s.mode == Mode::Diverged)
+            .map(|s| s.reason)
+            .collect();
+        assert_eq!(
+            fired,
+            [StatusReason::ResidualLowpass],
+            "λ {lambda}: two outlier frames after the gap"
+        );
+    }
+}

@@ -1,13 +1,16 @@
 //! The fusion core on real data: EuRoC `imu_april` (real 200 Hz IMU, real AprilGrid corner
 //! detections of cam1 as 2D/3D correspondences, the dataset's calibration). Reports, per
-//! model, the paper's prediction error in pixels and the share of correspondences gated out.
-//! Skips with a message when `../shared/data` is absent.
+//! model and correspondence latency (5 ms and 50 ms), the paper's prediction error in pixels,
+//! the share of correspondences gated out and the divergences (issue 18). The grid leaves the
+//! view at 55.8 s for 1.2 s while the rig moves: every model dead-reckons through the gap and
+//! snaps on again without diverging. Skips with a message when `../shared/data` is absent.
 
 use std::path::{Path, PathBuf};
 
 use fusion_core::Device;
 use host_vision::camera::read_euroc_sensor_yaml;
-use nalgebra::{DMatrix, Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
+use host_vision::features::correspondence::pixel_to_normalised;
+use nalgebra::{DMatrix, Matrix2, Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
 use protocol::{
     CoreToHost, Correspondence, Correspondences, Hello, HostToCore, ImuSample, Init, InitAttitude,
     Mode, ModelKind, PROTOCOL_VERSION,
@@ -20,6 +23,17 @@ fn data_dir() -> Option<PathBuf> {
 
 /// Undistorted normalised points with their grid points.
 type Observations = Vec<(Vector2<f64>, Vector3<f64>)>;
+
+/// Hand-held motion, the physics behind the process noises (DESIGN.md §4, eq. 7 / 12 / 15, and
+/// docs/notes/issue18-robustness.md): the largest linear acceleration of the rig [m/s²] (the
+/// figure the initial σ below already assumes; in this sequence the accelerometer's magnitude
+/// departs from g by at most 5.2 m/s² in 99 % of the samples) and the largest angular
+/// acceleration [rad/s²] (the gyro's rate differentiated sample to sample: 27 rad/s² at the
+/// 99th percentile, 46 at most). A white-noise rate model observed every `T` gets the density
+/// `q = a_max √T` (Bar-Shalom, Li & Kirubarajan 2001, §6.2.2): the rate it integrates changes
+/// by about `a_max T` between observations.
+const HAND_ACCEL: f64 = 5.0;
+const HAND_ANGULAR_ACCEL: f64 = 30.0;
 
 struct Imu {
     t_ns: i64,
@@ -129,6 +143,9 @@ fn median(v: &mut [f64]) -> f64 {
 
 struct Row {
     model: ModelKind,
+    latency_ms: u32,
+    /// Largest Frobenius norm of the covariance.
+    max_cov: f32,
     mean_px: f64,
     median_px: f64,
     gated: f64,
@@ -136,7 +153,9 @@ struct Row {
     divergences: Vec<(f64, protocol::StatusReason)>,
 }
 
-fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row {
+/// Runs `model` with the correspondences of each frame applied `latency` IMU samples (5 ms
+/// each) after its trigger.
+fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row {
     let calib = read_euroc_sensor_yaml(&dir.join("cam1-sensor.yaml")).expect("cam1 calibration");
     let cam = calib.camera;
     let t_bs = calib.extrinsics.expect("T_BS");
@@ -153,16 +172,23 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     let pixel_sigma = 1.0;
     let fx = cam.pinhole.fx;
 
-    // Undistorted normalised observations per frame.
-    let frames: Vec<(i64, Observations)> = frames
+    // Undistorted normalised observations per frame, each with its pixel noise propagated
+    // through the undistortion, as the host does (`pixel_to_normalised`): towards the image's
+    // corners the lens compresses the view (k1 = −0.28), so one pixel there spans a larger
+    // normalised distance: up to twice the centre's in the views around the gap.
+    let cov_px = Matrix2::identity() * (pixel_sigma * pixel_sigma);
+    let frames: Vec<(i64, Observations, Vec<Matrix2<f64>>)> = frames
         .iter()
         .map(|f| {
-            let obs = f
+            let (obs, covs) = f
                 .obs
                 .iter()
-                .filter_map(|(px, g)| cam.pixel_to_normalised(*px).map(|n| (n, *g)))
-                .collect();
-            (f.t_ns, obs)
+                .filter_map(|(px, g)| {
+                    let (n, cov) = pixel_to_normalised(&cam, *px, &cov_px).ok()?;
+                    Some(((n, *g), cov))
+                })
+                .unzip();
+            (f.t_ns, obs, covs)
         })
         .collect();
 
@@ -172,9 +198,9 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     let mean_f: Vector3<f64> =
         imu[..still].iter().map(|s| s.accel).sum::<Vector3<f64>>() / still as f64;
     let t_start = imu[still - 1].t_ns;
-    let (_, first) = frames
+    let (_, first, _) = frames
         .iter()
-        .find(|(t, o)| *t >= t_start && o.len() >= 12)
+        .find(|(t, o, _)| *t >= t_start && o.len() >= 12)
         .expect("a frame with the grid in view");
     let (r_cg, t_cg) = planar_pose(first);
     let up_g: Vector3<f64> = r_cg.transpose() * (r_cs * mean_f.normalize());
@@ -193,7 +219,8 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     let mut cfg = protocol::samples::config();
     cfg.model = model;
     cfg.imu_rate_hz = rate as f32;
-    cfg.camera_rate_hz = 20.0;
+    let camera_rate: f64 = 20.0;
+    cfg.camera_rate_hz = camera_rate as f32;
     let q = q_cs.quaternion();
     cfg.hand_eye = protocol::HandEye {
         q_cs: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
@@ -202,11 +229,14 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     cfg.noise.gyro_meas = (gyro_sigma * 2.0) as f32;
     cfg.noise.gyro_bias_walk = (gyro_walk * 5.0) as f32;
     cfg.noise.accel_bias_walk = (accel_walk * 2.0) as f32;
-    cfg.noise.angular = 20.0;
+    // Angular acceleration, observed by the gyro every IMU period.
+    cfg.noise.angular = (HAND_ANGULAR_ACCEL * (1.0 / rate).sqrt()) as f32;
+    // The constant-velocity models observe velocity only through vision, every camera period.
+    let cv_motion = (HAND_ACCEL * (1.0 / camera_rate).sqrt()) as f32;
     (cfg.noise.motion, cfg.noise.accel_meas) = match model {
         ModelKind::Acc => (60.0, (accel_sigma * 3.0) as f32),
-        ModelKind::Gravity => (8.0, 2.0),
-        ModelKind::Gyro => (8.0, 1.0),
+        ModelKind::Gravity => (cv_motion, 2.0),
+        ModelKind::Gyro => (cv_motion, 1.0),
         ModelKind::Vision => unreachable!("the real-data test runs the inertial models"),
     };
     cfg.gate = 25.0;
@@ -240,12 +270,10 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     handle(&mut dev, &HostToCore::Configure(cfg), &mut answers);
     handle(&mut dev, &HostToCore::Init(init), &mut answers);
 
-    let latency = 10; // 50 ms
-    let sigma_n = pixel_sigma / fx;
-    let var_n = (sigma_n * sigma_n) as f32;
     let mut pending: Vec<(usize, protocol::PosePrediction, usize)> = Vec::new();
     let mut errs = Vec::new();
     let (mut accepted, mut rejected, mut divergences) = (0usize, 0usize, Vec::new());
+    let mut max_cov = 0.0f32;
     let mut next_frame = 0;
     for (k, s) in imu.iter().enumerate() {
         // Trigger on the sample nearest a camera frame (same clock, within half a period).
@@ -277,10 +305,11 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
         if trigger {
             next_frame += 1;
         }
+        max_cov = max_cov.max(dev.filter().st.cov_frobenius());
         let due: Vec<_> = pending.iter().filter(|p| p.0 <= k).cloned().collect();
         pending.retain(|p| p.0 > k);
         for (_, p, fi) in due {
-            let obs = &frames[fi].1;
+            let (_, obs, covs) = &frames[fi];
             if obs.is_empty() {
                 continue;
             }
@@ -293,8 +322,9 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
             let pc_w = Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64);
             let corrs: Vec<Correspondence> = obs
                 .iter()
+                .zip(covs)
                 .take(protocol::MAX_CORRESPONDENCES_PER_FRAME)
-                .map(|(n, g)| {
+                .map(|((n, g), cov)| {
                     let m_w = r_wg * g;
                     let pc = q_cw * (m_w - pc_w);
                     if pc.z > 0.0 {
@@ -302,7 +332,7 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
                     }
                     Correspondence {
                         m_n: [n[0] as f32, n[1] as f32],
-                        cov_n: [var_n, 0.0, var_n],
+                        cov_n: [cov[(0, 0)] as f32, cov[(0, 1)] as f32, cov[(1, 1)] as f32],
                         m_w: [m_w[0] as f32, m_w[1] as f32, m_w[2] as f32],
                         cov_w: [1e-8, 0.0, 0.0, 1e-8, 0.0, 1e-8],
                     }
@@ -330,6 +360,8 @@ fn run_model(model: ModelKind, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row
     let mean_px = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
     Row {
         model,
+        latency_ms: (latency * 5) as u32,
+        max_cov,
         mean_px,
         median_px: median(&mut errs),
         gated: rejected as f64 / (accepted + rejected).max(1) as f64,
@@ -352,18 +384,21 @@ fn real_imu_and_real_correspondences_per_model() {
         (imu.last().unwrap().t_ns - imu[0].t_ns) as f64 * 1e-9,
         frames.len()
     );
+    let mut rows: Vec<Row> = Vec::new();
+    for latency in [1, 10] {
+        for &m in &ModelKind::INERTIAL {
+            rows.push(run_model(m, latency, &dir, &imu, &frames));
+        }
+    }
     println!(
-        "| model | mean prediction error [px] | median [px] | rejected (gate, behind camera) | correspondences | divergences |"
+        "| model | latency | mean prediction error [px] | median [px] | rejected (gate, behind camera) | correspondences | divergences |"
     );
-    println!("|---|---:|---:|---:|---:|---:|");
-    let rows: Vec<Row> = ModelKind::INERTIAL
-        .iter()
-        .map(|&m| run_model(m, &dir, &imu, &frames))
-        .collect();
+    println!("|---|---:|---:|---:|---:|---:|---:|");
     for r in &rows {
         println!(
-            "| {} | {:.2} | {:.2} | {:.2}% | {} | {} |",
+            "| {} | {} ms | {:.3} | {:.2} | {:.2}% | {} | {} |",
             r.model.name(),
+            r.latency_ms,
             r.mean_px,
             r.median_px,
             r.gated * 100.0,
@@ -372,39 +407,68 @@ fn real_imu_and_real_correspondences_per_model() {
         );
     }
     for r in &rows {
-        // The grid leaves the view for 1.2 s at 55.8 s while the rig moves: dead reckoning,
-        // then divergence and re-initialisation until the predictions snap on again.
-        println!("{}: divergences {:?}", r.model.name(), r.divergences);
+        println!(
+            "{} {} ms: largest ‖P‖_F {:.2}, divergences {:?}",
+            r.model.name(),
+            r.latency_ms,
+            r.max_cov,
+            r.divergences
+        );
         assert!(
             r.frames > 100_000,
-            "{:?} used too few correspondences",
-            r.model
+            "{:?} {} ms used too few correspondences",
+            r.model,
+            r.latency_ms
         );
         assert!(
             r.median_px < 5.0,
-            "{:?}: median {} px",
+            "{:?} {} ms: median {} px",
             r.model,
+            r.latency_ms,
             r.median_px
         );
         assert!(
             r.gated < 0.05,
-            "{:?}: {:.1}% rejected",
+            "{:?} {} ms: {:.1}% rejected",
             r.model,
+            r.latency_ms,
             r.gated * 100.0
         );
+        // Dead reckoning through the gap, then the predictions snap on again.
         assert!(
-            r.divergences.len() <= 10,
-            "{:?}: {:?}",
+            r.divergences.is_empty(),
+            "{:?} {} ms: {:?}",
             r.model,
-            r.divergences
-        );
-        assert!(
-            r.divergences.iter().all(|d| d.0 > 55.0),
-            "{:?}: {:?}",
-            r.model,
+            r.latency_ms,
             r.divergences
         );
     }
-    // The paper's finding on real data: the acc model predicts best.
-    assert!(rows[2].median_px < rows[0].median_px && rows[2].median_px < rows[1].median_px);
+    for (latency_ms, acc_bound) in [(5, 0.8), (50, 1.3)] {
+        let mean = |m: ModelKind| {
+            rows.iter()
+                .find(|r| r.model == m && r.latency_ms == latency_ms)
+                .expect("row")
+                .mean_px
+        };
+        let (gyro, gravity, acc) = (
+            mean(ModelKind::Gyro),
+            mean(ModelKind::Gravity),
+            mean(ModelKind::Acc),
+        );
+        assert!(acc <= acc_bound, "acc {latency_ms} ms: mean {acc} px");
+        // The paper's finding on real data: the acc model predicts best.
+        assert!(
+            acc < gravity && acc < gyro,
+            "{latency_ms} ms: acc {acc}, gravity {gravity}, gyro {gyro}"
+        );
+        // With the angular noise of hand motion, the ADIS16448's gyro carries the attitude from
+        // frame to frame far better than the accelerometer's tilt, whose noise in the gravity
+        // model is the free acceleration (2 m/s²): the gravity model ties with the gyro model
+        // (0.1 % apart here), it is not better (issue 18 asked for better: see
+        // docs/notes/issue18-robustness.md). Trusting the accelerometer more only makes it worse.
+        assert!(
+            (gravity - gyro).abs() <= 0.01 * gyro,
+            "{latency_ms} ms: gravity {gravity}, gyro {gyro}"
+        );
+    }
 }
