@@ -1081,32 +1081,7 @@ fn p20_locate_finds_the_model_in_a_frame_and_names_bad_input() {
     frames.sort();
     let (calib, model) = (cam0.join("sensor.yaml"), ds.join("model/scene.obj"));
     let (cache, out) = (tmp("p20-cache"), tmp("p20-out"));
-    let (so, _) = expect(
-        &[
-            "locate",
-            "--image",
-            s(&frames[0]),
-            "--calib",
-            s(&calib),
-            "--model",
-            s(&model),
-            "--cache",
-            s(&cache),
-            "--out",
-            s(&out),
-        ],
-        0,
-    );
-    for line in ["database", "attempt", "verified", "pose"] {
-        assert!(so.contains(line), "{so}");
-    }
-    assert!(
-        so.contains("built"),
-        "the first run builds the database: {so}"
-    );
-    assert!(out.join("locate.json").exists());
-    // Again: refused without --overwrite, then the cached database.
-    let again = |extra: &[&str], code: i32| {
+    let locate = |extra: &[&str], code: i32| {
         let mut a = vec![
             "locate",
             "--image",
@@ -1123,9 +1098,19 @@ fn p20_locate_finds_the_model_in_a_frame_and_names_bad_input() {
         a.extend_from_slice(extra);
         expect(&a, code)
     };
-    let (_, se) = again(&[], 1);
+    let (so, _) = locate(&[], 0);
+    for line in ["database", "attempt", "verified", "pose"] {
+        assert!(so.contains(line), "{so}");
+    }
+    assert!(
+        so.contains("built"),
+        "the first run builds the database: {so}"
+    );
+    assert!(out.join("locate.json").exists());
+    // Again: refused without --overwrite, then the cached database.
+    let (_, se) = locate(&[], 1);
     assert!(se.contains("--overwrite"), "{se}");
-    let (so, _) = again(&["--overwrite"], 0);
+    let (so, _) = locate(&["--overwrite"], 0);
     assert!(so.contains("cached"), "{so}");
     // No camera; a missing image.
     let (_, se) = expect(

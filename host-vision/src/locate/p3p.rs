@@ -455,13 +455,14 @@ fn real_cubic_roots(c3: f64, c2: f64, c1: f64, c0: f64) -> Vec<f64> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use nalgebra::{Quaternion, Vector4};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
 
-    fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
+    /// A rotation drawn uniformly (a normalised 4-vector from the unit ball).
+    pub(in crate::locate) fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
         loop {
             let v = Vector4::new(
                 rng.random_range(-1.0..1.0),

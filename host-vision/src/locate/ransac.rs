@@ -367,33 +367,16 @@ fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::p3p::tests::random_rotation;
     use super::*;
-    use nalgebra::{Quaternion, Vector4};
 
     /// A 1280×960 camera, 65° horizontal field of view.
     const PINHOLE: [f64; 4] = [1000.0, 1000.0, 640.0, 480.0];
     const SIZE: [f64; 2] = [1280.0, 960.0];
 
-    fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
-        loop {
-            let v = Vector4::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-            );
-            let n = v.norm();
-            if n > 0.1 && n <= 1.0 {
-                return UnitQuaternion::from_quaternion(Quaternion::from(v / n));
-            }
-        }
-    }
-
-    /// Standard normal by Box-Muller (rand_distr is not a dependency of this file).
     fn gauss(rng: &mut StdRng) -> f64 {
-        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
-        let u2: f64 = rng.random_range(0.0..1.0);
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        use rand_distr::{Distribution, StandardNormal};
+        StandardNormal.sample(rng)
     }
 
     /// An object about 1 m in front of a 640×480 camera, filling most of the view (points at

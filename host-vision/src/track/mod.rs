@@ -549,6 +549,7 @@ pub fn run(
         wall: Instant::now(),
         axes: ready.axes,
         searches: Vec::new(),
+        recoveries: Vec::new(),
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(&mut link, &worker, source, &interrupt, progress),
@@ -842,6 +843,57 @@ pub struct Session<'a> {
     pub axes: (Vector3<f64>, f64),
     /// The cold start's attempts, in order (vision-only runs with no start pose).
     pub searches: Vec<Search>,
+    /// Searches after the model was lost (vision-only runs), one entry per loss.
+    pub recoveries: Vec<Recovery>,
+}
+
+/// A loss of a vision-only run and its search.
+#[derive(Debug, Clone)]
+pub struct Recovery {
+    /// Since when the frames were not tracked [s from the first frame].
+    pub lost_at: f64,
+    /// The attempts, in order.
+    pub searches: Vec<Search>,
+    /// When it ended [s]: by a pose found (the last search's), or by tracking coming back by
+    /// itself; `None` while still lost at the end of the run.
+    pub ended_at: Option<f64>,
+}
+
+impl Session<'_> {
+    /// Records a recovery search for a loss that began at `lost_at` [s].
+    fn record_recovery(&mut self, lost_at: f64, search: Search) {
+        let found = search.attempt.accepted();
+        let t = search.t;
+        let open = self
+            .recoveries
+            .last_mut()
+            .filter(|r| r.ended_at.is_none() && (r.lost_at - lost_at).abs() < 1e-9);
+        let r = match open {
+            Some(r) => r,
+            None => {
+                self.recoveries.push(Recovery {
+                    lost_at,
+                    searches: Vec::new(),
+                    ended_at: None,
+                });
+                let Some(r) = self.recoveries.last_mut() else {
+                    return;
+                };
+                r
+            }
+        };
+        r.searches.push(search);
+        if found {
+            r.ended_at = Some(t);
+        }
+    }
+
+    /// Closes an open recovery: tracking came back by itself at `t_us`.
+    fn end_recovery(&mut self, t_us: u64) {
+        if let Some(r) = self.recoveries.last_mut().filter(|r| r.ended_at.is_none()) {
+            r.ended_at = Some(t_us as f64 * 1e-6);
+        }
+    }
 }
 
 /// One cold-start attempt of a tracking run.

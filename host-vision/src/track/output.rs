@@ -147,6 +147,35 @@ impl ColdStart {
     }
 }
 
+/// A loss and its search.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct RecoverySummary {
+    /// Frames untracked since [s].
+    pub lost_at: f64,
+    /// Back at [s]: by a pose found, or by tracking coming back by itself; `None`: still lost
+    /// at the end.
+    pub ended_at: Option<f64>,
+    /// Whether a search found the pose (rather than tracking coming back by itself).
+    pub found: bool,
+    /// Search attempts made.
+    pub attempts: usize,
+    /// Mean wall time of an attempt [ms].
+    pub mean_ms: f64,
+}
+
+impl RecoverySummary {
+    fn of(r: &super::Recovery) -> Self {
+        let n = r.searches.len();
+        Self {
+            lost_at: r.lost_at,
+            ended_at: r.ended_at,
+            found: r.searches.iter().any(|s| s.attempt.accepted()),
+            attempts: n,
+            mean_ms: r.searches.iter().map(|s| s.wall_ms).sum::<f64>() / n.max(1) as f64,
+        }
+    }
+}
+
 /// Accuracy against ground truth.
 #[derive(Debug, Clone, Copy, Default, Serialize)]
 pub struct Accuracy {
@@ -298,6 +327,8 @@ pub struct Summary {
     /// The cold start (vision-only runs with no start pose): its attempts and where it found
     /// the model.
     pub cold_start: Option<ColdStart>,
+    /// Losses of a vision-only run and their searches.
+    pub recoveries: Vec<RecoverySummary>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
     pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
@@ -420,6 +451,36 @@ impl fmt::Display for Summary {
                     c.attempts, c.mean_ms
                 )?,
             }
+        }
+        if !self.recoveries.is_empty() {
+            let found = self.recoveries.iter().filter(|r| r.found).count();
+            let shown: Vec<String> = self
+                .recoveries
+                .iter()
+                .take(6)
+                .map(|r| match (r.ended_at, r.found) {
+                    (Some(e), true) => format!(
+                        "{:.2} s found at {e:.2} s ({} attempts)",
+                        r.lost_at, r.attempts
+                    ),
+                    (Some(e), false) => format!(
+                        "{:.2} s back by itself at {e:.2} s ({} attempts)",
+                        r.lost_at, r.attempts
+                    ),
+                    (None, _) => format!("{:.2} s never back ({} attempts)", r.lost_at, r.attempts),
+                })
+                .collect();
+            writeln!(
+                f,
+                "searched     {} times after a loss, {found} found the model: {}{}",
+                self.recoveries.len(),
+                shown.join(", "),
+                if self.recoveries.len() > 6 {
+                    ", …"
+                } else {
+                    ""
+                }
+            )?;
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
@@ -833,6 +894,7 @@ pub(super) fn write_all(
         divergences,
         without_vision,
         cold_start: ColdStart::of(&session.searches),
+        recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0

@@ -32,6 +32,15 @@ use crate::frames::{Frame, FrameSource};
 /// second.
 const MAX_TICK_GAP_US: u64 = 500_000;
 
+/// Frames not tracked for this long [µs] (or a divergence) mean the model is lost: the cold
+/// start searches for it again (a hand hides an object for longer than half a second only when
+/// it means to).
+const LOST_AFTER_US: u64 = 500_000;
+
+/// While lost, one search every this many frames: an attempt costs several frame periods, and
+/// the frames between keep the loop going.
+const SEARCH_EVERY: usize = 5;
+
 /// Frame rate assumed when the input states none [Hz].
 const DEFAULT_CAMERA_RATE_HZ: f64 = 30.0;
 
@@ -162,6 +171,11 @@ impl Session<'_> {
         let mut next = Some(Ok(first));
         let mut frames = 0usize;
         let mut last_us: Option<u64> = None;
+        // Since when the frames are not tracked, and the core's statuses already looked at.
+        let mut untracked_since: Option<u64> = None;
+        let mut statuses_seen = self.log.statuses.len();
+        let mut since_search = SEARCH_EVERY;
+        let rule = super::TrackedRule::default();
         while let Some(frame) = next.take().or_else(|| source.next()) {
             if interrupt.load(Ordering::Relaxed) {
                 self.barrier(link)?;
@@ -205,6 +219,37 @@ impl Session<'_> {
                 link.send(&HostToCore::Init(self.vision_init(&pose)))?;
                 started = true;
             }
+            // Recovery: lost after a divergence or half a second untracked; then a search
+            // every few frames until a pose is verified, which re-initialises the core.
+            let diverged = self.log.statuses[statuses_seen.min(self.log.statuses.len())..]
+                .iter()
+                .any(|st| st.mode == protocol::Mode::Diverged);
+            statuses_seen = self.log.statuses.len();
+            if diverged {
+                untracked_since.get_or_insert(t_us.saturating_sub(LOST_AFTER_US));
+            }
+            let lost = untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
+            if !lost {
+                self.end_recovery(t_us);
+            } else if since_search >= SEARCH_EVERY {
+                since_search = 0;
+                let since = untracked_since.unwrap_or(t_us);
+                let wall = Instant::now();
+                let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
+                let search = Search {
+                    index: frame.index,
+                    t: t_us as f64 * 1e-6,
+                    wall_ms: wall.elapsed().as_secs_f64() * 1e3,
+                    attempt: a,
+                };
+                self.record_recovery(since as f64 * 1e-6, search);
+                if let Some(pose) = a.pose {
+                    link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                    untracked_since = None;
+                }
+            } else {
+                since_search += 1;
+            }
             if let Some(mut at) = last_us {
                 while t_us - at > MAX_TICK_GAP_US {
                     at += MAX_TICK_GAP_US;
@@ -215,6 +260,7 @@ impl Session<'_> {
             last_us = Some(t_us);
             self.barrier(link)?;
             frames += 1;
+            let mut tracked = false;
             if let Some(p) = self.log.predictions.get(&t_us).copied() {
                 let every = self.options.overlay_every;
                 let omega_c = self
@@ -270,7 +316,13 @@ impl Session<'_> {
                         .collect();
                     let a = worker.assess(pose, applied)?;
                     self.assessments.insert(p.frame_id, a);
+                    tracked = rule.holds(&a);
                 }
+            }
+            if tracked {
+                untracked_since = None;
+            } else {
+                untracked_since.get_or_insert(t_us);
             }
             if frames.is_multiple_of(10) {
                 progress(frames, total, self.results.len(), self.log.mode());
