@@ -753,7 +753,9 @@ fn flags(text: &str) -> impl Iterator<Item = &str> {
 /// some subcommand's.
 #[test]
 fn readme_commands_name_only_real_flags() {
-    const SUBS: [&str; 6] = ["track", "eval", "demo", "synth", "selftest", "frames"];
+    const SUBS: [&str; 7] = [
+        "track", "eval", "demo", "synth", "selftest", "frames", "locate",
+    ];
     let readme =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
             .unwrap();

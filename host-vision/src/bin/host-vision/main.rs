@@ -499,6 +499,9 @@ fn eval(a: &EvalArgs) -> Result<Done, Failure> {
 fn demo(a: &DemoArgs) -> Result<Done, Failure> {
     use host_vision::eval::EvalOptions;
     let scenario = ScenarioName::DesktopFast;
+    // Ctrl-C is taken from before the first line: a user (or a test) that interrupts as soon as
+    // it appears gets the clean stop, not the default signal death.
+    let interrupt = interrupt_flag();
     say!(
         "demo: {scenario} ({} s), tracked by the acc and gyro models; the core: {}",
         a.duration,
@@ -515,7 +518,7 @@ fn demo(a: &DemoArgs) -> Result<Done, Failure> {
         two_features: false,
         overlay_every: 10,
         overwrite: a.overwrite,
-        interrupt: interrupt_flag(),
+        interrupt,
     };
     let report = run_eval(&options)?;
     if report.rows.is_empty() {
