@@ -790,13 +790,14 @@ impl<T: Scalar> DeviceIo<T> {
         };
         let mut rest = bytes;
         while !rest.is_empty() {
-            let (used, result) = self.decoder.advance::<HostToCore>(rest);
+            // The message is handled where it was decoded (a `HostToCore` is ~1 KB).
+            let (used, _) =
+                self.decoder
+                    .advance_with::<HostToCore, _>(rest, |result| match result {
+                        Ok(msg) => device.handle(msg, &mut emit),
+                        Err(e) => device.decode_error(e, &mut emit),
+                    });
             rest = &rest[used..];
-            match result {
-                Some(Ok(msg)) => device.handle(&msg, &mut emit),
-                Some(Err(e)) => device.decode_error(e, &mut emit),
-                None => {}
-            }
         }
     }
 }
