@@ -761,12 +761,30 @@ fn v3<T: Scalar>(v: &Vector3<T>) -> [f32; 3] {
     [v[0].to_wire(), v[1].to_wire(), v[2].to_wire()]
 }
 
+/// The buffer answers are encoded in: kept with the device, so that it is not zeroed for
+/// every `receive` (a frame's worth, 1 KB, per call), and off the stack.
+#[derive(Clone)]
+struct AnswerBuf([u8; MAX_FRAME_LEN]);
+
+impl core::fmt::Debug for AnswerBuf {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("AnswerBuf")
+    }
+}
+
+impl Default for AnswerBuf {
+    fn default() -> Self {
+        AnswerBuf([0; MAX_FRAME_LEN])
+    }
+}
+
 /// The device behind a byte stream: decodes frames, handles them, encodes the answers.
 #[derive(Clone, Debug, Default)]
 pub struct DeviceIo<T: Scalar> {
     /// The device loop.
     pub device: Device<T>,
     decoder: Decoder,
+    answer: AnswerBuf,
 }
 
 impl<T: Scalar> DeviceIo<T> {
@@ -775,16 +793,17 @@ impl<T: Scalar> DeviceIo<T> {
         DeviceIo {
             device: Device::new(),
             decoder: Decoder::new(),
+            answer: AnswerBuf([0; MAX_FRAME_LEN]),
         }
     }
 
     /// Consumes received bytes; every answer is passed to `send` as one encoded frame.
     pub fn receive(&mut self, bytes: &[u8], send: &mut dyn FnMut(&[u8])) {
-        let mut buf = [0u8; MAX_FRAME_LEN];
+        let buf = &mut self.answer.0;
         let device = &mut self.device;
         let mut emit = |msg: CoreToHost| {
             // The core's own messages always fit a frame.
-            if let Ok(frame) = encode_frame(&msg, &mut buf) {
+            if let Ok(frame) = encode_frame(&msg, buf) {
                 send(frame);
             }
         };
