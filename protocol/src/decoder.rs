@@ -105,7 +105,9 @@ impl Decoder {
         self.advance_raw(bytes, |body| match body {
             Ok(body) => {
                 let mut de = postcard::Deserializer::from_bytes(body);
-                match T::deserialize(&mut de) {
+                // Matched by reference: binding the message by value moves it out.
+                let msg = T::deserialize(&mut de);
+                match &msg {
                     Ok(msg) => match de.finalize() {
                         Ok([]) => f(Ok(&msg)),
                         Ok(_) => f(Err(DecodeError::TrailingBytes)),

@@ -51,39 +51,26 @@ fn encode_in_place<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o [
     let end = BODY_AT + body_len + CRC_LEN;
     out[BODY_AT + body_len..end].copy_from_slice(&crc.to_le_bytes());
     // COBS: each block is a code byte (1 + its data bytes) and up to 254 non-zero bytes; a zero
-    // ends a block, and so does the 254th data byte (code 0xFF, no zero implied). The write
-    // index stays at or behind the read index (see `BODY_AT`).
+    // ends a block, and so does the 254th data byte (code 0xFF, no zero implied). Blocks are
+    // moved down by one code byte each, so the write index stays behind the read index (see
+    // `BODY_AT`).
     out[0] = 0;
-    let mut code_at = 1;
-    let mut w = 2;
-    let mut code = 1u8;
-    let mut full = false;
-    for r in BODY_AT..end {
-        let b = out[r];
-        if b == 0 {
-            out[code_at] = code;
-            code_at = w;
-            w += 1;
-            code = 1;
-            full = false;
-        } else {
-            out[w] = b;
-            w += 1;
-            code += 1;
-            full = code == 0xFF;
-            if full {
-                out[code_at] = code;
-                code_at = w;
-                w += 1;
-                code = 1;
-            }
+    let mut w = 1;
+    let mut r = BODY_AT;
+    loop {
+        let limit = (end - r).min(254);
+        let zero = out[r..r + limit].iter().position(|&b| b == 0);
+        let k = zero.unwrap_or(limit);
+        out[w] = k as u8 + 1;
+        out.copy_within(r..r + k, w + 1);
+        w += k + 1;
+        r += k;
+        if zero.is_some() {
+            // The zero is implied by the block; an empty block follows a final zero.
+            r += 1;
+        } else if k < 254 || r == end {
+            break;
         }
-    }
-    if full {
-        // The data ended with a full block: no empty block after it.
-        w -= 1;
-    } else {
-        out[code_at] = code;
     }
     out[w] = 0;
     Ok(&out[..w + 1])
