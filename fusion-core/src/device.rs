@@ -574,18 +574,18 @@ impl<T: Scalar> Device<T> {
         let q = st.q();
         StateReport {
             t_us: self.filter.t_us,
-            s_w: v3(&st.v3(POS)),
+            s_w: w3(&st.x.as_slice()[POS..]),
             q_sw: [
                 q[0].to_wire(),
                 q[1].to_wire(),
                 q[2].to_wire(),
                 q[3].to_wire(),
             ],
-            v_w: v3(&st.v3(VEL)),
-            a_w: v3(&st.v3(ACC)),
-            omega_s: v3(&st.v3(OMEGA)),
-            gyro_bias: v3(&st.v3(GYRO_BIAS)),
-            accel_bias: v3(&st.v3(ACC_BIAS)),
+            v_w: w3(&st.x.as_slice()[VEL..]),
+            a_w: w3(&st.x.as_slice()[ACC..]),
+            omega_s: w3(&st.x.as_slice()[OMEGA..]),
+            gyro_bias: w3(&st.x.as_slice()[GYRO_BIAS..]),
+            accel_bias: w3(&st.x.as_slice()[ACC_BIAS..]),
             health: Health {
                 mode: self.mode,
                 covariance_frobenius: st.cov_frobenius().to_wire(),
@@ -754,6 +754,14 @@ impl<T: Scalar> Device<T> {
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Reinitialising, reason, out);
+    }
+}
+
+/// The first three values of `x` for the wire (read from the state vector in place).
+fn w3<T: Scalar>(x: &[T]) -> [f32; 3] {
+    match x {
+        [a, b, c, ..] => [a.to_wire(), b.to_wire(), c.to_wire()],
+        _ => [0.0; 3],
     }
 }
 
