@@ -129,17 +129,11 @@ impl Decoder {
     ) -> (usize, Option<R>) {
         let mut consumed = 0;
         loop {
-            let rest = &bytes[consumed..];
-            let (body, ended) = match rest.iter().position(|&b| b == 0) {
-                Some(i) => (&rest[..i], true),
-                None => (rest, false),
-            };
-            self.append(body);
-            consumed += body.len();
+            let (used, ended) = self.append(&bytes[consumed..]);
+            consumed += used;
             if !ended {
                 return (consumed, None);
             }
-            consumed += 1; // the delimiter
             if let Some(body) = self.finish() {
                 return (consumed, Some(f(body)));
             }
@@ -161,47 +155,56 @@ impl Decoder {
         }
     }
 
-    /// Adds encoded bytes (no delimiter among them) to the current frame, COBS-decoding them
-    /// into the buffer: a code byte `c` is followed by `c - 1` data bytes, and then, unless
-    /// `c` is `0xFF`, by a zero if another block follows.
-    fn append(&mut self, mut body: &[u8]) {
-        if self.overflowed {
-            return;
-        }
-        if body.len() > MAX_ENCODED_LEN - self.len {
-            self.overflowed = true;
-            self.len = 0;
-            return;
-        }
-        self.len += body.len();
-        // Decoded bytes never outnumber encoded ones (a zero is written only for a code byte
-        // after the first), so `out` stays within `self.len <= MAX_ENCODED_LEN`.
+    /// Adds encoded bytes to the current frame up to and including the first delimiter, if
+    /// any, COBS-decoding them into the buffer as they come: a code byte `c` is followed by
+    /// `c - 1` data bytes, and then, unless `c` is `0xFF`, by a zero if another block follows.
+    /// One pass, byte by byte (frames are short blocks where the data has zeros). Returns the
+    /// bytes consumed and whether a delimiter ended the frame.
+    fn append(&mut self, bytes: &[u8]) -> (usize, bool) {
         let mut out = self.out;
         let mut run = self.run;
-        while let Some((&first, tail)) = body.split_first() {
+        let mut zero_after = self.zero_after;
+        let mut used = 0;
+        let mut ended = false;
+        for &b in bytes {
+            used += 1;
+            if b == 0 {
+                ended = true;
+                break;
+            }
+            // Writes past the buffer only happen in a frame that overflows it (and is dropped).
             if run == 0 {
-                if self.zero_after {
-                    if let Some(b) = self.buf.get_mut(out) {
-                        *b = 0;
+                if zero_after {
+                    if let Some(slot) = self.buf.get_mut(out) {
+                        *slot = 0;
                     }
                     out += 1;
                 }
-                self.zero_after = first != 0xFF;
-                run = first.wrapping_sub(1);
-                body = tail;
+                zero_after = b != 0xFF;
+                run = b - 1;
             } else {
-                let n = body.len().min(usize::from(run));
-                let (data, tail) = body.split_at(n);
-                if let Some(dst) = self.buf.get_mut(out..out + n) {
-                    dst.copy_from_slice(data);
+                if let Some(slot) = self.buf.get_mut(out) {
+                    *slot = b;
                 }
-                out += n;
-                run -= n as u8;
-                body = tail;
+                out += 1;
+                run -= 1;
             }
         }
-        self.out = out;
-        self.run = run;
+        let body = used - usize::from(ended);
+        if !self.overflowed {
+            if body > MAX_ENCODED_LEN - self.len {
+                self.overflowed = true;
+                self.len = 0;
+            } else {
+                // Decoded bytes never outnumber encoded ones (a zero is written only for a code
+                // byte after the first), so `out <= self.len <= MAX_ENCODED_LEN`.
+                self.len += body;
+                self.out = out;
+                self.run = run;
+                self.zero_after = zero_after;
+            }
+        }
+        (used, ended)
     }
 
     /// Ends the current frame at a delimiter: its CRC-checked body, or why it is rejected, or
