@@ -158,23 +158,27 @@ impl Decoder {
     /// Adds encoded bytes to the current frame up to and including the first delimiter, if
     /// any, COBS-decoding them into the buffer as they come: a code byte `c` is followed by
     /// `c - 1` data bytes, and then, unless `c` is `0xFF`, by a zero if another block follows.
-    /// One pass, byte by byte (frames are short blocks where the data has zeros). Returns the
-    /// bytes consumed and whether a delimiter ended the frame.
+    /// One pass, a block at a time (frames are short blocks where the data has zeros). Returns
+    /// the bytes consumed and whether a delimiter ended the frame. Not inlined: inlined into a
+    /// caller with a static decoder (the firmware), its loop rebuilt the buffer's address for
+    /// every byte.
+    #[inline(never)]
     fn append(&mut self, bytes: &[u8]) -> (usize, bool) {
         let mut out = self.out;
         let mut run = self.run;
         let mut zero_after = self.zero_after;
         let mut used = 0;
         let mut ended = false;
-        for &b in bytes {
-            used += 1;
-            if b == 0 {
-                ended = true;
-                break;
-            }
-            // Writes past the buffer only happen in a frame that overflows it (and is dropped).
+        while let Some(&b) = bytes.get(used) {
             if run == 0 {
+                // A code byte (or the delimiter).
+                used += 1;
+                if b == 0 {
+                    ended = true;
+                    break;
+                }
                 if zero_after {
+                    // Past the buffer only in a frame that overflows it (and is dropped).
                     if let Some(slot) = self.buf.get_mut(out) {
                         *slot = 0;
                     }
@@ -183,11 +187,31 @@ impl Decoder {
                 zero_after = b != 0xFF;
                 run = b - 1;
             } else {
-                if let Some(slot) = self.buf.get_mut(out) {
-                    *slot = b;
+                // The block's data bytes, up to a delimiter.
+                let src = bytes.get(used..).unwrap_or_default();
+                let src = src.get(..usize::from(run)).unwrap_or(src);
+                let mut copied = 0;
+                match self.buf.get_mut(out..out + src.len()) {
+                    Some(dst) => {
+                        for (d, &s) in dst.iter_mut().zip(src) {
+                            if s == 0 {
+                                break;
+                            }
+                            *d = s;
+                            copied += 1;
+                        }
+                    }
+                    // A frame overflowing the buffer (dropped): only find its end.
+                    None => copied = src.iter().position(|&s| s == 0).unwrap_or(src.len()),
                 }
-                out += 1;
-                run -= 1;
+                out += copied;
+                used += copied;
+                run -= copied as u8;
+                if copied < src.len() {
+                    used += 1;
+                    ended = true;
+                    break;
+                }
             }
         }
         let body = used - usize::from(ended);
