@@ -7,17 +7,43 @@
 //! empty frame between two delimiters.) The CRC-32C (Castagnoli,
 //! reflected, init and xor-out `0xFFFFFFFF`, check value `0xE3069283`) detects corruption.
 
-use crc::{CRC_32_ISCSI, Crc};
 use serde::Serialize;
 
 use crate::error::EncodeError;
 use crate::limits::{CRC_LEN, MAX_FRAME_LEN, MAX_PAYLOAD_LEN};
 
-const CASTAGNOLI: Crc<u32> = Crc::<u32>::new(&CRC_32_ISCSI);
+/// CRC-32C's byte table (reflected polynomial `0x82F63B78`).
+const CRC_TABLE: [u32; 256] = {
+    let mut table = [0u32; 256];
+    let mut i = 0;
+    while i < 256 {
+        let mut c = i as u32;
+        let mut k = 0;
+        while k < 8 {
+            c = if c & 1 != 0 { (c >> 1) ^ 0x82F6_3B78 } else { c >> 1 };
+            k += 1;
+        }
+        table[i] = c;
+        i += 1;
+    }
+    table
+};
 
-/// CRC-32C of `bytes`.
+/// CRC-32C of `bytes`: the byte-wise table algorithm, reading four bytes at a time (each
+/// word is xored into the CRC at once; then four table steps), which on the MCU is about half
+/// the instructions per byte of the byte loop.
 pub fn crc32c(bytes: &[u8]) -> u32 {
-    CASTAGNOLI.checksum(bytes)
+    let step = |c: u32| CRC_TABLE[(c & 0xFF) as usize] ^ (c >> 8);
+    let mut crc = !0u32;
+    let mut words = bytes.chunks_exact(4);
+    for w in &mut words {
+        crc ^= u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+        crc = step(step(step(step(crc))));
+    }
+    for &b in words.remainder() {
+        crc = step(crc ^ u32::from(b));
+    }
+    !crc
 }
 
 /// Length of `msg`'s postcard body (without CRC, COBS and delimiter).
@@ -108,6 +134,19 @@ mod tests {
     #[test]
     fn crc32c_check_value() {
         assert_eq!(crc32c(b"123456789"), 0xE306_9283);
+    }
+
+    /// The same CRC as the `crc` crate's CRC-32/ISCSI, for every length and alignment.
+    #[test]
+    fn crc32c_matches_the_crc_crate() {
+        const REF: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+        let data: [u8; 600] = core::array::from_fn(|i| (i * 7919 % 251) as u8 ^ (i >> 3) as u8);
+        for start in 0..4 {
+            for len in 0..data.len() - start {
+                let b = &data[start..start + len];
+                assert_eq!(crc32c(b), REF.checksum(b), "start {start}, len {len}");
+            }
+        }
     }
 
     #[test]
