@@ -88,7 +88,14 @@ fn encode_in_place<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o [
         let zero = out[r..r + limit].iter().position(|&b| b == 0);
         let k = zero.unwrap_or(limit);
         out[w] = k as u8 + 1;
-        out.copy_within(r..r + k, w + 1);
+        if k < 8 {
+            // Short blocks (zeros in the data): a call to memmove costs more than the bytes.
+            for i in 0..k {
+                out[w + 1 + i] = out[r + i];
+            }
+        } else {
+            out.copy_within(r..r + k, w + 1);
+        }
         w += k + 1;
         r += k;
         if zero.is_some() {
