@@ -412,12 +412,15 @@ impl<T: Scalar> Device<T> {
     /// One step of the device's clock: an IMU sample (`inertial`), or a vision-only tick (a
     /// sample without readings, which the vision-only model's step never reads).
     fn advance(&mut self, sample: &ImuSample<T>, trigger: bool, inertial: bool, out: Out) {
-        let Some(prm) = self.prm else {
+        // The parameters are read in place where the work is (a copy of `Params` costs ~180
+        // instructions per message), and copied only on the rare paths that need `&mut self`.
+        let Some(prm) = self.prm.as_ref() else {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
             return;
         };
-        if inertial != prm.model.has_imu() {
+        let (has_imu, still_samples) = (prm.model.has_imu(), prm.still_samples);
+        if inertial != has_imu {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(if inertial {
                 ErrorCode::ImuInVisionModel
@@ -443,13 +446,16 @@ impl<T: Scalar> Device<T> {
         };
         self.unchecked_us = self.unchecked_us.saturating_add(dt);
         self.last_t_us = Some(sample.t_us);
-        if jumped && matches!(self.phase, Phase::Running) {
+        if jumped
+            && matches!(self.phase, Phase::Running)
+            && let Some(prm) = self.prm
+        {
             self.reinitialise(StatusReason::TimeJump, &prm, out);
         }
         // The vision-only model has no still window: it starts at its first tick, and that
         // tick is also its first step (its trigger is answered).
-        let (needed, step_now) = if prm.model.has_imu() {
-            (prm.still_samples, false)
+        let (needed, step_now) = if has_imu {
+            (still_samples, false)
         } else {
             (1, true)
         };
@@ -461,10 +467,12 @@ impl<T: Scalar> Device<T> {
                 yaw_known,
                 window,
             } => {
-                if window.add(&sample.gyro, &sample.accel, needed) {
+                if window.add(&sample.gyro, &sample.accel, needed)
+                    && let Some(prm) = &self.prm
+                {
                     initialise(
                         &mut self.filter.st,
-                        &prm,
+                        prm,
                         position,
                         attitude,
                         *yaw_known,
@@ -475,22 +483,25 @@ impl<T: Scalar> Device<T> {
                     self.restart_phase(Phase::Running);
                     self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
                     if step_now {
-                        self.step(&prm, sample, trigger, out);
+                        self.step(sample, trigger, out);
                     }
                 }
             }
-            Phase::Running => self.step(&prm, sample, trigger, out),
+            Phase::Running => self.step(sample, trigger, out),
         }
     }
 
-    fn step(&mut self, prm: &Params<T>, sample: &ImuSample<T>, trigger: bool, out: Out) {
+    fn step(&mut self, sample: &ImuSample<T>, trigger: bool, out: Out) {
         if let Some(frame) = self.delay.expiring_dirty(trigger)
-            && !self.flush(frame, prm, out)
+            && let Some(prm) = self.prm
+            && !self.flush(frame, &prm, out)
         {
             return;
         }
+        let Some(prm) = &self.prm else { return };
         if let Err(reason) = self.filter.imu_step(prm, sample) {
-            self.diverged(reason, prm, out);
+            let prm = *prm;
+            self.diverged(reason, &prm, out);
             return;
         }
         Counters::bump(&mut self.counters.imu_applied);
@@ -499,7 +510,8 @@ impl<T: Scalar> Device<T> {
         if trigger || self.unchecked_us >= prm.camera_period_us {
             self.unchecked_us = 0;
             if let Some(reason) = Monitor::frame(&self.filter.st, prm) {
-                self.diverged(reason, prm, out);
+                let prm = *prm;
+                self.diverged(reason, &prm, out);
                 return;
             }
         }
