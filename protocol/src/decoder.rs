@@ -109,7 +109,7 @@ impl Decoder {
                 let msg = T::deserialize(&mut de);
                 match &msg {
                     Ok(msg) => match de.finalize() {
-                        Ok([]) => f(Ok(&msg)),
+                        Ok([]) => f(Ok(msg)),
                         Ok(_) => f(Err(DecodeError::TrailingBytes)),
                         Err(_) => f(Err(DecodeError::Malformed)),
                     },
