@@ -412,12 +412,15 @@ impl<T: Scalar> Device<T> {
     /// One step of the device's clock: an IMU sample (`inertial`), or a vision-only tick (a
     /// sample without readings, which the vision-only model's step never reads).
     fn advance(&mut self, sample: &ImuSample<T>, trigger: bool, inertial: bool, out: Out) {
-        let Some(prm) = self.prm else {
+        // The parameters are read in place where the work is (a copy of `Params` costs ~180
+        // instructions per message), and copied only on the rare paths that need `&mut self`.
+        let Some(prm) = self.prm.as_ref() else {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(ErrorCode::NotConfigured));
             return;
         };
-        if inertial != prm.model.has_imu() {
+        let (has_imu, still_samples) = (prm.model.has_imu(), prm.still_samples);
+        if inertial != has_imu {
             Counters::bump(&mut self.counters.out_of_order);
             out(CoreToHost::error(if inertial {
                 ErrorCode::ImuInVisionModel
@@ -443,13 +446,16 @@ impl<T: Scalar> Device<T> {
         };
         self.unchecked_us = self.unchecked_us.saturating_add(dt);
         self.last_t_us = Some(sample.t_us);
-        if jumped && matches!(self.phase, Phase::Running) {
+        if jumped
+            && matches!(self.phase, Phase::Running)
+            && let Some(prm) = self.prm
+        {
             self.reinitialise(StatusReason::TimeJump, &prm, out);
         }
         // The vision-only model has no still window: it starts at its first tick, and that
         // tick is also its first step (its trigger is answered).
-        let (needed, step_now) = if prm.model.has_imu() {
-            (prm.still_samples, false)
+        let (needed, step_now) = if has_imu {
+            (still_samples, false)
         } else {
             (1, true)
         };
@@ -461,10 +467,12 @@ impl<T: Scalar> Device<T> {
                 yaw_known,
                 window,
             } => {
-                if window.add(&sample.gyro, &sample.accel, needed) {
+                if window.add(&sample.gyro, &sample.accel, needed)
+                    && let Some(prm) = &self.prm
+                {
                     initialise(
                         &mut self.filter.st,
-                        &prm,
+                        prm,
                         position,
                         attitude,
                         *yaw_known,
@@ -475,22 +483,25 @@ impl<T: Scalar> Device<T> {
                     self.restart_phase(Phase::Running);
                     self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
                     if step_now {
-                        self.step(&prm, sample, trigger, out);
+                        self.step(sample, trigger, out);
                     }
                 }
             }
-            Phase::Running => self.step(&prm, sample, trigger, out),
+            Phase::Running => self.step(sample, trigger, out),
         }
     }
 
-    fn step(&mut self, prm: &Params<T>, sample: &ImuSample<T>, trigger: bool, out: Out) {
+    fn step(&mut self, sample: &ImuSample<T>, trigger: bool, out: Out) {
         if let Some(frame) = self.delay.expiring_dirty(trigger)
-            && !self.flush(frame, prm, out)
+            && let Some(prm) = self.prm
+            && !self.flush(frame, &prm, out)
         {
             return;
         }
+        let Some(prm) = &self.prm else { return };
         if let Err(reason) = self.filter.imu_step(prm, sample) {
-            self.diverged(reason, prm, out);
+            let prm = *prm;
+            self.diverged(reason, &prm, out);
             return;
         }
         Counters::bump(&mut self.counters.imu_applied);
@@ -499,7 +510,8 @@ impl<T: Scalar> Device<T> {
         if trigger || self.unchecked_us >= prm.camera_period_us {
             self.unchecked_us = 0;
             if let Some(reason) = Monitor::frame(&self.filter.st, prm) {
-                self.diverged(reason, prm, out);
+                let prm = *prm;
+                self.diverged(reason, &prm, out);
                 return;
             }
         }
@@ -574,18 +586,18 @@ impl<T: Scalar> Device<T> {
         let q = st.q();
         StateReport {
             t_us: self.filter.t_us,
-            s_w: v3(&st.v3(POS)),
+            s_w: w3(&st.x.as_slice()[POS..]),
             q_sw: [
                 q[0].to_wire(),
                 q[1].to_wire(),
                 q[2].to_wire(),
                 q[3].to_wire(),
             ],
-            v_w: v3(&st.v3(VEL)),
-            a_w: v3(&st.v3(ACC)),
-            omega_s: v3(&st.v3(OMEGA)),
-            gyro_bias: v3(&st.v3(GYRO_BIAS)),
-            accel_bias: v3(&st.v3(ACC_BIAS)),
+            v_w: w3(&st.x.as_slice()[VEL..]),
+            a_w: w3(&st.x.as_slice()[ACC..]),
+            omega_s: w3(&st.x.as_slice()[OMEGA..]),
+            gyro_bias: w3(&st.x.as_slice()[GYRO_BIAS..]),
+            accel_bias: w3(&st.x.as_slice()[ACC_BIAS..]),
             health: Health {
                 mode: self.mode,
                 covariance_frobenius: st.cov_frobenius().to_wire(),
@@ -757,8 +769,33 @@ impl<T: Scalar> Device<T> {
     }
 }
 
+/// The first three values of `x` for the wire (read from the state vector in place).
+fn w3<T: Scalar>(x: &[T]) -> [f32; 3] {
+    match x {
+        [a, b, c, ..] => [a.to_wire(), b.to_wire(), c.to_wire()],
+        _ => [0.0; 3],
+    }
+}
+
 fn v3<T: Scalar>(v: &Vector3<T>) -> [f32; 3] {
     [v[0].to_wire(), v[1].to_wire(), v[2].to_wire()]
+}
+
+/// The buffer answers are encoded in: kept with the device, so that it is not zeroed for
+/// every `receive` (a frame's worth, 1 KB, per call), and off the stack.
+#[derive(Clone)]
+struct AnswerBuf([u8; MAX_FRAME_LEN]);
+
+impl core::fmt::Debug for AnswerBuf {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("AnswerBuf")
+    }
+}
+
+impl Default for AnswerBuf {
+    fn default() -> Self {
+        AnswerBuf([0; MAX_FRAME_LEN])
+    }
 }
 
 /// The device behind a byte stream: decodes frames, handles them, encodes the answers.
@@ -767,6 +804,7 @@ pub struct DeviceIo<T: Scalar> {
     /// The device loop.
     pub device: Device<T>,
     decoder: Decoder,
+    answer: AnswerBuf,
 }
 
 impl<T: Scalar> DeviceIo<T> {
@@ -775,28 +813,30 @@ impl<T: Scalar> DeviceIo<T> {
         DeviceIo {
             device: Device::new(),
             decoder: Decoder::new(),
+            answer: AnswerBuf([0; MAX_FRAME_LEN]),
         }
     }
 
     /// Consumes received bytes; every answer is passed to `send` as one encoded frame.
     pub fn receive(&mut self, bytes: &[u8], send: &mut dyn FnMut(&[u8])) {
-        let mut buf = [0u8; MAX_FRAME_LEN];
+        let buf = &mut self.answer.0;
         let device = &mut self.device;
         let mut emit = |msg: CoreToHost| {
             // The core's own messages always fit a frame.
-            if let Ok(frame) = encode_frame(&msg, &mut buf) {
+            if let Ok(frame) = encode_frame(&msg, buf) {
                 send(frame);
             }
         };
         let mut rest = bytes;
         while !rest.is_empty() {
-            let (used, result) = self.decoder.advance::<HostToCore>(rest);
+            // The message is handled where it was decoded (a `HostToCore` is ~1 KB).
+            let (used, _) =
+                self.decoder
+                    .advance_with::<HostToCore, _>(rest, |result| match result {
+                        Ok(msg) => device.handle(msg, &mut emit),
+                        Err(e) => device.decode_error(e, &mut emit),
+                    });
             rest = &rest[used..];
-            match result {
-                Some(Ok(msg)) => device.handle(&msg, &mut emit),
-                Some(Err(e)) => device.decode_error(e, &mut emit),
-                None => {}
-            }
         }
     }
 }

@@ -24,7 +24,7 @@ use protocol::StatusReason;
 
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::{N, State, all_finite};
+use crate::state::{N, State, all_finite_generic};
 
 /// State of the monitor.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -79,12 +79,13 @@ impl<T: Scalar> Monitor<T> {
     }
 
     /// Test 3 and finiteness, after every IMU step (cheap: a non-finite covariance shows on
-    /// its diagonal within a step; the diagonal is tested as [`all_finite`] does).
+    /// its diagonal within a step; the diagonal is tested as [`crate::state::all_finite`] does).
     pub fn step(st: &State<T>, quat_norm_error: T, prm: &Params<T>) -> Option<StatusReason> {
         let zero = T::zero();
         let diag = st.p.as_slice().iter().step_by(N + 1).take(prm.n);
         let diag_finite = diag.fold(zero, |acc, &v| acc + v * zero) == zero;
-        if !diag_finite || !all_finite(st.x.as_slice()) {
+        // Inside the IMU step's kernel: the generic body, inlined there.
+        if !diag_finite || !all_finite_generic(st.x.as_slice()) {
             Some(StatusReason::NonFiniteState)
         } else if quat_norm_error > prm.quat_norm_threshold {
             Some(StatusReason::QuaternionNorm)

@@ -129,42 +129,48 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// Factors `S` and decorrelates `y`; stops at the first non-positive or non-finite pivot.
     #[allow(clippy::needless_range_loop)] // triangle index loops
     pub fn new(s: &[[T; M]; M], y: &[T; M]) -> Self {
-        let mut f = Ldl {
-            l: [[T::zero(); M]; M],
-            d_inv: [T::zero(); M],
-            e: [T::zero(); M],
-            rank: M,
-            nis: T::zero(),
-        };
+        // Locals rather than the struct's fields, assembled at the end: once the loops are
+        // unrolled they stay in registers (the same operations in the same order).
+        let mut l = [[T::zero(); M]; M];
+        let mut d_inv = [T::zero(); M];
+        let mut e = [T::zero(); M];
+        let mut rank = M;
+        let mut nis = T::zero();
         let mut d = [T::zero(); M];
         let mut yt = [T::zero(); M];
         for m in 0..M {
             for k in 0..m {
                 let mut a = s[m][k];
                 for t in 0..k {
-                    a -= f.l[m][t] * f.l[k][t] * d[t];
+                    a -= l[m][t] * l[k][t] * d[t];
                 }
-                f.l[m][k] = a * f.d_inv[k];
+                l[m][k] = a * d_inv[k];
             }
             let mut dm = s[m][m];
             let mut ym = y[m];
             for t in 0..m {
-                dm -= f.l[m][t] * f.l[m][t] * d[t];
-                ym -= f.l[m][t] * yt[t];
+                dm -= l[m][t] * l[m][t] * d[t];
+                ym -= l[m][t] * yt[t];
             }
             // Written so that a NaN is refused too.
             if !(dm > T::zero() && dm.is_finite()) {
-                f.rank = m;
-                f.l[m] = [T::zero(); M];
+                rank = m;
+                l[m] = [T::zero(); M];
                 break;
             }
             d[m] = dm;
-            f.d_inv[m] = T::one() / dm;
+            d_inv[m] = T::one() / dm;
             yt[m] = ym;
-            f.e[m] = ym * f.d_inv[m];
-            f.nis += ym * f.e[m];
+            e[m] = ym * d_inv[m];
+            nis += ym * e[m];
         }
-        f
+        Ldl {
+            l,
+            d_inv,
+            e,
+            rank,
+            nis,
+        }
     }
 
     /// The update by the first [`Self::rank`] decorrelated rows, with `u` the rows of `P Hᵀ`

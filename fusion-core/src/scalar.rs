@@ -6,7 +6,7 @@ use protocol::StatusReason;
 use crate::filter::{Filter, ImuSample};
 use crate::models::correspondence::{self, Observation, Rejection};
 use crate::params::Params;
-use crate::state::State;
+use crate::state::{self, CameraPose, HandEye, State};
 
 /// The filter's hot paths, monomorphised for each scalar *in this crate*.
 ///
@@ -31,6 +31,18 @@ pub trait Kernels: Sized {
     ) -> (Self, Result<Self, Rejection>)
     where
         Self: Scalar;
+    /// [`State::cov_frobenius`] (every `State` report).
+    fn cov_frobenius(st: &State<Self>) -> Self
+    where
+        Self: Scalar;
+    /// [`state::all_finite`] (every divergence check).
+    fn all_finite(values: &[Self]) -> bool
+    where
+        Self: Scalar;
+    /// [`state::camera_pose`] (every pose prediction).
+    fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self>
+    where
+        Self: Scalar;
 }
 
 macro_rules! kernels {
@@ -51,6 +63,18 @@ macro_rules! kernels {
                 obs: &Observation<Self>,
             ) -> (Self, Result<Self, Rejection>) {
                 correspondence::update_generic(st, prm, obs)
+            }
+            #[inline(never)]
+            fn cov_frobenius(st: &State<Self>) -> Self {
+                st.cov_frobenius_generic()
+            }
+            #[inline(never)]
+            fn all_finite(values: &[Self]) -> bool {
+                state::all_finite_generic(values)
+            }
+            #[inline(never)]
+            fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self> {
+                state::camera_pose_generic(st, he)
             }
         }
     };

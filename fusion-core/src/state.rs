@@ -81,10 +81,23 @@ impl<T: Scalar> State<T> {
     /// Frobenius norm of the covariance, from its upper triangle (the covariance is
     /// symmetric): `‖P‖² = Σ P_ii² + 2 Σ_{i<j} P_ij²`, half the work of all entries.
     pub fn cov_frobenius(&self) -> T {
+        T::cov_frobenius(self)
+    }
+
+    /// [`Self::cov_frobenius`], compiled through [`crate::scalar::Kernels`].
+    pub(crate) fn cov_frobenius_generic(&self) -> T {
         let mut diag = T::zero();
         let mut off = T::zero();
         for (j, col) in self.p.as_slice().chunks_exact(N).enumerate() {
-            for &v in &col[..j] {
+            // Four at a time, in the same order (the loop's overhead was most of its cost).
+            let mut quads = col[..j].chunks_exact(4);
+            for q in &mut quads {
+                off += q[0] * q[0];
+                off += q[1] * q[1];
+                off += q[2] * q[2];
+                off += q[3] * q[3];
+            }
+            for &v in quads.remainder() {
                 off += v * v;
             }
             diag += col[j] * col[j];
@@ -102,6 +115,11 @@ impl<T: Scalar> State<T> {
 /// `±∞` and NaN, so the sum of those products is zero exactly when all are finite (one
 /// multiply-add per value instead of a compare and branch).
 pub fn all_finite<T: Scalar>(values: &[T]) -> bool {
+    T::all_finite(values)
+}
+
+/// [`all_finite`], compiled through [`crate::scalar::Kernels`].
+pub(crate) fn all_finite_generic<T: Scalar>(values: &[T]) -> bool {
     let zero = T::zero();
     values.iter().fold(zero, |acc, &v| acc + v * zero) == zero
 }
@@ -143,6 +161,11 @@ pub struct CameraPose<T: Scalar> {
 /// Camera pose from the state (eq. 5-6): `c_w = s_w + R(q_sw)ᵀ c_s`, `q_cw = q_cs ⊙ q_sw`,
 /// with its covariance `J P Jᵀ`.
 pub fn camera_pose<T: Scalar>(st: &State<T>, he: &HandEye<T>) -> CameraPose<T> {
+    T::camera_pose(st, he)
+}
+
+/// [`camera_pose`], compiled through [`crate::scalar::Kernels`].
+pub(crate) fn camera_pose_generic<T: Scalar>(st: &State<T>, he: &HandEye<T>) -> CameraPose<T> {
     let q = st.q().normalize();
     let r = quat::rot(&q);
     let c_w = st.v3(POS) + r.transpose() * he.c_s;
