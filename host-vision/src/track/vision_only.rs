@@ -171,8 +171,10 @@ impl Session<'_> {
         let mut next = Some(Ok(first));
         let mut frames = 0usize;
         let mut last_us: Option<u64> = None;
-        // Since when the frames are not tracked, and the core's statuses already looked at.
+        // Since when the frames are not tracked, whether the core diverged since, and its
+        // statuses already looked at.
         let mut untracked_since: Option<u64> = None;
+        let mut diverged = false;
         let mut statuses_seen = self.log.statuses.len();
         let mut since_search = SEARCH_EVERY;
         let rule = super::TrackedRule::default();
@@ -221,14 +223,16 @@ impl Session<'_> {
             }
             // Recovery: lost after a divergence or half a second untracked; then a search
             // every few frames until a pose is verified, which re-initialises the core.
-            let diverged = self.log.statuses[statuses_seen.min(self.log.statuses.len())..]
+            if self.log.statuses[statuses_seen.min(self.log.statuses.len())..]
                 .iter()
-                .any(|st| st.mode == protocol::Mode::Diverged);
-            statuses_seen = self.log.statuses.len();
-            if diverged {
-                untracked_since.get_or_insert(t_us.saturating_sub(LOST_AFTER_US));
+                .any(|st| st.mode == protocol::Mode::Diverged)
+            {
+                diverged = true;
+                untracked_since.get_or_insert(t_us);
             }
-            let lost = untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
+            statuses_seen = self.log.statuses.len();
+            let lost =
+                diverged || untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
             if !lost {
                 self.end_recovery(t_us);
             } else if since_search >= SEARCH_EVERY {
@@ -246,6 +250,7 @@ impl Session<'_> {
                 if let Some(pose) = a.pose {
                     link.send(&HostToCore::Init(self.vision_init(&pose)))?;
                     untracked_since = None;
+                    diverged = false;
                 }
             } else {
                 since_search += 1;
@@ -321,6 +326,7 @@ impl Session<'_> {
             }
             if tracked {
                 untracked_since = None;
+                diverged = false;
             } else {
                 untracked_since.get_or_insert(t_us);
             }
