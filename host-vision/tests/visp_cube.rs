@@ -58,6 +58,8 @@ fn the_cube_video_is_tracked_vision_only_through_pushes_turns_and_the_mug() {
     o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
     o.overlay_every = 0;
     o.overwrite = true;
+    // The searches behind the mug build their database here, not in the user's cache.
+    o.cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache");
     let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {})
         .expect("the cube video tracks");
     let s = &run.summary;
