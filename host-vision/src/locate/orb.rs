@@ -140,7 +140,6 @@ impl Orb {
     pub fn detect(&self, image: &GrayImage, mask: Option<&GrayImage>) -> Vec<Keypoint> {
         let c = &self.config;
         let (w0, h0) = image.dimensions();
-        let area0 = (w0 as f64) * (h0 as f64);
         // Budget per level in proportion to its area: n_k ∝ s^(−2k).
         let ratios: Vec<f64> = (0..c.levels)
             .map(|k| f64::from(c.scale).powi(-2 * k as i32))
@@ -153,7 +152,7 @@ impl Orb {
                 (f64::from(w0) / factor).round() as u32,
                 (f64::from(h0) / factor).round() as u32,
             );
-            if (w as i32) < 2 * BORDER + 1 || (h as i32) < 2 * BORDER + 1 || area0 <= 0.0 {
+            if (w as i32) < 2 * BORDER + 1 || (h as i32) < 2 * BORDER + 1 {
                 break;
             }
             let level = if k == 0 {

@@ -210,15 +210,15 @@ pub fn run(
         });
     }
     let (db, provenance) = Database::load_or_build(&model, &o.database, &o.cache, progress)?;
-    let path = Database::cache_path(&o.cache, db.key);
+    let (path, built_because) = match provenance {
+        Provenance::Cached(path) => (path, None),
+        Provenance::Built { path, why } => (path, Some(why)),
+    };
     let database = DatabaseReport {
         views: db.views.len(),
         entries: db.entries.len(),
         bytes: std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0),
-        built_because: match &provenance {
-            Provenance::Cached(_) => None,
-            Provenance::Built { why, .. } => Some(why.clone()),
-        },
+        built_because,
         path,
     };
     // An object found from nothing is verified as vision-only tracking would go on with it:

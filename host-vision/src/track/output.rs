@@ -123,7 +123,7 @@ pub struct ColdStart {
     pub attempts: usize,
     /// The frame the model was found in, and its time [s], if it was.
     pub found: Option<(usize, f64)>,
-    /// Mean and longest wall time of an attempt [ms].
+    /// Mean wall time of an attempt [ms].
     pub mean_ms: f64,
     /// Longest attempt [ms].
     pub max_ms: f64,
