@@ -331,10 +331,19 @@ impl<T: Scalar> Device<T> {
             T::from_wire(i.position[1]),
             T::from_wire(i.position[2]),
         );
+        if let InitAttitude::KeepTilt(yaw) = i.attitude
+            && matches!(self.phase, Phase::Running)
+        {
+            let prm = *prm;
+            self.reanchor(&p, T::from_wire(yaw), &prm, out);
+            return;
+        }
         // A later full re-initialisation without vision since restarts from what was given.
         let (yaw, q_sw) = match i.attitude {
             InitAttitude::Gravity => (None, quat::identity()),
-            InitAttitude::GravityAndYaw(yaw) => (Some(T::from_wire(yaw)), quat::identity()),
+            InitAttitude::GravityAndYaw(yaw) | InitAttitude::KeepTilt(yaw) => {
+                (Some(T::from_wire(yaw)), quat::identity())
+            }
             InitAttitude::Full(q) => {
                 let f = T::from_wire;
                 let q_sw = Quat::new(f(q[0]), f(q[1]), f(q[2]), f(q[3]));
@@ -355,6 +364,39 @@ impl<T: Scalar> Device<T> {
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Initialising, StatusReason::HostRequest, out);
+    }
+
+    /// Re-anchors the running filter at a pose the host found (`InitAttitude::KeepTilt`; the
+    /// cold start's fusion, docs/notes/issue15-cold-start.md §6): position and yaw from it; roll and pitch
+    /// kept, since the accelerometer has levelled them while the filter ran and a single found
+    /// pose knows them no better; velocity and acceleration unknown again (zero), the biases
+    /// and angular velocity kept; the covariance restarted at its initial σ, the yaw's at the
+    /// tilt σ (a verified pose knows it that well). No still window: the device is moving.
+    fn reanchor(&mut self, position: &Vector3<T>, yaw: T, prm: &Params<T>, out: Out) {
+        let st = &mut self.filter.st;
+        let q_ws = quat::conj(&st.q());
+        let turn = quat::from_axis_angle(&Vector3::z(), yaw - quat::yaw_of(&q_ws));
+        let q_sw = quat::conj(&quat::mul(&turn, &q_ws)).normalize();
+        st.set_q(&q_sw);
+        st.set_v3(POS, position);
+        st.set_v3(VEL, &Vector3::zeros());
+        if prm.model == protocol::ModelKind::Acc {
+            st.set_v3(ACC, &Vector3::zeros());
+        }
+        crate::init::reset_covariance(st, prm, T::from_wire(prm.init_sigma.tilt));
+        self.filter.quat_norm_error = T::zero();
+        // Pending snapshots hold the old estimate: their frames are refused as too old.
+        self.delay.clear();
+        self.monitor = Monitor::default();
+        self.anchor = Anchor {
+            position: *position,
+            q_sw,
+            yaw: Some(yaw),
+            from_vision: false,
+            age_us: 0,
+        };
+        self.set_mode(Mode::Reinitialising, StatusReason::HostRequest, out);
+        self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
     }
 
     /// Checks an IMU time stamp; `Ok(true)` when a confirmed clock jump re-anchored the time.

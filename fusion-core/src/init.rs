@@ -94,7 +94,7 @@ pub fn initialise<T: Scalar>(
             attitude_from_gravity(&window.mean_accel(), T::zero()),
             f(sig.yaw),
         ),
-        InitAttitude::GravityAndYaw(yaw) => {
+        InitAttitude::GravityAndYaw(yaw) | InitAttitude::KeepTilt(yaw) => {
             (attitude_from_gravity(&window.mean_accel(), f(yaw)), given)
         }
         InitAttitude::Full(q) => (

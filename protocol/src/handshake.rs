@@ -32,7 +32,7 @@ impl Version {
 }
 
 /// The version this crate implements.
-pub const PROTOCOL_VERSION: Version = Version { major: 2, minor: 1 };
+pub const PROTOCOL_VERSION: Version = Version { major: 2, minor: 2 };
 
 /// The core's answer to a `Hello` from a host speaking `host`.
 pub fn answer_hello(host: Version, model: Option<ModelKind>, capacities: Capacities) -> CoreToHost {

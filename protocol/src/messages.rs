@@ -223,6 +223,12 @@ pub enum InitAttitude {
     GravityAndYaw(f32) = 2,
     /// Full orientation `q_sw` given (from an absolute orientation sensor or a pose).
     Full([f32; 4]) = 3,
+    /// Position and yaw of the sensor frame given [rad] (a pose the host found, e.g. by its
+    /// cold start), roll and pitch kept from gravity: a running filter keeps its own roll and
+    /// pitch (the accelerometer has levelled them) and is re-anchored at once, with no still
+    /// window; a core not running takes them from a still window, as for `GravityAndYaw`.
+    /// Since 2.2.
+    KeepTilt(f32) = 4,
 }
 
 /// (Re)initialisation request.

@@ -167,7 +167,7 @@ fn init(i: &Init) -> Result<(), InvalidField> {
     }
     let ok = match &i.attitude {
         InitAttitude::Gravity => true,
-        InitAttitude::GravityAndYaw(yaw) => yaw.is_finite(),
+        InitAttitude::GravityAndYaw(yaw) | InitAttitude::KeepTilt(yaw) => yaw.is_finite(),
         InitAttitude::Full(q) => is_unit_quaternion(q),
     };
     if ok {

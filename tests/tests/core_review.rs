@@ -547,3 +547,99 @@ fn issue_18_the_residual_monitor_does_not_span_a_dead_reckoning_gap() {
         );
     }
 }
+
+/// Roll and pitch [rad] of a `q_sw` `[w, x, y, z]` (z-y-x Euler angles of `q_ws`).
+fn roll_pitch(q_sw: &nalgebra::Vector4<f32>) -> (f64, f64) {
+    let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q_sw[0] as f64,
+        q_sw[1] as f64,
+        q_sw[2] as f64,
+        q_sw[3] as f64,
+    ))
+    .inverse();
+    let (r, p, _) = q.euler_angles();
+    (r, p)
+}
+
+/// Issue 15: a pose the host's cold start found re-anchors a running inertial filter at once
+/// (`InitAttitude::KeepTilt`): position and yaw from the pose, roll and pitch kept, no still
+/// window, and tracking back within a second. A core not yet running takes it as
+/// `GravityAndYaw`, with its still window.
+#[test]
+fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
+    let sc = scenes::standard(ModelKind::Acc, 12.0, 2.0, 3);
+    let mut d = Driver::<f32>::new(&sc);
+    while (d.k as f64) < 5.0 * sc.imu_rate_hz {
+        d.step();
+    }
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    // Blind for 2 s while moving: dead reckoning drifts.
+    d.answer_frames = false;
+    while (d.k as f64) < 7.0 * sc.imu_rate_hz {
+        d.step();
+    }
+    d.answer_frames = true;
+    // The pose found: the truth, 1 cm and 1° of yaw off (a verified cold-start pose).
+    let (truth, _) = d.last.expect("a sample was sent");
+    let yaw = truth.q_ws.euler_angles().2 + 1f64.to_radians();
+    let position = [
+        (truth.p_w.x + 0.01) as f32,
+        truth.p_w.y as f32,
+        truth.p_w.z as f32,
+    ];
+    let before = roll_pitch(&d.device.filter().st.q());
+    let answers = d.send(&HostToCore::Init(protocol::Init {
+        position,
+        attitude: InitAttitude::KeepTilt(yaw as f32),
+    }));
+    assert!(has_status(
+        &answers,
+        Mode::Reinitialising,
+        Some(StatusReason::HostRequest)
+    ));
+    assert!(has_status(
+        &answers,
+        Mode::DeadReckoning,
+        Some(StatusReason::InitComplete)
+    ));
+    let st = &d.device.filter().st;
+    let after = roll_pitch(&st.q());
+    let yaw_after = quat::yaw_of(&quat::conj(&st.q())) as f64;
+    println!(
+        "roll/pitch before {:.4}/{:.4} rad, after {:.4}/{:.4}; yaw asked {yaw:.4}, set {yaw_after:.4}",
+        before.0, before.1, after.0, after.1
+    );
+    assert!((after.0 - before.0).abs() < 1e-5 && (after.1 - before.1).abs() < 1e-5);
+    assert!(
+        (yaw_after - yaw)
+            .rem_euclid(std::f64::consts::TAU)
+            .min((yaw - yaw_after).rem_euclid(std::f64::consts::TAU))
+            < 1e-5
+    );
+    for i in 0..3 {
+        assert_eq!(st.x[i], position[i]);
+        assert_eq!(st.x[3 + i], 0.0, "velocity restarts at zero");
+    }
+    // Vision takes over from the found pose.
+    let k0 = d.k;
+    while d.device.mode() != Mode::Tracking {
+        assert!(
+            ((d.k - k0) as f64) < sc.imu_rate_hz,
+            "not tracking a second later"
+        );
+        d.step();
+    }
+    println!(
+        "tracking {:.3} s after the re-anchoring",
+        (d.k - k0) as f64 / sc.imu_rate_hz
+    );
+
+    // Before the filter runs: the still window, as `GravityAndYaw`.
+    let mut d = Driver::<f32>::new(&sc);
+    let answers = d.send(&HostToCore::Init(protocol::Init {
+        position: [0.0; 3],
+        attitude: InitAttitude::KeepTilt(0.5),
+    }));
+    assert!(has_status(&answers, Mode::Initialising, None));
+    assert_eq!(d.device.mode(), Mode::Initialising);
+}
