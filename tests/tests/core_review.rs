@@ -616,8 +616,8 @@ fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
             .min((yaw - yaw_after).rem_euclid(std::f64::consts::TAU))
             < 1e-5
     );
-    for i in 0..3 {
-        assert_eq!(st.x[i], position[i]);
+    for (i, &p) in position.iter().enumerate() {
+        assert_eq!(st.x[i], p);
         assert_eq!(st.x[3 + i], 0.0, "velocity restarts at zero");
     }
     // Vision takes over from the found pose.

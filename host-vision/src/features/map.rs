@@ -157,6 +157,11 @@ impl FeatureMap {
         &self.config
     }
 
+    /// Changes the settings; the features stay.
+    pub fn set_config(&mut self, config: MapConfig) {
+        self.config = config;
+    }
+
     /// All features.
     pub fn features(&self) -> &[MapFeature] {
         &self.features

@@ -13,6 +13,7 @@
 //!   as soon as the worker has them.
 
 pub mod assess;
+mod cold_start;
 pub mod config;
 pub mod core;
 pub mod output;
@@ -151,6 +152,12 @@ pub struct Faults {
     pub corrupt_from: Option<f64>,
     /// Length of the corrupted stretch [s].
     pub corrupt_seconds: f64,
+    /// From this time [s] on, for `blind_seconds`, every frame is replaced by noise: the model
+    /// is gone from the images (a covered lens, garbage frames) while the camera moves. The
+    /// core dead-reckons; the model must be found again once the frames are back.
+    pub blind_from: Option<f64>,
+    /// Length of the blind stretch [s].
+    pub blind_seconds: f64,
     /// Seed of the injected faults.
     pub seed: u64,
 }
@@ -167,6 +174,21 @@ pub struct Start {
     /// (`--start-pose`): the core gets position and orientation, roll and pitch included,
     /// instead of roll and pitch from gravity. Excludes `position` and `yaw`.
     pub pose: Option<crate::camera::CameraPose>,
+    /// Find the model in the frames (the cold start, [`crate::locate`]) even where a ground
+    /// truth could give the start; it is then used only to evaluate. Excludes the others.
+    pub cold: bool,
+}
+
+impl Start {
+    /// Whether this start is found in the frames rather than given: asked for, or nothing
+    /// given and no ground truth to take it from.
+    pub fn is_cold(&self, dataset: &Dataset) -> bool {
+        self.cold
+            || (dataset.groundtruth.is_none()
+                && self.pose.is_none()
+                && self.position.is_none()
+                && self.yaw.is_none())
+    }
 }
 
 impl Start {
@@ -344,12 +366,23 @@ impl TrackOptions {
                     .into(),
             );
         }
-        if dataset.groundtruth.is_none()
+        if self.start.cold
+            && (self.start.pose.is_some()
+                || self.start.position.is_some()
+                || self.start.yaw.is_some())
+        {
+            return bad(
+                "--cold-start finds the start pose: leave out --start-pose, --start-position and --start-yaw"
+                    .into(),
+            );
+        }
+        if !self.start.is_cold(dataset)
+            && dataset.groundtruth.is_none()
             && self.start.pose.is_none()
             && (self.start.position.is_none() || self.start.yaw.is_none())
         {
             return bad(
-                "the dataset has no ground truth: give the start pose with --start-pose, or --start-position and --start-yaw"
+                "the dataset has no ground truth: give both --start-position and --start-yaw, or --start-pose, or neither (the cold start then finds the model)"
                     .into(),
             );
         }
@@ -359,6 +392,13 @@ impl TrackOptions {
     /// The checks of every model: features, faults, noise settings.
     fn check_common(&self) -> Result<(), TrackError> {
         let bad = |m: String| Err(TrackError::Option(m));
+        if let Some(t) = self.faults.blind_from
+            && !(t.is_finite() && t >= 0.0)
+        {
+            return bad(format!(
+                "--blind-at counts seconds from the start and must be at least 0, got {t}"
+            ));
+        }
         if self.vision.map.subset_size == 0 {
             return bad("--features must be at least 1".into());
         }
@@ -406,6 +446,9 @@ impl TrackOptions {
             return bad(format!(
                 "--corrupt-at counts seconds from the first frame and must be at least 0, got {t}"
             ));
+        }
+        if self.start.cold && self.start.pose.is_some() {
+            return bad("--cold-start finds the start pose: leave out --start-pose".into());
         }
         if self.start.position.is_some() || self.start.yaw.is_some() {
             return bad(
@@ -567,6 +610,15 @@ pub fn run(
             (Ok(_), Ok(_)) => TrackError::Interrupted,
         });
     }
+    // An inertial cold start that never found the model streamed its IMU to a core that was
+    // never initialised: nothing was tracked either.
+    let found = session.searches.iter().any(|s| s.attempt.accepted());
+    if !options.vision_only() && !session.searches.is_empty() && !found {
+        outcome?;
+        return Err(TrackError::NotFound {
+            attempts: session.searches.len(),
+        });
+    }
     // Whatever happened, write what was tracked. A board that failed at the end of an
     // otherwise complete session fails the run too.
     let outcome = match (outcome, closed) {
@@ -675,10 +727,16 @@ impl VisionWorker {
         }
     }
 
-    fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
-        match self.results.try_recv().ok()? {
-            WorkerDone::Frame(r) => Some(*r),
-            _ => Some(Err(Self::out_of_order())),
+    /// The next answer of any kind: waiting for it (`block`), or only if it is there.
+    fn recv_any(&self, block: bool) -> Result<Option<WorkerDone>, TrackError> {
+        if block {
+            self.results.recv().map(Some).map_err(|_| Self::stopped())
+        } else {
+            match self.results.try_recv() {
+                Ok(d) => Ok(Some(d)),
+                Err(std::sync::mpsc::TryRecvError::Empty) => Ok(None),
+                Err(std::sync::mpsc::TryRecvError::Disconnected) => Err(Self::stopped()),
+            }
         }
     }
 
@@ -813,6 +871,25 @@ struct Pending {
     frame_id: u32,
     trigger_us: u64,
     due: usize,
+}
+
+/// What the vision thread works on, in the order sent (it answers in that order).
+#[derive(Debug, Clone, Copy)]
+enum InFlight {
+    /// A frame's analysis.
+    Frame(Pending),
+    /// A cold-start attempt.
+    Locate(cold_start::LocateJob),
+}
+
+impl InFlight {
+    /// The IMU sample after which its answer is applied (lock-step).
+    fn due(&self) -> usize {
+        match self {
+            InFlight::Frame(p) => p.due,
+            InFlight::Locate(j) => j.due,
+        }
+    }
 }
 
 /// One tracking session's state.
@@ -1000,7 +1077,16 @@ impl Session<'_> {
         let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
         check_latency(self.options.latency, &ack.capacities, &config)?;
         link.send(&HostToCore::Configure(config))?;
-        link.send(&HostToCore::Init(self.init_message()?))?;
+        // A cold start initialises the core once the model is found (and then searches again
+        // after a loss).
+        let mut searcher = self
+            .options
+            .start
+            .is_cold(self.dataset)
+            .then(cold_start::Searcher::default);
+        if searcher.is_none() {
+            link.send(&HostToCore::Init(self.init_message()?))?;
+        }
         self.barrier(link)?;
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
@@ -1014,37 +1100,31 @@ impl Session<'_> {
         let triggers: BTreeMap<usize, usize> =
             ds.triggers().into_iter().map(|(f, k)| (k, f)).collect();
         let latency_samples = (self.options.latency * ds.imu_rate_hz).round() as usize;
-        let mut pending: VecDeque<Pending> = VecDeque::new();
+        let mut pending: VecDeque<InFlight> = VecDeque::new();
         let start = Instant::now();
         let mut frames_done = 0usize;
         for k in 0..end {
             if interrupt.load(Ordering::Relaxed) {
-                self.finish(link, &mut pending, worker, true)?;
+                self.finish(link, &mut pending, worker, searcher.as_mut(), true)?;
                 return Ok(false);
             }
             let lock_step = self.options.pacing == Pacing::LockStep;
-            if lock_step {
-                while pending.front().is_some_and(|p| p.due <= k) {
-                    let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                    let r = worker.recv()?;
-                    self.deliver(link, p, r)?;
-                    frames_done += 1;
-                }
-            } else {
+            if !lock_step {
                 let due = start + Duration::from_nanos(ds.imu[k].stamp - stamp0);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);
                 }
-                while !pending.is_empty() {
-                    match worker.try_recv() {
-                        Some(r) => {
-                            let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                            self.deliver(link, p, r)?;
-                            frames_done += 1;
-                        }
-                        None => break,
-                    }
-                }
+            }
+            // Lock-step: every answer due by now, waiting for it; real time: those ready.
+            while pending.front().is_some_and(|p| !lock_step || p.due() <= k) {
+                let Some(done) = worker.recv_any(lock_step)? else {
+                    break;
+                };
+                let Some(p) = pending.pop_front() else {
+                    return Err(VisionWorker::out_of_order());
+                };
+                frames_done += usize::from(matches!(p, InFlight::Frame(_)));
+                self.take_answer(link, p, done, searcher.as_mut(), self.t_us(k))?;
             }
             let row = &ds.imu[k];
             let t_us = self.t_us(k);
@@ -1068,6 +1148,33 @@ impl Session<'_> {
                         }
                     }
                 }
+                let blind = self.options.faults.blind_at(output::seconds(t_us));
+                let cam = &ds.camera.camera;
+                let noise = || self.options.faults.noise_frame(cam.width, cam.height, f);
+                if let Some(s) = searcher.as_mut()
+                    && let Some(lost_at) = s.at_trigger(&self.log.statuses, t_us)
+                {
+                    let path = &ds.frames[f].path;
+                    let image = if blind {
+                        noise()
+                    } else {
+                        image::open(path)
+                            .map_err(|source| TrackError::Image {
+                                path: path.clone(),
+                                source,
+                            })?
+                            .into_luma8()
+                    };
+                    worker.send_job(WorkerJob::Locate(image, self.options.cache.clone()))?;
+                    s.sent();
+                    pending.push_back(InFlight::Locate(cold_start::LocateJob {
+                        index: f,
+                        t_us,
+                        due: k + latency_samples.max(1),
+                        sent: Instant::now(),
+                        lost_at,
+                    }));
+                }
                 if let Some(p) = self.log.predictions.get(&t_us).copied() {
                     let every = self.options.overlay_every;
                     let omega_c = self.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
@@ -1081,17 +1188,21 @@ impl Session<'_> {
                     let job = FrameJob {
                         index: f,
                         stamp: ds.frames[f].stamp,
-                        image: FrameImage::File(ds.frames[f].path.clone()),
+                        image: if blind {
+                            FrameImage::Decoded(noise())
+                        } else {
+                            FrameImage::File(ds.frames[f].path.clone())
+                        },
                         prediction: p,
                         keep_image: every > 0 && f % every == 0,
                         omega_c,
                     };
                     worker.send(job)?;
-                    pending.push_back(Pending {
+                    pending.push_back(InFlight::Frame(Pending {
                         frame_id: p.frame_id,
                         trigger_us: t_us,
                         due: k + latency_samples.max(1),
-                    });
+                    }));
                 }
             } else {
                 self.drain(link)?;
@@ -1100,28 +1211,56 @@ impl Session<'_> {
                 progress(k + 1, end, frames_done, self.log.mode());
             }
         }
-        self.finish(link, &mut pending, worker, false)?;
+        self.finish(link, &mut pending, worker, searcher.as_mut(), false)?;
         progress(end, end, self.results.len(), self.log.mode());
         Ok(true)
+    }
+
+    /// Applies one answer of the vision thread at `now_us`: a frame's correspondences go to
+    /// the core, a cold-start attempt's pose (if verified) initialises or re-anchors it.
+    fn take_answer(
+        &mut self,
+        link: &mut CoreLink,
+        p: InFlight,
+        done: WorkerDone,
+        searcher: Option<&mut cold_start::Searcher>,
+        now_us: u64,
+    ) -> Result<(), TrackError> {
+        match (p, done, searcher) {
+            (InFlight::Frame(p), WorkerDone::Frame(r), _) => self.deliver(link, p, *r),
+            (InFlight::Locate(job), WorkerDone::Locate(a), Some(s)) => {
+                self.found(link, s, job, a, now_us)
+            }
+            _ => Err(VisionWorker::out_of_order()),
+        }
     }
 
     /// Delivers the frames still in flight and collects the last answers.
     fn finish(
         &mut self,
         link: &mut CoreLink,
-        pending: &mut VecDeque<Pending>,
+        pending: &mut VecDeque<InFlight>,
         worker: &VisionWorker,
+        mut searcher: Option<&mut cold_start::Searcher>,
         interrupted: bool,
     ) -> Result<(), TrackError> {
+        let now_us = self.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
         while let Some(p) = pending.pop_front() {
-            let r = worker.recv()?;
-            if interrupted {
+            let Some(done) = worker.recv_any(true)? else {
+                return Err(VisionWorker::stopped());
+            };
+            match (interrupted, p, done) {
                 // Record the analysis; the core has no samples left to apply it to.
-                if let Ok(r) = r {
-                    self.results.push((p.frame_id, r));
+                (true, InFlight::Frame(p), WorkerDone::Frame(r)) => {
+                    if let Ok(r) = *r {
+                        self.results.push((p.frame_id, r));
+                    }
                 }
-            } else {
-                self.deliver(link, p, r)?;
+                (true, InFlight::Locate(_), WorkerDone::Locate(_)) => {}
+                (true, _, _) => return Err(VisionWorker::out_of_order()),
+                (false, p, done) => {
+                    self.take_answer(link, p, done, searcher.as_deref_mut(), now_us)?
+                }
             }
         }
         self.barrier(link)
@@ -1173,6 +1312,21 @@ impl Session<'_> {
     /// Seconds since the session started.
     pub fn elapsed(&self) -> f64 {
         self.wall.elapsed().as_secs_f64()
+    }
+}
+
+impl Faults {
+    /// Whether the frame at `t` [s] is replaced by noise.
+    pub fn blind_at(&self, t: f64) -> bool {
+        self.blind_from
+            .is_some_and(|from| t >= from && t < from + self.blind_seconds)
+    }
+
+    /// The noise that replaces frame `index` of a blind stretch (uniform grey levels, the same
+    /// in every run of a seed).
+    pub fn noise_frame(&self, width: u32, height: u32, index: usize) -> image::GrayImage {
+        let mut rng = StdRng::seed_from_u64(self.seed ^ (index as u64).wrapping_mul(0x9E37_79B9));
+        image::GrayImage::from_fn(width, height, |_, _| image::Luma([rng.random::<u8>()]))
     }
 }
 

@@ -282,8 +282,16 @@ impl Vision {
         let mut pose = *pose;
         let mut registered = 0;
         let mut result = None;
+        // The verification asks for more features than tracking does: a small object wholly
+        // in view gets the cells to hold them in every run (inertial runs track on with their
+        // own grid afterwards).
+        let tracking = *self.map.config();
+        let verifying = MapConfig {
+            small_object_cells: true,
+            ..tracking
+        };
         for round in 0..VERIFY_ROUNDS {
-            self.map = FeatureMap::new(*self.map.config());
+            self.map = FeatureMap::new(verifying);
             let q = pose.q_cw;
             let job = FrameJob {
                 index: 0,
@@ -299,7 +307,13 @@ impl Vision {
                 keep_image: keep_image && round + 1 == VERIFY_ROUNDS,
                 omega_c: None,
             };
-            result = Some(self.process(job)?);
+            match self.process(job) {
+                Ok(r) => result = Some(r),
+                Err(e) => {
+                    self.map.set_config(tracking);
+                    return Err(e);
+                }
+            }
             let Some(last) = &self.last else { break };
             registered = last.registered.len();
             match robust_fit(&self.ideal, &pose, &last.registered) {
@@ -307,6 +321,7 @@ impl Vision {
                 _ => break,
             }
         }
+        self.map.set_config(tracking);
         let applied = vec![true; registered];
         let assessment = self.assess(&pose, &applied)?;
         Ok(Verified {

@@ -77,6 +77,9 @@ impl Session<'_> {
     /// The start of a vision-only run: the given pose, or the ground truth's camera pose at the
     /// first frame (a dataset whose IMU is withheld); `None`: the cold start finds it.
     fn vision_start(&self, first_stamp: u64) -> Option<CameraPose> {
+        if self.options.start.cold {
+            return None;
+        }
         match (
             &self.options.start.pose,
             self.dataset.groundtruth_at(first_stamp),
@@ -183,8 +186,12 @@ impl Session<'_> {
                 self.barrier(link)?;
                 return Ok(false);
             }
-            let frame: Frame = frame?;
+            let mut frame: Frame = frame?;
             let t_us = u64::try_from((frame.t_ns - t0_ns) / 1000).unwrap_or(0);
+            let faults = &self.options.faults;
+            if faults.blind_at(t_us as f64 * 1e-6) {
+                frame.image = faults.noise_frame(w, h, frame.index);
+            }
             if self.options.duration.is_some_and(|d| t_us as f64 > d * 1e6)
                 || self.options.max_frames.is_some_and(|m| frames >= m)
             {

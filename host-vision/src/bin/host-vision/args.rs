@@ -219,8 +219,8 @@ pub struct TrackArgs {
     /// Stop after this many frames (vision-only; a live camera never ends by itself).
     #[arg(long)]
     pub max_frames: Option<usize>,
-    /// Folder of the cold start's viewpoint database (vision-only without --start-pose or
-    /// ground truth: the model is found frame by frame until a pose is verified); default: the
+    /// Folder of the cold start's viewpoint database (used without a start pose: the model is
+    /// found frame by frame until a pose is verified, and again after a loss); default: the
     /// user's cache folder ($XDG_CACHE_HOME/host-vision or ~/.cache/host-vision).
     #[arg(long)]
     pub cache: Option<PathBuf>,
@@ -266,6 +266,11 @@ pub struct TrackArgs {
     /// --start-yaw.
     #[arg(long, conflicts_with_all = ["start_position", "start_yaw"])]
     pub start_pose: Option<PathBuf>,
+    /// Find the model in the frames to start (and again after a loss) even where the dataset's
+    /// ground truth could give the start, which then only evaluates. Without a ground truth
+    /// and without --start-pose/--start-position/--start-yaw this is what happens anyway.
+    #[arg(long, conflicts_with_all = ["start_position", "start_yaw", "start_pose"])]
+    pub cold_start: bool,
     /// Peak free acceleration expected [m/s²] (scales the motion noise; default: from a
     /// synthetic dataset's manifest, else 10 for a hand-held camera, 5 for an object turned by
     /// hand in --video/--images).
@@ -289,6 +294,10 @@ pub struct TrackArgs {
     /// first IMU sample as frames.csv's t_s (forces a divergence).
     #[arg(long)]
     pub corrupt_at: Option<f64>,
+    /// Replace the frames by noise for 2 s from this time [s] (as --corrupt-at): the model is
+    /// gone from the images while the camera moves, and must be found again.
+    #[arg(long)]
+    pub blind_at: Option<f64>,
 }
 
 /// Filter model on the command line.

@@ -293,6 +293,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         position: a.start_position,
         yaw: a.start_yaw.map(f64::to_radians),
         pose,
+        cold: a.cold_start,
     };
     // A video or image folder usually shows an object moved by a hand in front of a camera.
     if o.frames.is_some() {
@@ -311,6 +312,8 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         outlier_fraction: a.outliers,
         corrupt_from: a.corrupt_at,
         corrupt_seconds: 0.3,
+        blind_from: a.blind_at,
+        blind_seconds: 2.0,
         seed: 1,
     };
     let interrupt = interrupt_flag();

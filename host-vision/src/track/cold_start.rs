@@ -1,0 +1,167 @@
+//! The cold start and the recovery of an inertial run (issue 15; the method is in
+//! docs/notes/issue15-cold-start.md, §6):
+//!
+//! - **Start.** With no start pose given (`--cold-start`, or no ground truth and no
+//!   `--start-position`/`--start-yaw`), the core is configured but not initialised. At each
+//!   trigger with no attempt in flight the frame goes to the vision thread for an attempt
+//!   ([`crate::locate`]); the IMU stream goes on meanwhile. The first verified pose gives the
+//!   core its `Init`: position and yaw from the pose, roll and pitch from gravity
+//!   (`InitAttitude::KeepTilt`, which a core not yet running takes from its still window).
+//! - **Loss.** The model is lost after a divergence, or when the core has not been tracking
+//!   for [`LOST_AFTER_US`]. While lost, every [`SEARCH_EVERY`]-th frame gets an attempt; a
+//!   verified pose re-anchors the running filter at once (`KeepTilt`: position and yaw from
+//!   the pose, roll and pitch kept from the filter, which gravity levelled).
+//!
+//! An attempt answers like a frame: after the latency in lock-step (waiting for the vision
+//! thread if needed, so that a replay is deterministic), as soon as it is ready in real time.
+//! The pose it found is for its frame's time; by the time it is applied the device has turned
+//! on, so its orientation is carried forward by the core's own rotation since that frame (the
+//! gyro's, good to a fraction of a degree over a few frames). Its position is applied as found:
+//! the dead-reckoned displacement of a lost filter is what cannot be trusted.
+
+use std::time::Instant;
+
+use nalgebra::UnitQuaternion;
+use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
+
+use super::{CoreLink, Search, Session, Start, TrackError};
+use crate::camera::CameraPose;
+
+/// Not tracking for this long [µs] (or a divergence) means the model is lost, as in
+/// vision-only runs.
+pub(super) const LOST_AFTER_US: u64 = 500_000;
+
+/// While lost, one attempt every this many frames.
+pub(super) const SEARCH_EVERY: usize = 5;
+
+/// An attempt sent to the vision thread.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct LocateJob {
+    /// The frame's index.
+    pub index: usize,
+    /// Its trigger time [µs].
+    pub t_us: u64,
+    /// The IMU sample after which the answer is applied (lock-step).
+    pub due: usize,
+    /// When it was sent.
+    pub sent: Instant,
+    /// Since when the model was lost [µs]; `None` for the start.
+    pub lost_at: Option<u64>,
+}
+
+/// The search state of an inertial run that started cold.
+#[derive(Debug, Default)]
+pub(super) struct Searcher {
+    /// Whether the core has been given a found pose.
+    started: bool,
+    /// Whether an attempt is with the vision thread.
+    in_flight: bool,
+    /// Frames since the last attempt while lost.
+    since_attempt: usize,
+    /// Since when the core has not been tracking [µs].
+    not_tracking_since: Option<u64>,
+    /// Whether the core diverged since it last tracked.
+    diverged: bool,
+    /// Statuses of the log already looked at.
+    statuses_seen: usize,
+}
+
+impl Searcher {
+    /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says
+    /// whether to send an attempt now, and for what (`Some(lost_at)` for a loss, `None` for
+    /// the start).
+    pub fn at_trigger(&mut self, statuses: &[protocol::Status], t_us: u64) -> Option<Option<u64>> {
+        let new = &statuses[self.statuses_seen.min(statuses.len())..];
+        self.diverged |= new.iter().any(|s| s.mode == Mode::Diverged);
+        self.statuses_seen = statuses.len();
+        if !self.started {
+            return (!self.in_flight).then_some(None);
+        }
+        if statuses.last().is_some_and(|s| s.mode == Mode::Tracking) && !self.diverged {
+            self.not_tracking_since = None;
+            self.since_attempt = SEARCH_EVERY;
+            return None;
+        }
+        let since = *self.not_tracking_since.get_or_insert(t_us);
+        let lost = self.diverged || t_us >= since + LOST_AFTER_US;
+        if !lost || self.in_flight {
+            return None;
+        }
+        if self.since_attempt >= SEARCH_EVERY {
+            self.since_attempt = 0;
+            Some(Some(since))
+        } else {
+            self.since_attempt += 1;
+            None
+        }
+    }
+
+    /// Records that an attempt was sent.
+    pub fn sent(&mut self) {
+        self.in_flight = true;
+    }
+}
+
+/// The core's state report at or just before `t_us`.
+fn state_at(states: &[StateReport], t_us: u64) -> Option<&StateReport> {
+    let i = states.partition_point(|s| s.t_us <= t_us);
+    i.checked_sub(1).and_then(|i| states.get(i))
+}
+
+impl Session<'_> {
+    /// Applies an attempt's answer: records it, and gives the core a verified pose.
+    pub(super) fn found(
+        &mut self,
+        link: &mut CoreLink,
+        searcher: &mut Searcher,
+        job: LocateJob,
+        attempt: Result<crate::locate::Attempt, TrackError>,
+        now_us: u64,
+    ) -> Result<(), TrackError> {
+        searcher.in_flight = false;
+        let attempt = attempt?;
+        let search = Search {
+            index: job.index,
+            t: job.t_us as f64 * 1e-6,
+            wall_ms: job.sent.elapsed().as_secs_f64() * 1e3,
+            attempt,
+        };
+        match job.lost_at {
+            None => self.searches.push(search),
+            Some(since) => self.record_recovery(since as f64 * 1e-6, search),
+        }
+        let Some(pose) = attempt.pose else {
+            return Ok(());
+        };
+        let init = self.keep_tilt_init(&pose, job.t_us, now_us);
+        link.send(&HostToCore::Init(init))?;
+        searcher.started = true;
+        searcher.diverged = false;
+        // The new start gets the same grace as a loss before it counts as lost.
+        searcher.not_tracking_since = Some(now_us);
+        Ok(())
+    }
+
+    /// The `Init` for a camera pose found in the frame at `frame_us`, applied at `now_us`:
+    /// the IMU's position as found, its yaw carried forward by the core's rotation since the
+    /// frame (when the core was running then).
+    fn keep_tilt_init(&self, pose: &CameraPose, frame_us: u64, now_us: u64) -> Init {
+        let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.dataset.hand_eye);
+        let q_ws_found = q_sw.inverse();
+        let states = &self.log.states;
+        let q_ws = match (state_at(states, frame_us), state_at(states, now_us)) {
+            (Some(then), Some(now)) if then.t_us < now.t_us => {
+                let (_, q_then) = super::state_pose(then);
+                let (_, q_now) = super::state_pose(now);
+                // The body's rotation from the frame to now, in the body frame.
+                let turn: UnitQuaternion<f64> = q_then.inverse() * q_now;
+                q_ws_found * turn
+            }
+            _ => q_ws_found,
+        };
+        Init {
+            position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
+            attitude: InitAttitude::KeepTilt(q_ws.euler_angles().2 as f32),
+        }
+    }
+}
