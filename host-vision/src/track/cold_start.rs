@@ -19,8 +19,6 @@
 //! gyro's, good to a fraction of a degree over a few frames). Its position is applied as found:
 //! the dead-reckoned displacement of a lost filter is what cannot be trusted.
 
-use std::time::Instant;
-
 use nalgebra::UnitQuaternion;
 use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
 
@@ -43,8 +41,6 @@ pub(super) struct LocateJob {
     pub t_us: u64,
     /// The IMU sample after which the answer is applied (lock-step).
     pub due: usize,
-    /// When it was sent.
-    pub sent: Instant,
     /// Since when the model was lost [µs]; `None` for the start.
     pub lost_at: Option<u64>,
 }
@@ -120,12 +116,7 @@ impl Session<'_> {
     ) -> Result<(), TrackError> {
         searcher.in_flight = false;
         let attempt = attempt?;
-        let search = Search {
-            index: job.index,
-            t: job.t_us as f64 * 1e-6,
-            wall_ms: job.sent.elapsed().as_secs_f64() * 1e3,
-            attempt,
-        };
+        let search = Search::new(job.index, job.t_us, attempt);
         match job.lost_at {
             None => self.searches.push(search),
             Some(since) => self.record_recovery(since as f64 * 1e-6, search),

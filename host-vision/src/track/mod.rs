@@ -980,10 +980,24 @@ pub struct Search {
     pub index: usize,
     /// Its time [s from the first frame].
     pub t: f64,
-    /// Wall time of the attempt, with the frame's transfer to the vision thread [ms].
-    pub wall_ms: f64,
+    /// Time of the attempt's stages on the vision thread [ms]: detection, matching, RANSAC
+    /// and verification, not the database's load or build (once, before the first attempt).
+    pub ms: f64,
     /// What it found.
     pub attempt: crate::locate::Attempt,
+}
+
+impl Search {
+    /// The search of `attempt` on frame `index` at `t_us`.
+    fn new(index: usize, t_us: u64, attempt: crate::locate::Attempt) -> Self {
+        let t = &attempt.times;
+        Self {
+            index,
+            t: t_us as f64 * 1e-6,
+            ms: (t.detect + t.matching + t.ransac + t.verify) * 1e3,
+            attempt,
+        }
+    }
 }
 
 impl Session<'_> {
@@ -1171,7 +1185,6 @@ impl Session<'_> {
                         index: f,
                         t_us,
                         due: k + latency_samples.max(1),
-                        sent: Instant::now(),
                         lost_at,
                     }));
                 }

@@ -123,28 +123,40 @@ pub struct ColdStart {
     pub attempts: usize,
     /// The frame the model was found in, and its time [s], if it was.
     pub found: Option<(usize, f64)>,
-    /// Mean wall time of an attempt [ms].
+    /// Mean time of an attempt on the vision thread [ms].
     pub mean_ms: f64,
     /// Longest attempt [ms].
     pub max_ms: f64,
+    /// Frame periods a mean attempt takes (the frames that pass while one attempt runs).
+    pub frames_per_attempt: f64,
 }
 
 impl ColdStart {
-    fn of(searches: &[super::Search]) -> Option<Self> {
+    fn of(searches: &[super::Search], frame_period_s: f64) -> Option<Self> {
         if searches.is_empty() {
             return None;
         }
-        let ms: Vec<f64> = searches.iter().map(|s| s.wall_ms).collect();
+        let ms: Vec<f64> = searches.iter().map(|s| s.ms).collect();
+        let mean_ms = ms.iter().sum::<f64>() / ms.len() as f64;
         Some(Self {
+            frames_per_attempt: mean_ms * 1e-3 / frame_period_s,
             attempts: searches.len(),
             found: searches
                 .iter()
                 .find(|s| s.attempt.accepted())
                 .map(|s| (s.index, s.t)),
-            mean_ms: ms.iter().sum::<f64>() / ms.len() as f64,
+            mean_ms,
             max_ms: ms.iter().copied().fold(0.0, f64::max),
         })
     }
+}
+
+/// The median interval between the analysed frames [s] (1/30 s with fewer than two).
+fn frame_period(rows: &[FrameRow]) -> f64 {
+    let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t - w[0].t).collect();
+    dt.retain(|d| d.is_finite() && *d > 0.0);
+    dt.sort_by(f64::total_cmp);
+    dt.get(dt.len() / 2).copied().unwrap_or(1.0 / 30.0)
 }
 
 /// A loss and its search.
@@ -159,7 +171,7 @@ pub struct RecoverySummary {
     pub found: bool,
     /// Search attempts made.
     pub attempts: usize,
-    /// Mean wall time of an attempt [ms].
+    /// Mean time of an attempt on the vision thread [ms].
     pub mean_ms: f64,
 }
 
@@ -171,7 +183,7 @@ impl RecoverySummary {
             ended_at: r.ended_at,
             found: r.searches.iter().any(|s| s.attempt.accepted()),
             attempts: n,
-            mean_ms: r.searches.iter().map(|s| s.wall_ms).sum::<f64>() / n.max(1) as f64,
+            mean_ms: r.searches.iter().map(|s| s.ms).sum::<f64>() / n.max(1) as f64,
         }
     }
 }
@@ -442,8 +454,8 @@ impl fmt::Display for Summary {
             match c.found {
                 Some((frame, t)) => writeln!(
                     f,
-                    "cold start   model found in frame {frame} ({t:.2} s) after {} attempts, {:.0} ms per attempt (longest {:.0} ms)",
-                    c.attempts, c.mean_ms, c.max_ms
+                    "cold start   model found in frame {frame} ({t:.2} s) after {} attempts, {:.0} ms per attempt (longest {:.0} ms), {:.1} frame periods each",
+                    c.attempts, c.mean_ms, c.max_ms, c.frames_per_attempt
                 )?,
                 None => writeln!(
                     f,
@@ -893,7 +905,7 @@ pub(super) fn write_all(
         }),
         divergences,
         without_vision,
-        cold_start: ColdStart::of(&session.searches),
+        cold_start: ColdStart::of(&session.searches, frame_period(&rows)),
         recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {

@@ -14,7 +14,6 @@
 //! ffmpeg's pipe buffers the frames, so the tracker then runs late rather than dropping any.
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::Instant;
 
 use protocol::{HostToCore, Init, InitAttitude, Tick};
 
@@ -210,14 +209,8 @@ impl Session<'_> {
             if !started {
                 // The cold start: one attempt per frame until a pose is verified; the frame
                 // it was found in is then tracked from it.
-                let wall = Instant::now();
                 let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
-                self.searches.push(Search {
-                    index: frame.index,
-                    t: t_us as f64 * 1e-6,
-                    wall_ms: wall.elapsed().as_secs_f64() * 1e3,
-                    attempt: a,
-                });
+                self.searches.push(Search::new(frame.index, t_us, a));
                 let Some(pose) = a.pose else {
                     frames += 1;
                     if frames.is_multiple_of(10) {
@@ -245,14 +238,8 @@ impl Session<'_> {
             } else if since_search >= SEARCH_EVERY {
                 since_search = 0;
                 let since = untracked_since.unwrap_or(t_us);
-                let wall = Instant::now();
                 let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
-                let search = Search {
-                    index: frame.index,
-                    t: t_us as f64 * 1e-6,
-                    wall_ms: wall.elapsed().as_secs_f64() * 1e3,
-                    attempt: a,
-                };
+                let search = Search::new(frame.index, t_us, a);
                 self.record_recovery(since as f64 * 1e-6, search);
                 if let Some(pose) = a.pose {
                     link.send(&HostToCore::Init(self.vision_init(&pose)))?;
