@@ -369,9 +369,11 @@ impl<T: Scalar> Device<T> {
     /// Re-anchors the running filter at a pose the host found (`InitAttitude::KeepTilt`; the
     /// cold start's fusion, docs/notes/issue15-cold-start.md §6): position and yaw from it; roll and pitch
     /// kept, since the accelerometer has levelled them while the filter ran and a single found
-    /// pose knows them no better; velocity and acceleration unknown again (zero), the biases
-    /// and angular velocity kept; the covariance restarted at its initial σ, the yaw's at the
-    /// tilt σ (a verified pose knows it that well). No still window: the device is moving.
+    /// pose knows them no better; velocity and acceleration kept with their covariance (a pose
+    /// says nothing of them, and the filter knows how far dead reckoning has let them drift);
+    /// the biases and angular velocity kept; the rest of the covariance restarted at its
+    /// initial σ, the yaw's at the tilt σ (a verified pose knows it that well). No still
+    /// window: the device is moving.
     fn reanchor(&mut self, position: &Vector3<T>, yaw: T, prm: &Params<T>, out: Out) {
         let st = &mut self.filter.st;
         let q_ws = quat::conj(&st.q());
@@ -379,11 +381,14 @@ impl<T: Scalar> Device<T> {
         let q_sw = quat::conj(&quat::mul(&turn, &q_ws)).normalize();
         st.set_q(&q_sw);
         st.set_v3(POS, position);
-        st.set_v3(VEL, &Vector3::zeros());
-        if prm.model == protocol::ModelKind::Acc {
-            st.set_v3(ACC, &Vector3::zeros());
-        }
+        // The motion's own estimate and its uncertainty, which dead reckoning has grown.
+        let p_vel = st.p.fixed_view::<3, 3>(VEL, VEL).into_owned();
+        let p_acc = st.p.fixed_view::<3, 3>(ACC, ACC).into_owned();
         crate::init::reset_covariance(st, prm, T::from_wire(prm.init_sigma.tilt));
+        st.p.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&p_vel);
+        if prm.model == protocol::ModelKind::Acc {
+            st.p.fixed_view_mut::<3, 3>(ACC, ACC).copy_from(&p_acc);
+        }
         self.filter.quat_norm_error = T::zero();
         // Pending snapshots hold the old estimate: their frames are refused as too old.
         self.delay.clear();

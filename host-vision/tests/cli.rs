@@ -479,7 +479,7 @@ fn p11_help_texts_agree_and_the_start_pose_is_required_without_ground_truth() {
         "--accel-meas-noise <ACCEL_MEAS_NOISE>",
         "a standard deviation per sample [m/s²]",
         "Not synth's --accel-noise, which is the sensor's noise density",
-        "Start yaw of the IMU [deg] (default: from the ground truth; required without one)",
+        "Start yaw of the IMU [deg] (default: from the ground truth; without one, give it with --start-position, or neither for the cold start)",
         "serial:PATH[@BAUD]",
         "BAUD defaults to 921600",
         "tcp:HOST:PORT",
@@ -505,7 +505,7 @@ fn p11_help_texts_agree_and_the_start_pose_is_required_without_ground_truth() {
     let (_, err) = expect(&track_args(&bare, &out, &["--start-position", "0,0,0"]), 2);
     assert_eq!(
         err,
-        "Error: the dataset has no ground truth: give the start pose with --start-pose, or --start-position and --start-yaw\n"
+        "Error: the dataset has no ground truth: give both --start-position and --start-yaw, or --start-pose, or neither (the cold start then finds the model)\n"
     );
 }
 

@@ -562,8 +562,8 @@ fn roll_pitch(q_sw: &nalgebra::Vector4<f32>) -> (f64, f64) {
 }
 
 /// Issue 15: a pose the host's cold start found re-anchors a running inertial filter at once
-/// (`InitAttitude::KeepTilt`): position and yaw from the pose, roll and pitch kept, no still
-/// window, and tracking back within a second. A core not yet running takes it as
+/// (`InitAttitude::KeepTilt`): position and yaw from the pose, roll and pitch kept, velocity
+/// kept with its covariance, no still window, and tracking back within a second. A core not yet running takes it as
 /// `GravityAndYaw`, with its still window.
 #[test]
 fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
@@ -588,6 +588,8 @@ fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
         truth.p_w.z as f32,
     ];
     let before = roll_pitch(&d.device.filter().st.q());
+    let p_vel_before = d.device.filter().st.p.fixed_view::<3, 3>(3, 3).into_owned();
+    let v_before: Vec<f32> = d.device.filter().st.x.as_slice()[3..6].to_vec();
     let answers = d.send(&HostToCore::Init(protocol::Init {
         position,
         attitude: InitAttitude::KeepTilt(yaw as f32),
@@ -616,10 +618,11 @@ fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
             .min((yaw - yaw_after).rem_euclid(std::f64::consts::TAU))
             < 1e-5
     );
-    for (i, &p) in position.iter().enumerate() {
-        assert_eq!(st.x[i], p);
-        assert_eq!(st.x[3 + i], 0.0, "velocity restarts at zero");
-    }
+    assert_eq!(&st.x.as_slice()[..3], &position[..]);
+    // Velocity and acceleration and their uncertainty are the filter's own.
+    let vel = |d: &Device<f32>| d.filter().st.p.fixed_view::<3, 3>(3, 3).into_owned();
+    assert_eq!(vel(&d.device), p_vel_before);
+    assert_eq!(&st.x.as_slice()[3..6], &v_before[..]);
     // Vision takes over from the found pose.
     let k0 = d.k;
     while d.device.mode() != Mode::Tracking {

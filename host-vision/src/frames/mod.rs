@@ -203,6 +203,11 @@ impl FrameSource {
         }
     }
 
+    /// Whether the frames come from a live camera, at its own pace (not read at ours).
+    pub fn is_live(&self) -> bool {
+        matches!(self, FrameSource::Video(v) if v.is_live())
+    }
+
     /// Frames announced in advance (a folder's file count), when known.
     pub fn len_hint(&self) -> Option<usize> {
         match self {

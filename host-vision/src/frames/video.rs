@@ -192,6 +192,11 @@ impl VideoFrames {
         self.frame_rate
     }
 
+    /// Whether this is a live camera (a V4L2 device), whose frames come at its own pace.
+    pub fn is_live(&self) -> bool {
+        is_v4l2_device(self.path())
+    }
+
     /// The input.
     pub fn path(&self) -> &Path {
         &self.path

@@ -12,8 +12,10 @@
 //!   verified pose re-anchors the running filter at once (`KeepTilt`: position and yaw from
 //!   the pose, roll and pitch kept from the filter, which gravity levelled).
 //!
-//! An attempt answers like a frame: after the latency in lock-step (waiting for the vision
-//! thread if needed, so that a replay is deterministic), as soon as it is ready in real time.
+//! Attempts run on a search thread of their own (with its own renderer), one at a time, so
+//! they never hold up the frames. An attempt answers like a frame: after the latency in
+//! lock-step (waiting for the search thread if needed, so that a replay is deterministic), as
+//! soon as it is ready in real time; the summary reports how many frame periods one takes.
 //! The pose it found is for its frame's time; by the time it is applied the device has turned
 //! on, so its orientation is carried forward by the core's own rotation since that frame (the
 //! gyro's, good to a fraction of a degree over a few frames). Its position is applied as found:
@@ -22,7 +24,7 @@
 use nalgebra::UnitQuaternion;
 use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
 
-use super::{CoreLink, Search, Session, Start, TrackError};
+use super::{CoreLink, Search, Session, Start, TrackError, VisionWorker};
 use crate::camera::CameraPose;
 
 /// Not tracking for this long [µs] (or a divergence) means the model is lost, as in
@@ -50,8 +52,8 @@ pub(super) struct LocateJob {
 pub(super) struct Searcher {
     /// Whether the core has been given a found pose.
     started: bool,
-    /// Whether an attempt is with the vision thread.
-    in_flight: bool,
+    /// The attempt with the search thread.
+    job: Option<LocateJob>,
     /// Frames since the last attempt while lost.
     since_attempt: usize,
     /// Since when the core has not been tracking [µs].
@@ -62,39 +64,52 @@ pub(super) struct Searcher {
     statuses_seen: usize,
 }
 
+/// What to do at a trigger.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum AtTrigger {
+    /// Send an attempt: for the start (`None`), or for the loss since this time [µs].
+    Attempt(Option<u64>),
+    /// The core is tracking.
+    Tracking,
+    /// Nothing.
+    Wait,
+}
+
 impl Searcher {
-    /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says
-    /// whether to send an attempt now, and for what (`Some(lost_at)` for a loss, `None` for
-    /// the start).
-    pub fn at_trigger(&mut self, statuses: &[protocol::Status], t_us: u64) -> Option<Option<u64>> {
+    /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says what
+    /// to do.
+    pub fn at_trigger(&mut self, statuses: &[protocol::Status], t_us: u64) -> AtTrigger {
         let new = &statuses[self.statuses_seen.min(statuses.len())..];
         self.diverged |= new.iter().any(|s| s.mode == Mode::Diverged);
         self.statuses_seen = statuses.len();
         if !self.started {
-            return (!self.in_flight).then_some(None);
+            return match self.job {
+                None => AtTrigger::Attempt(None),
+                Some(_) => AtTrigger::Wait,
+            };
         }
         if statuses.last().is_some_and(|s| s.mode == Mode::Tracking) && !self.diverged {
             self.not_tracking_since = None;
             self.since_attempt = SEARCH_EVERY;
-            return None;
+            return AtTrigger::Tracking;
         }
         let since = *self.not_tracking_since.get_or_insert(t_us);
         let lost = self.diverged || t_us >= since + LOST_AFTER_US;
-        if !lost || self.in_flight {
-            return None;
+        if !lost || self.job.is_some() {
+            return AtTrigger::Wait;
         }
         if self.since_attempt >= SEARCH_EVERY {
             self.since_attempt = 0;
-            Some(Some(since))
+            AtTrigger::Attempt(Some(since))
         } else {
             self.since_attempt += 1;
-            None
+            AtTrigger::Wait
         }
     }
 
-    /// Records that an attempt was sent.
-    pub fn sent(&mut self) {
-        self.in_flight = true;
+    /// Records the attempt just sent.
+    pub fn sent(&mut self, job: LocateJob) {
+        self.job = Some(job);
     }
 }
 
@@ -105,17 +120,41 @@ fn state_at(states: &[StateReport], t_us: u64) -> Option<&StateReport> {
 }
 
 impl Session<'_> {
+    /// Applies the attempt with the search thread `search` if it is due: in lock-step
+    /// (`lock_step_k`, the IMU sample now) once its due sample is reached, waiting for it; in
+    /// real time as soon as it is ready.
+    pub(super) fn poll_search(
+        &mut self,
+        link: &mut CoreLink,
+        searcher: &mut Searcher,
+        search: &VisionWorker,
+        lock_step_k: Option<usize>,
+        now_us: u64,
+    ) -> Result<(), TrackError> {
+        let Some(job) = searcher.job else {
+            return Ok(());
+        };
+        let attempt = match lock_step_k {
+            Some(k) if job.due <= k => search.locate_result()?,
+            Some(_) => return Ok(()),
+            None => match search.try_locate()? {
+                Some(a) => a,
+                None => return Ok(()),
+            },
+        };
+        searcher.job = None;
+        self.found(link, searcher, job, attempt, now_us)
+    }
+
     /// Applies an attempt's answer: records it, and gives the core a verified pose.
-    pub(super) fn found(
+    fn found(
         &mut self,
         link: &mut CoreLink,
         searcher: &mut Searcher,
         job: LocateJob,
-        attempt: Result<crate::locate::Attempt, TrackError>,
+        attempt: crate::locate::Attempt,
         now_us: u64,
     ) -> Result<(), TrackError> {
-        searcher.in_flight = false;
-        let attempt = attempt?;
         let search = Search::new(job.index, job.t_us, attempt);
         match job.lost_at {
             None => self.searches.push(search),

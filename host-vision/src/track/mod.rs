@@ -571,7 +571,15 @@ pub fn run(
     // exit crashes in the driver).
     let mut vision = options.vision;
     vision.map.small_object_cells |= options.vision_only();
-    let (mut worker, ready) = VisionWorker::start(dataset.camera.camera, model_path, vision)?;
+    let (mut worker, ready) =
+        VisionWorker::start(dataset.camera.camera, model_path.clone(), vision)?;
+    // Searches for the model (the cold start, and after a loss) run on a thread of their own,
+    // with a renderer of their own, so that an attempt never holds up the frames.
+    let mut search = if options.vision_only() || options.start.is_cold(&dataset) {
+        Some(VisionWorker::start(dataset.camera.camera, model_path, vision)?.0)
+    } else {
+        None
+    };
     let adapter = ready.adapter;
     let mut session = Session {
         options,
@@ -595,10 +603,27 @@ pub fn run(
         recoveries: Vec::new(),
     };
     let outcome = match frames.as_mut() {
-        Some(source) => session.drive_vision(&mut link, &worker, source, &interrupt, progress),
-        None => session.drive(&mut link, &worker, end, &interrupt, progress),
+        Some(source) => session.drive_vision(
+            &mut link,
+            &worker,
+            search.as_ref(),
+            source,
+            &interrupt,
+            progress,
+        ),
+        None => session.drive(
+            &mut link,
+            &worker,
+            search.as_ref(),
+            end,
+            &interrupt,
+            progress,
+        ),
     };
     worker.stop();
+    if let Some(s) = search.as_mut() {
+        s.stop();
+    }
     let closed = link.close();
     if session.clock.is_empty() {
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
@@ -727,6 +752,13 @@ impl VisionWorker {
         }
     }
 
+    fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
+        match self.results.try_recv().ok()? {
+            WorkerDone::Frame(r) => Some(*r),
+            _ => Some(Err(Self::out_of_order())),
+        }
+    }
+
     /// The next answer of any kind: waiting for it (`block`), or only if it is there.
     fn recv_any(&self, block: bool) -> Result<Option<WorkerDone>, TrackError> {
         if block {
@@ -740,17 +772,38 @@ impl VisionWorker {
         }
     }
 
-    /// One cold-start attempt on the raw frame `image` (no frame may be in flight).
+    /// One cold-start attempt on the raw frame `image`, waited for (no frame may be in
+    /// flight).
     fn locate(
         &self,
         image: image::GrayImage,
         cache: PathBuf,
     ) -> Result<crate::locate::Attempt, TrackError> {
-        self.send_job(WorkerJob::Locate(image, cache))?;
-        match self.results.recv() {
-            Ok(WorkerDone::Locate(r)) => r,
-            Ok(_) => Err(Self::out_of_order()),
-            Err(_) => Err(Self::stopped()),
+        self.send_locate(image, cache)?;
+        self.locate_result()
+    }
+
+    /// Starts an attempt on `image` (its answer comes by [`Self::locate_result`] or
+    /// [`Self::try_locate`]).
+    fn send_locate(&self, image: image::GrayImage, cache: PathBuf) -> Result<(), TrackError> {
+        self.send_job(WorkerJob::Locate(image, cache))
+    }
+
+    /// The answer of the attempt sent, waited for.
+    fn locate_result(&self) -> Result<crate::locate::Attempt, TrackError> {
+        match self.recv_any(true)? {
+            Some(WorkerDone::Locate(r)) => r,
+            Some(_) => Err(Self::out_of_order()),
+            None => Err(Self::stopped()),
+        }
+    }
+
+    /// The answer of the attempt sent, if it is ready.
+    fn try_locate(&self) -> Result<Option<crate::locate::Attempt>, TrackError> {
+        match self.recv_any(false)? {
+            Some(WorkerDone::Locate(r)) => r.map(Some),
+            Some(_) => Err(Self::out_of_order()),
+            None => Ok(None),
         }
     }
 
@@ -871,25 +924,6 @@ struct Pending {
     frame_id: u32,
     trigger_us: u64,
     due: usize,
-}
-
-/// What the vision thread works on, in the order sent (it answers in that order).
-#[derive(Debug, Clone, Copy)]
-enum InFlight {
-    /// A frame's analysis.
-    Frame(Pending),
-    /// A cold-start attempt.
-    Locate(cold_start::LocateJob),
-}
-
-impl InFlight {
-    /// The IMU sample after which its answer is applied (lock-step).
-    fn due(&self) -> usize {
-        match self {
-            InFlight::Frame(p) => p.due,
-            InFlight::Locate(j) => j.due,
-        }
-    }
 }
 
 /// One tracking session's state.
@@ -1083,6 +1117,7 @@ impl Session<'_> {
         &mut self,
         link: &mut CoreLink,
         worker: &VisionWorker,
+        search: Option<&VisionWorker>,
         end: usize,
         interrupt: &AtomicBool,
         progress: Progress,
@@ -1114,31 +1149,40 @@ impl Session<'_> {
         let triggers: BTreeMap<usize, usize> =
             ds.triggers().into_iter().map(|(f, k)| (k, f)).collect();
         let latency_samples = (self.options.latency * ds.imu_rate_hz).round() as usize;
-        let mut pending: VecDeque<InFlight> = VecDeque::new();
+        let mut pending: VecDeque<Pending> = VecDeque::new();
         let start = Instant::now();
         let mut frames_done = 0usize;
         for k in 0..end {
             if interrupt.load(Ordering::Relaxed) {
-                self.finish(link, &mut pending, worker, searcher.as_mut(), true)?;
+                self.finish(link, &mut pending, worker, None, true)?;
                 return Ok(false);
             }
             let lock_step = self.options.pacing == Pacing::LockStep;
-            if !lock_step {
+            if lock_step {
+                while pending.front().is_some_and(|p| p.due <= k) {
+                    let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                    let r = worker.recv()?;
+                    self.deliver(link, p, r)?;
+                    frames_done += 1;
+                }
+            } else {
                 let due = start + Duration::from_nanos(ds.imu[k].stamp - stamp0);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);
                 }
+                while !pending.is_empty() {
+                    match worker.try_recv() {
+                        Some(r) => {
+                            let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                            self.deliver(link, p, r)?;
+                            frames_done += 1;
+                        }
+                        None => break,
+                    }
+                }
             }
-            // Lock-step: every answer due by now, waiting for it; real time: those ready.
-            while pending.front().is_some_and(|p| !lock_step || p.due() <= k) {
-                let Some(done) = worker.recv_any(lock_step)? else {
-                    break;
-                };
-                let Some(p) = pending.pop_front() else {
-                    return Err(VisionWorker::out_of_order());
-                };
-                frames_done += usize::from(matches!(p, InFlight::Frame(_)));
-                self.take_answer(link, p, done, searcher.as_mut(), self.t_us(k))?;
+            if let (Some(s), Some(w)) = (searcher.as_mut(), search) {
+                self.poll_search(link, s, w, Some(k).filter(|_| lock_step), self.t_us(k))?;
             }
             let row = &ds.imu[k];
             let t_us = self.t_us(k);
@@ -1165,8 +1209,14 @@ impl Session<'_> {
                 let blind = self.options.faults.blind_at(output::seconds(t_us));
                 let cam = &ds.camera.camera;
                 let noise = || self.options.faults.noise_frame(cam.width, cam.height, f);
-                if let Some(s) = searcher.as_mut()
-                    && let Some(lost_at) = s.at_trigger(&self.log.statuses, t_us)
+                let step = searcher.as_mut().map_or(cold_start::AtTrigger::Wait, |s| {
+                    s.at_trigger(&self.log.statuses, t_us)
+                });
+                if step == cold_start::AtTrigger::Tracking {
+                    self.end_recovery(t_us);
+                }
+                if let (Some(s), Some(w)) = (searcher.as_mut(), search)
+                    && let cold_start::AtTrigger::Attempt(lost_at) = step
                 {
                     let path = &ds.frames[f].path;
                     let image = if blind {
@@ -1179,14 +1229,13 @@ impl Session<'_> {
                             })?
                             .into_luma8()
                     };
-                    worker.send_job(WorkerJob::Locate(image, self.options.cache.clone()))?;
-                    s.sent();
-                    pending.push_back(InFlight::Locate(cold_start::LocateJob {
+                    w.send_job(WorkerJob::Locate(image, self.options.cache.clone()))?;
+                    s.sent(cold_start::LocateJob {
                         index: f,
                         t_us,
                         due: k + latency_samples.max(1),
                         lost_at,
-                    }));
+                    });
                 }
                 if let Some(p) = self.log.predictions.get(&t_us).copied() {
                     let every = self.options.overlay_every;
@@ -1211,11 +1260,11 @@ impl Session<'_> {
                         omega_c,
                     };
                     worker.send(job)?;
-                    pending.push_back(InFlight::Frame(Pending {
+                    pending.push_back(Pending {
                         frame_id: p.frame_id,
                         trigger_us: t_us,
                         due: k + latency_samples.max(1),
-                    }));
+                    });
                 }
             } else {
                 self.drain(link)?;
@@ -1224,57 +1273,36 @@ impl Session<'_> {
                 progress(k + 1, end, frames_done, self.log.mode());
             }
         }
-        self.finish(link, &mut pending, worker, searcher.as_mut(), false)?;
+        let searching = searcher.as_mut().zip(search);
+        self.finish(link, &mut pending, worker, searching, false)?;
         progress(end, end, self.results.len(), self.log.mode());
         Ok(true)
     }
 
-    /// Applies one answer of the vision thread at `now_us`: a frame's correspondences go to
-    /// the core, a cold-start attempt's pose (if verified) initialises or re-anchors it.
-    fn take_answer(
-        &mut self,
-        link: &mut CoreLink,
-        p: InFlight,
-        done: WorkerDone,
-        searcher: Option<&mut cold_start::Searcher>,
-        now_us: u64,
-    ) -> Result<(), TrackError> {
-        match (p, done, searcher) {
-            (InFlight::Frame(p), WorkerDone::Frame(r), _) => self.deliver(link, p, *r),
-            (InFlight::Locate(job), WorkerDone::Locate(a), Some(s)) => {
-                self.found(link, s, job, a, now_us)
-            }
-            _ => Err(VisionWorker::out_of_order()),
-        }
-    }
-
-    /// Delivers the frames still in flight and collects the last answers.
+    /// Delivers the frames still in flight, applies a search still running, and collects
+    /// the last answers.
     fn finish(
         &mut self,
         link: &mut CoreLink,
-        pending: &mut VecDeque<InFlight>,
+        pending: &mut VecDeque<Pending>,
         worker: &VisionWorker,
-        mut searcher: Option<&mut cold_start::Searcher>,
+        searching: Option<(&mut cold_start::Searcher, &VisionWorker)>,
         interrupted: bool,
     ) -> Result<(), TrackError> {
-        let now_us = self.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
         while let Some(p) = pending.pop_front() {
-            let Some(done) = worker.recv_any(true)? else {
-                return Err(VisionWorker::stopped());
-            };
-            match (interrupted, p, done) {
+            let r = worker.recv()?;
+            if interrupted {
                 // Record the analysis; the core has no samples left to apply it to.
-                (true, InFlight::Frame(p), WorkerDone::Frame(r)) => {
-                    if let Ok(r) = *r {
-                        self.results.push((p.frame_id, r));
-                    }
+                if let Ok(r) = r {
+                    self.results.push((p.frame_id, r));
                 }
-                (true, InFlight::Locate(_), WorkerDone::Locate(_)) => {}
-                (true, _, _) => return Err(VisionWorker::out_of_order()),
-                (false, p, done) => {
-                    self.take_answer(link, p, done, searcher.as_deref_mut(), now_us)?
-                }
+            } else {
+                self.deliver(link, p, r)?;
             }
+        }
+        if let Some((s, w)) = searching {
+            let now_us = self.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
+            self.poll_search(link, s, w, Some(usize::MAX), now_us)?;
         }
         self.barrier(link)
     }

@@ -121,6 +121,7 @@ impl Session<'_> {
         &mut self,
         link: &mut super::CoreLink,
         worker: &VisionWorker,
+        search: Option<&VisionWorker>,
         source: &mut FrameSource,
         interrupt: &AtomicBool,
         progress: Progress,
@@ -179,6 +180,11 @@ impl Session<'_> {
         let mut diverged = false;
         let mut statuses_seen = self.log.statuses.len();
         let mut since_search = SEARCH_EVERY;
+        // The recovery attempt with the search thread: its frame's index, time [µs], and
+        // since when the model was lost [µs].
+        let mut in_search: Option<(usize, u64, u64)> = None;
+        let live = source.is_live();
+        let search = search.ok_or_else(|| TrackError::Vision("no search thread".into()))?;
         let rule = super::TrackedRule::default();
         while let Some(frame) = next.take().or_else(|| source.next()) {
             if interrupt.load(Ordering::Relaxed) {
@@ -209,7 +215,7 @@ impl Session<'_> {
             if !started {
                 // The cold start: one attempt per frame until a pose is verified; the frame
                 // it was found in is then tracked from it.
-                let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
+                let a = search.locate(frame.image.clone(), self.options.cache.clone())?;
                 self.searches.push(Search::new(frame.index, t_us, a));
                 let Some(pose) = a.pose else {
                     frames += 1;
@@ -231,21 +237,32 @@ impl Session<'_> {
                 untracked_since.get_or_insert(t_us);
             }
             statuses_seen = self.log.statuses.len();
+            // The attempt sent at an earlier frame: a file's frames wait for it at the next
+            // frame (a replay is deterministic); a live camera's take it when it is ready.
+            if let Some((index, at_us, since)) = in_search {
+                let done = if live {
+                    search.try_locate()?
+                } else {
+                    Some(search.locate_result()?)
+                };
+                if let Some(a) = done {
+                    in_search = None;
+                    self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
+                    if let Some(pose) = a.pose {
+                        link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                        untracked_since = None;
+                        diverged = false;
+                    }
+                }
+            }
             let lost =
                 diverged || untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
             if !lost {
                 self.end_recovery(t_us);
-            } else if since_search >= SEARCH_EVERY {
+            } else if since_search >= SEARCH_EVERY && in_search.is_none() {
                 since_search = 0;
-                let since = untracked_since.unwrap_or(t_us);
-                let a = worker.locate(frame.image.clone(), self.options.cache.clone())?;
-                let search = Search::new(frame.index, t_us, a);
-                self.record_recovery(since as f64 * 1e-6, search);
-                if let Some(pose) = a.pose {
-                    link.send(&HostToCore::Init(self.vision_init(&pose)))?;
-                    untracked_since = None;
-                    diverged = false;
-                }
+                search.send_locate(frame.image.clone(), self.options.cache.clone())?;
+                in_search = Some((frame.index, t_us, untracked_since.unwrap_or(t_us)));
             } else {
                 since_search += 1;
             }
@@ -327,6 +344,10 @@ impl Session<'_> {
             if frames.is_multiple_of(10) {
                 progress(frames, total, self.results.len(), self.log.mode());
             }
+        }
+        if let Some((index, at_us, since)) = in_search {
+            let a = search.locate_result()?;
+            self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
         }
         self.barrier(link)?;
         progress(

@@ -253,11 +253,12 @@ pub struct TrackArgs {
     /// initialisation).
     #[arg(long)]
     pub duration: Option<f64>,
-    /// Start position of the IMU `x,y,z` [m] (default: from the ground truth; required
-    /// without one).
+    /// Start position of the IMU `x,y,z` [m] (default: from the ground truth; without one,
+    /// give it with --start-yaw, or neither for the cold start).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     pub start_position: Option<[f64; 3]>,
-    /// Start yaw of the IMU [deg] (default: from the ground truth; required without one).
+    /// Start yaw of the IMU [deg] (default: from the ground truth; without one, give it with
+    /// --start-position, or neither for the cold start).
     #[arg(long)]
     pub start_yaw: Option<f64>,
     /// Full start pose of the camera in the model (world) frame at the first IMU sample: JSON
