@@ -267,16 +267,21 @@ fn room_is_tracked_through_both_turns_the_shake_and_the_occlusion() {
     );
     assert!(share > 0.9, "{share}");
     assert!(a.mean_position_m < 0.02);
+    let _ = std::fs::remove_dir_all(search_cache("room"));
     assert_cold_start_tracks_as_the_given_start(&ds, "room", &run);
 }
 
 /// Issue 15: the same dataset tracked from a cold start (`--cold-start`): the first pose is
 /// accepted within 0.5 s, and the accuracy and prediction error are those of the run from the
 /// given start `given` (within 10 %, or 0.5 mm and 0.02 px).
-fn assert_cold_start_tracks_as_the_given_start(ds: &std::path::Path, name: &str, given: &TrackRun) {
+fn assert_cold_start_tracks_as_the_given_start(
+    ds: &std::path::Path,
+    name: &str,
+    given: &TrackRun,
+) -> TrackRun {
     let mut o = options(ds, &format!("{name}-cold"), ModelKind::Acc);
     o.start.cold = true;
-    o.cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache");
+    o.cache = search_cache(name);
     let cold = track(&o);
     let c = cold.summary.cold_start.expect("a cold start was made");
     let (frame, t) = c.found.expect("the model was found");
@@ -302,6 +307,14 @@ fn assert_cold_start_tracks_as_the_given_start(ds: &std::path::Path, name: &str,
     );
     assert!(b.mean_position_m <= a.mean_position_m * 1.1 + 0.0005);
     assert!(mean_px(&cold) <= mean_px(given) * 1.1 + 0.02);
+    cold
+}
+
+/// The searches' database folder of the tests on scenario `name`.
+fn search_cache(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("locate-cache")
+        .join(name)
 }
 
 #[test]
@@ -331,6 +344,7 @@ fn foyer_the_acc_model_tracks_throughout_and_the_others_lose_track() {
             );
             let px = mean_px(&run);
             assert!(px <= 1.42, "mean prediction error {px:.3} px");
+            let _ = std::fs::remove_dir_all(search_cache("foyer"));
             assert_cold_start_tracks_as_the_given_start(&ds, "foyer", &run);
         } else {
             assert!(
@@ -535,9 +549,13 @@ fn settled_from(run: &TrackRun, t0: f64, t_end: f64) -> Option<f64> {
 #[test]
 fn desktop_fast_from_a_cold_start_and_after_a_forced_loss() {
     let ds = dataset(ScenarioName::DesktopFast, 12.0);
-    let cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache");
+    let cache = search_cache("desktop-fast");
+    let _ = std::fs::remove_dir_all(&cache);
     let given = track(&options(&ds, "desktop-fast-given", ModelKind::Acc));
-    assert_cold_start_tracks_as_the_given_start(&ds, "desktop-fast", &given);
+    // The first search builds the database, and says so; later runs read it from the cache.
+    let cold = assert_cold_start_tracks_as_the_given_start(&ds, "desktop-fast", &given);
+    let built = cold.summary.search_database.clone().unwrap_or_default();
+    assert!(built.starts_with("built: "), "{built}");
 
     // Over 2 s blind the acc model's dead reckoning keeps the model within the registration's
     // reach (tracking comes back by itself); over 4 s it does not, and the search finds it.
@@ -556,6 +574,8 @@ fn desktop_fast_from_a_cold_start_and_after_a_forced_loss() {
         };
         let end = 5.0 + blind_s;
         let lost = track(&o);
+        let cached = lost.summary.search_database.clone().unwrap_or_default();
+        assert!(cached.ends_with("(from the cache)"), "{cached}");
         for r in &lost.summary.recoveries {
             println!(
                 "blind {blind_s} s: lost at {:.2} s, {} at {:?} s after {} attempts ({:.0} ms each)",

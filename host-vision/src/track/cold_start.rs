@@ -134,7 +134,7 @@ impl Session<'_> {
         let Some(job) = searcher.job else {
             return Ok(());
         };
-        let attempt = match lock_step_k {
+        let (attempt, from) = match lock_step_k {
             Some(k) if job.due <= k => search.locate_result()?,
             Some(_) => return Ok(()),
             None => match search.try_locate()? {
@@ -142,6 +142,7 @@ impl Session<'_> {
                 None => return Ok(()),
             },
         };
+        self.database = self.database.take().or(from);
         searcher.job = None;
         self.found(link, searcher, job, attempt, now_us)
     }

@@ -601,6 +601,7 @@ pub fn run(
         axes: ready.axes,
         searches: Vec::new(),
         recoveries: Vec::new(),
+        database: None,
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(
@@ -693,11 +694,21 @@ enum WorkerJob {
     Locate(image::GrayImage, PathBuf),
 }
 
+/// An attempt's answer, with the database's provenance on the attempt that loaded it.
+type Located = (
+    crate::locate::Attempt,
+    Option<crate::locate::database::Provenance>,
+);
+
 /// What the vision thread answers, in the order of the jobs.
 enum WorkerDone {
     Frame(Box<Result<FrameResult, TrackError>>),
     Assess(Result<Assessment, TrackError>),
-    Locate(Result<crate::locate::Attempt, TrackError>),
+    /// With the database's provenance, on the attempt that loaded or built it.
+    Locate(
+        Result<crate::locate::Attempt, TrackError>,
+        Option<crate::locate::database::Provenance>,
+    ),
 }
 
 impl VisionWorker {
@@ -774,11 +785,7 @@ impl VisionWorker {
 
     /// One cold-start attempt on the raw frame `image`, waited for (no frame may be in
     /// flight).
-    fn locate(
-        &self,
-        image: image::GrayImage,
-        cache: PathBuf,
-    ) -> Result<crate::locate::Attempt, TrackError> {
+    fn locate(&self, image: image::GrayImage, cache: PathBuf) -> Result<Located, TrackError> {
         self.send_locate(image, cache)?;
         self.locate_result()
     }
@@ -790,18 +797,18 @@ impl VisionWorker {
     }
 
     /// The answer of the attempt sent, waited for.
-    fn locate_result(&self) -> Result<crate::locate::Attempt, TrackError> {
+    fn locate_result(&self) -> Result<Located, TrackError> {
         match self.recv_any(true)? {
-            Some(WorkerDone::Locate(r)) => r,
+            Some(WorkerDone::Locate(r, from)) => r.map(|a| (a, from)),
             Some(_) => Err(Self::out_of_order()),
             None => Err(Self::stopped()),
         }
     }
 
     /// The answer of the attempt sent, if it is ready.
-    fn try_locate(&self) -> Result<Option<crate::locate::Attempt>, TrackError> {
+    fn try_locate(&self) -> Result<Option<Located>, TrackError> {
         match self.recv_any(false)? {
-            Some(WorkerDone::Locate(r)) => r.map(Some),
+            Some(WorkerDone::Locate(r, from)) => r.map(|a| Some((a, from))),
             Some(_) => Err(Self::out_of_order()),
             None => Ok(None),
         }
@@ -866,6 +873,7 @@ fn vision_worker(
     };
     // The cold start's database, loaded (or built) on the first attempt.
     let mut locator: Option<crate::locate::Locator> = None;
+    let mut provenance = None;
     // Ends when the session drops its sender.
     while let Ok(job) = jobs.recv() {
         let done = match job {
@@ -874,20 +882,21 @@ fn vision_worker(
             WorkerJob::Locate(image, cache) => {
                 let attempt = (|| {
                     if locator.is_none() {
-                        let (db, _) = crate::locate::database::Database::load_or_build(
+                        let (db, from) = crate::locate::database::Database::load_or_build(
                             &model,
                             &crate::locate::database::DatabaseConfig::default(),
                             &cache,
                             &mut |_, _| {},
                         )?;
                         locator = Some(crate::locate::Locator::new(&db, Default::default()));
+                        provenance = Some(from);
                     }
                     match &locator {
                         Some(l) => Ok(l.attempt(&mut vision, &image, false)?.0),
                         None => Err(TrackError::Vision("no cold-start database".into())),
                     }
                 })();
-                WorkerDone::Locate(attempt)
+                WorkerDone::Locate(attempt, provenance.take())
             }
         };
         if results.send(done).is_err() {
@@ -954,8 +963,11 @@ pub struct Session<'a> {
     pub axes: (Vector3<f64>, f64),
     /// The cold start's attempts, in order (vision-only runs with no start pose).
     pub searches: Vec<Search>,
-    /// Searches after the model was lost (vision-only runs), one entry per loss.
+    /// Searches after the model was lost, one entry per loss.
     pub recoveries: Vec<Recovery>,
+    /// Where the searches' viewpoint database came from (read from the cache, or built and
+    /// why).
+    pub database: Option<crate::locate::database::Provenance>,
 }
 
 /// A loss of a vision-only run and its search.

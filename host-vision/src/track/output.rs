@@ -13,6 +13,7 @@ use firmware_sim::board::BoardReport;
 
 use super::{Session, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose};
 use crate::dataset::{Dataset, HandEye};
+use crate::locate::database::Provenance;
 
 /// What a run writes into its output folder (files and folders).
 pub const OUTPUTS: [&str; 7] = [
@@ -339,6 +340,8 @@ pub struct Summary {
     /// The cold start (vision-only runs with no start pose): its attempts and where it found
     /// the model.
     pub cold_start: Option<ColdStart>,
+    /// The searches' viewpoint database: read from the cache, or built and why.
+    pub search_database: Option<String>,
     /// Losses of a vision-only run and their searches.
     pub recoveries: Vec<RecoverySummary>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
@@ -449,6 +452,9 @@ impl fmt::Display for Summary {
                     shown.join(", ")
                 )?;
             }
+        }
+        if let Some(d) = &self.search_database {
+            writeln!(f, "database     {d}")?;
         }
         if let Some(c) = &self.cold_start {
             match c.found {
@@ -906,6 +912,12 @@ pub(super) fn write_all(
         divergences,
         without_vision,
         cold_start: ColdStart::of(&session.searches, frame_period(&rows)),
+        search_database: session.database.as_ref().map(|p| match p {
+            Provenance::Cached(path) => format!("{} (from the cache)", path.display()),
+            Provenance::Built { path, why } => {
+                format!("built: {why}; written to {}", path.display())
+            }
+        }),
         recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {

@@ -215,7 +215,8 @@ impl Session<'_> {
             if !started {
                 // The cold start: one attempt per frame until a pose is verified; the frame
                 // it was found in is then tracked from it.
-                let a = search.locate(frame.image.clone(), self.options.cache.clone())?;
+                let (a, from) = search.locate(frame.image.clone(), self.options.cache.clone())?;
+                self.database = self.database.take().or(from);
                 self.searches.push(Search::new(frame.index, t_us, a));
                 let Some(pose) = a.pose else {
                     frames += 1;
@@ -245,8 +246,9 @@ impl Session<'_> {
                 } else {
                     Some(search.locate_result()?)
                 };
-                if let Some(a) = done {
+                if let Some((a, from)) = done {
                     in_search = None;
+                    self.database = self.database.take().or(from);
                     self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
                     if let Some(pose) = a.pose {
                         link.send(&HostToCore::Init(self.vision_init(&pose)))?;
@@ -346,7 +348,8 @@ impl Session<'_> {
             }
         }
         if let Some((index, at_us, since)) = in_search {
-            let a = search.locate_result()?;
+            let (a, from) = search.locate_result()?;
+            self.database = self.database.take().or(from);
             self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
         }
         self.barrier(link)?;
