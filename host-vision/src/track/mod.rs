@@ -639,8 +639,10 @@ pub fn run(
     // An inertial cold start that never found the model streamed its IMU to a core that was
     // never initialised: nothing was tracked either.
     let found = session.searches.iter().any(|s| s.attempt.accepted());
-    if !options.vision_only() && !session.searches.is_empty() && !found {
-        outcome?;
+    if !options.vision_only() && !session.searches.is_empty() && !found && outcome.is_ok() {
+        if let Ok(false) = outcome {
+            return Err(TrackError::Interrupted);
+        }
         return Err(TrackError::NotFound {
             attempts: session.searches.len(),
         });
@@ -961,7 +963,7 @@ pub struct Session<'a> {
     wall: Instant,
     /// Where the overlays draw the model's axes, and their length.
     pub axes: (Vector3<f64>, f64),
-    /// The cold start's attempts, in order (vision-only runs with no start pose).
+    /// The cold start's attempts, in order (runs with no start pose).
     pub searches: Vec<Search>,
     /// Searches after the model was lost, one entry per loss.
     pub recoveries: Vec<Recovery>,
@@ -1232,22 +1234,27 @@ impl Session<'_> {
                 {
                     let path = &ds.frames[f].path;
                     let image = if blind {
-                        noise()
+                        Ok(noise())
                     } else {
-                        image::open(path)
-                            .map_err(|source| TrackError::Image {
-                                path: path.clone(),
-                                source,
-                            })?
-                            .into_luma8()
+                        image::open(path).map(|i| i.into_luma8())
                     };
-                    w.send_job(WorkerJob::Locate(image, self.options.cache.clone()))?;
-                    s.sent(cold_start::LocateJob {
-                        index: f,
-                        t_us,
-                        due: k + latency_samples.max(1),
-                        lost_at,
-                    });
+                    match image {
+                        Ok(image) => {
+                            w.send_locate(image, self.options.cache.clone())?;
+                            s.sent(cold_start::LocateJob {
+                                index: f,
+                                t_us,
+                                due: k + latency_samples.max(1),
+                                lost_at,
+                            });
+                        }
+                        // An unreadable frame is no attempt, as it is no analysis: reported,
+                        // and the next frame is tried.
+                        Err(e) => self.frame_errors.push((
+                            self.results.len(),
+                            format!("{}: {e} (no search on it)", path.display()),
+                        )),
+                    }
                 }
                 if let Some(p) = self.log.predictions.get(&t_us).copied() {
                     let every = self.options.overlay_every;
