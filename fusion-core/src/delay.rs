@@ -213,3 +213,79 @@ impl<T: Scalar> DelayLine<T> {
         Some(Ok(()))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::vec::Vec;
+
+    use nalgebra::Vector3;
+    use protocol::{InitAttitude, ModelKind};
+
+    use super::*;
+    use crate::init::{StillWindow, initial_state};
+    use crate::state::State;
+    use crate::testutil::params;
+
+    /// Issue 17 (long runs): frame ids and IMU sequence numbers are `u32`s that wrap (after
+    /// 2³² frames, or 2³² samples: 50 days at 1 kHz). Across the wrap the snapshots are found,
+    /// ids handed out before are too old and ids not yet handed out unknown, the order of
+    /// frames holds, and re-propagation walks the samples after a snapshot in order.
+    #[test]
+    fn frame_ids_and_sample_numbers_keep_their_order_across_the_u32_wrap() {
+        let prm = params::<f64>(ModelKind::Acc);
+        let still = ImuSample {
+            t_us: 0,
+            gyro: Vector3::new(0.01, -0.02, 0.005),
+            accel: Vector3::new(0.1, -0.2, 9.81),
+        };
+        let mut window = StillWindow::default();
+        window.add(&still.gyro, &still.accel, 1);
+        let st = initial_state(&prm, &Vector3::zeros(), &InitAttitude::Gravity, &window);
+        let mut live = Filter::new(st, 0);
+        let mut line = DelayLine::<f64>::new();
+        // Sample numbers wrap between the 41st and 42nd sample, frame ids at the fourth frame.
+        line.next_seq = u32::MAX - 40;
+        line.next_frame_id = u32::MAX - 2;
+        let mut frames = Vec::new();
+        for k in 1..=60u64 {
+            let s = ImuSample {
+                t_us: k * 5_000,
+                gyro: Vector3::new(0.3 * (k as f64 * 0.1).sin(), 0.1, -0.2),
+                accel: Vector3::new(0.5, 0.2 * (k as f64 * 0.2).cos(), 9.7),
+            };
+            live.imu_step(&prm, &s).unwrap();
+            line.push(s);
+            if k % 10 == 0 {
+                frames.push((line.snapshot(&live), live.t_us));
+            }
+        }
+        let ids: Vec<u32> = frames.iter().map(|f| f.0).collect();
+        assert_eq!(ids, [u32::MAX - 2, u32::MAX - 1, u32::MAX, 0, 1, 2]);
+        // The last four are kept; the first two were replaced and are too old.
+        for &(id, t) in &frames[..2] {
+            assert_eq!(line.find(id, t).err(), Some(Missing::TooOld), "frame {id}");
+        }
+        for &(id, t) in &frames[2..] {
+            assert!(line.find(id, t).is_ok(), "frame {id}");
+        }
+        assert_eq!(line.find(3, 0).err(), Some(Missing::Unknown));
+        assert_eq!(line.find(1000, 0).err(), Some(Missing::Unknown));
+        // Order across the wrap: an update to frame 1 makes u32::MAX's too old, not 2's.
+        if let Ok(s) = line.find(1, frames[4].1) {
+            s.parts_done = 1;
+        }
+        assert!(line.newer_frame_applied(u32::MAX));
+        assert!(line.newer_frame_applied(0));
+        assert!(!line.newer_frame_applied(2));
+        // Re-propagating the oldest kept snapshot (frame u32::MAX, at sample number
+        // u32::MAX - 11) through the 30 samples after it, across the sample numbers' wrap,
+        // gives the present again.
+        let mut again = Filter::new(State::zeroed(), 0);
+        let replayed = line.repropagate(u32::MAX, &prm, &mut again);
+        assert_eq!(replayed, Some(Ok(())));
+        assert_eq!(again.t_us, live.t_us);
+        assert_eq!(again.st.x, live.st.x);
+        assert_eq!(again.st.p, live.st.p);
+    }
+}

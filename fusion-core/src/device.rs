@@ -948,6 +948,70 @@ mod tests {
         assert_eq!((d.counters.decode_errors, errors), (u32::MAX, 3));
     }
 
+    /// Issue 17 (long runs): µs time stamps up to their limit, `u64::MAX`. The core runs to it
+    /// and answers its triggers, with no panic (overflow checks are on in this profile), and a
+    /// sample at the limit again is refused by name: nothing can come after it.
+    #[test]
+    fn time_stamps_run_up_to_the_u64_limit_without_a_panic() {
+        use std::vec::Vec;
+        let mut d = Device::<f32>::new();
+        let send = |d: &mut Device<f32>, m: HostToCore| {
+            let mut got = Vec::new();
+            d.handle(&m, &mut |a| got.push(a));
+            got
+        };
+        let config = protocol::samples::config();
+        send(
+            &mut d,
+            HostToCore::Hello(protocol::Hello {
+                version: protocol::PROTOCOL_VERSION,
+            }),
+        );
+        send(&mut d, HostToCore::Configure(config));
+        send(
+            &mut d,
+            HostToCore::Init(Init {
+                position: [0.0; 3],
+                attitude: InitAttitude::Gravity,
+            }),
+        );
+        let dt = (1e6 / f64::from(config.imu_rate_hz)) as u64;
+        let samples = 3 * u64::from(config.imu_rate_hz as u32);
+        let (mut predictions, mut errors) = (0, 0);
+        for k in (0..=samples).rev() {
+            let imu = protocol::ImuSample {
+                t_us: u64::MAX - k * dt,
+                gyro: [0.01, 0.0, -0.01],
+                accel: [0.0, 0.0, 9.81],
+                trigger: k % 10 == 0,
+            };
+            for a in send(&mut d, HostToCore::Imu(imu)) {
+                match a {
+                    CoreToHost::PosePrediction(_) => predictions += 1,
+                    CoreToHost::Error(_) => errors += 1,
+                    _ => {}
+                }
+            }
+        }
+        assert_eq!(errors, 0);
+        assert!(predictions > 20, "{predictions} predictions");
+        assert_eq!(d.mode(), Mode::DeadReckoning);
+        let again = protocol::ImuSample {
+            t_us: u64::MAX,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            trigger: true,
+        };
+        let got = send(&mut d, HostToCore::Imu(again));
+        assert!(
+            got.iter().any(|a| matches!(
+                a,
+                CoreToHost::Error(e) if matches!(e.code, ErrorCode::TimestampNotIncreasing { .. })
+            )),
+            "{got:?}"
+        );
+    }
+
     /// The whole device, and its parts, in bytes (the firmware keeps it in a `static`).
     #[test]
     fn memory_footprint() {
