@@ -280,6 +280,7 @@ impl<T: Scalar> Device<T> {
             HostToCore::Tick(t) => self.tick(t, out),
             HostToCore::Correspondences(c) => self.correspondences(c, out),
             HostToCore::Reset => {
+                self.restart_clock();
                 if self.prm.is_some() {
                     self.restart_phase(Phase::AwaitingInit);
                     self.set_mode(Mode::AwaitingInit, StatusReason::HostRequest, out);
@@ -288,6 +289,13 @@ impl<T: Scalar> Device<T> {
                 }
             }
         }
+    }
+
+    /// A new session (`Configure`, `Reset`) has a clock of its own: its first time stamp may
+    /// be any, as a restarted host's or sensor's is.
+    fn restart_clock(&mut self) {
+        self.last_t_us = None;
+        self.clock_candidate = None;
     }
 
     fn restart_phase(&mut self, phase: Phase<T>) {
@@ -311,6 +319,7 @@ impl<T: Scalar> Device<T> {
         self.config = Some(*c);
         self.prm = Some(Params::from_config(c));
         self.anchor = Anchor::NONE;
+        self.restart_clock();
         self.restart_phase(Phase::AwaitingInit);
         self.set_mode(Mode::AwaitingInit, StatusReason::Configured, out);
     }

@@ -646,3 +646,48 @@ fn issue_15_keep_tilt_reanchors_a_running_filter_in_place() {
     assert!(has_status(&answers, Mode::Initialising, None));
     assert_eq!(d.device.mode(), Mode::Initialising);
 }
+
+/// Issue 17: `Configure` and `Init` in the middle of tracking are applied safely, as
+/// PROTOCOL.md §3 says. `Configure` (a restarted host's) clears the state and the clock: its
+/// samples may start again from 0, with no time-stamp error, and tracking resumes. `Init`
+/// restarts the initialisation from its pose.
+#[test]
+fn issue_17_configure_and_init_while_tracking_restart_safely() {
+    let sc = scenes::standard(ModelKind::Acc, 12.0, 2.0, 3);
+    let mut d = Driver::<f32>::new(&sc);
+    while (d.k as f64) < 4.0 * sc.imu_rate_hz {
+        d.step();
+    }
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    let answers = d.send(&HostToCore::Init(sc.init));
+    assert!(has_status(
+        &answers,
+        Mode::Initialising,
+        Some(StatusReason::HostRequest)
+    ));
+    let k0 = d.k;
+    while d.device.mode() != Mode::Tracking {
+        assert!(
+            ((d.k - k0) as f64) < 2.0 * sc.imu_rate_hz,
+            "Init: not tracking again"
+        );
+        d.step();
+    }
+    // A new session: configured again, and its clock starts again from 0.
+    let errors_before = d.out.errors.len();
+    let answers = d.send(&HostToCore::Configure(sc.config));
+    assert!(has_status(
+        &answers,
+        Mode::AwaitingInit,
+        Some(StatusReason::Configured)
+    ));
+    let mut fresh = Driver::<f32>::new(&sc);
+    fresh.device = d.device.clone();
+    fresh.send(&HostToCore::Init(sc.init));
+    while (fresh.k as f64) < 3.0 * sc.imu_rate_hz {
+        fresh.step();
+    }
+    assert_eq!(fresh.device.mode(), Mode::Tracking);
+    assert_eq!(d.out.errors.len(), errors_before);
+    assert!(fresh.out.errors.is_empty(), "{:?}", fresh.out.errors);
+}
