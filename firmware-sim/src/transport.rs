@@ -274,3 +274,79 @@ mod tests {
         );
     }
 }
+
+/// What a noisy line ([`noisy_writer`]) did to the bytes written through it.
+#[derive(Debug, Default)]
+pub struct LineDamage {
+    /// Bytes garbled (one bit flipped each).
+    pub bytes: std::sync::atomic::AtomicU64,
+    /// Frames (as written: each ends at a 0x00 delimiter) with at least one garbled byte.
+    pub frames: std::sync::atomic::AtomicU64,
+}
+
+impl LineDamage {
+    /// `(bytes, frames)` garbled so far.
+    pub fn counts(&self) -> (u64, u64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.bytes.load(Relaxed), self.frames.load(Relaxed))
+    }
+}
+
+/// A writer whose line garbles bytes, as a long cable or a noisy ground does: each byte has one
+/// random bit flipped with probability `byte_error_rate`, from a seeded generator (a run is
+/// repeatable). What it did is counted in `damage`.
+pub fn noisy_writer(
+    inner: Box<dyn Write + Send>,
+    byte_error_rate: f64,
+    seed: u64,
+    damage: std::sync::Arc<LineDamage>,
+) -> Box<dyn Write + Send> {
+    use rand::SeedableRng;
+    Box::new(NoisyWriter {
+        inner,
+        rate: byte_error_rate,
+        rng: rand::rngs::StdRng::seed_from_u64(seed),
+        damage,
+        frame_hit: false,
+        buf: Vec::new(),
+    })
+}
+
+struct NoisyWriter {
+    inner: Box<dyn Write + Send>,
+    rate: f64,
+    rng: rand::rngs::StdRng,
+    damage: std::sync::Arc<LineDamage>,
+    /// Whether the frame being written has a garbled byte yet.
+    frame_hit: bool,
+    buf: Vec<u8>,
+}
+
+impl Write for NoisyWriter {
+    fn write(&mut self, bytes: &[u8]) -> io::Result<usize> {
+        use rand::RngExt as _;
+        use std::sync::atomic::Ordering::Relaxed;
+        self.buf.clear();
+        self.buf.extend_from_slice(bytes);
+        for b in &mut self.buf {
+            let delimiter = *b == 0;
+            if self.rng.random::<f64>() < self.rate {
+                *b ^= 1 << self.rng.random_range(0..8u32);
+                self.damage.bytes.fetch_add(1, Relaxed);
+                self.frame_hit = true;
+            }
+            if delimiter {
+                if self.frame_hit {
+                    self.damage.frames.fetch_add(1, Relaxed);
+                }
+                self.frame_hit = false;
+            }
+        }
+        self.inner.write_all(&self.buf)?;
+        Ok(bytes.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
+}

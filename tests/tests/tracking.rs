@@ -604,3 +604,65 @@ fn desktop_fast_from_a_cold_start_and_after_a_forced_loss() {
         }
     }
 }
+
+/// Issue 17, a noisy line: bit errors at 10⁻⁴ and 10⁻³ per byte, in both directions, on the
+/// line to the simulated board. Every damaged frame is detected and dropped at both ends (a
+/// flipped delimiter can merge two damaged frames into one, or split one in two), nothing
+/// damaged is applied (the core found no invalid message), and tracking degrades gracefully.
+#[test]
+fn a_noisy_line_is_detected_at_both_ends_and_tracking_degrades_gracefully() {
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut rows = Vec::new();
+    for rate in [0.0, 1e-4, 1e-3] {
+        let mut o = options(&ds, &format!("desktop-fast-line-{rate:e}"), ModelKind::Acc);
+        o.faults.line_errors = Some(rate);
+        let run = track(&o);
+        let line = run.summary.line.expect("the line's figures");
+        assert_eq!(line.invalid_at_core, Some(0), "{rate}: {line:?}");
+        let refused_by_core = line.refused_by_core.expect("the board's report");
+        for (damaged, refused) in [
+            (line.damaged_to_core, refused_by_core),
+            (line.damaged_to_host, line.refused_by_host),
+        ] {
+            assert!(
+                refused as f64 >= 0.9 * damaged as f64
+                    && refused as f64 <= 1.1 * damaged as f64 + 2.0,
+                "{rate}: {damaged} damaged, {refused} refused"
+            );
+        }
+        if rate > 0.0 {
+            assert!(
+                line.damaged_to_core > 0 && line.damaged_to_host > 0,
+                "{line:?}"
+            );
+        }
+        assert!(
+            run.summary.divergences.is_empty(),
+            "{rate}: {:?}",
+            run.summary.divergences
+        );
+        let a = run.summary.accuracy.expect("ground truth");
+        rows.push((rate, mean_px(&run), a.mean_position_m, line));
+    }
+    println!(
+        "byte error rate | prediction error [px] | position error [mm] | damaged to core / refused | damaged to host / refused"
+    );
+    for (rate, px, pos, l) in &rows {
+        println!(
+            "{rate:e} | {px:.3} | {:.2} | {} / {:?} | {} / {}",
+            pos * 1e3,
+            l.damaged_to_core,
+            l.refused_by_core,
+            l.damaged_to_host,
+            l.refused_by_host
+        );
+    }
+    let (clean_px, clean_pos) = (rows[0].1, rows[0].2);
+    for (rate, px, pos, _) in &rows[1..] {
+        assert!(*px <= 4.0 * clean_px, "{rate}: {px} px against {clean_px}");
+        assert!(
+            *pos <= 3.0 * clean_pos + 0.001,
+            "{rate}: {pos} m against {clean_pos}"
+        );
+    }
+}

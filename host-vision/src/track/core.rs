@@ -152,6 +152,19 @@ pub struct CoreLink {
     qemu: Option<QemuBoard>,
     /// Messages sent.
     pub messages_out: u64,
+    /// With bit errors injected on the line: what they did, to the core and to the host.
+    pub damage: Option<LineNoise>,
+}
+
+/// Bit errors injected on the line to the simulated board (a long cable, a noisy ground).
+#[derive(Debug, Clone)]
+pub struct LineNoise {
+    /// Probability that a byte has one bit flipped, in either direction.
+    pub byte_error_rate: f64,
+    /// What the line did to the host's bytes.
+    pub to_core: Arc<transport::LineDamage>,
+    /// What the line did to the core's bytes.
+    pub to_host: Arc<transport::LineDamage>,
 }
 
 impl std::fmt::Debug for CoreLink {
@@ -165,6 +178,42 @@ impl std::fmt::Debug for CoreLink {
 impl CoreLink {
     /// Opens the link (starting the simulated board or QEMU where asked).
     pub fn open(spec: &LinkSpec) -> Result<Self, TrackError> {
+        Self::open_noisy(spec, None)
+    }
+
+    /// Opens the link with bit errors `(byte error rate, seed)` injected in both directions
+    /// (the simulated board's link only).
+    pub fn open_noisy(spec: &LinkSpec, noise: Option<(f64, u64)>) -> Result<Self, TrackError> {
+        if let Some((rate, seed)) = noise {
+            let LinkSpec::Sim(precision) = spec else {
+                return Err(TrackError::Option(format!(
+                    "--line-errors garbles the simulated board's line: use --link sim, not {spec:?}"
+                )));
+            };
+            if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
+                return Err(TrackError::Option(format!(
+                    "--line-errors is a probability per byte in [0, 1], got {rate}"
+                )));
+            }
+            let (mut host, mut board_end) = transport::pty_pair()?;
+            let noise = LineNoise {
+                byte_error_rate: rate,
+                to_core: Arc::default(),
+                to_host: Arc::default(),
+            };
+            host.writer = transport::noisy_writer(host.writer, rate, seed, noise.to_core.clone());
+            board_end.writer = transport::noisy_writer(
+                board_end.writer,
+                rate,
+                seed ^ 0x5EED,
+                noise.to_host.clone(),
+            );
+            let handle = board::spawn(board_end, *precision)
+                .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
+            let mut link = Self::with_duplex(host, Some(handle), None);
+            link.damage = Some(noise);
+            return Ok(link);
+        }
         let (duplex, board, qemu) = match spec {
             LinkSpec::Sim(precision) => {
                 let (host, board_end) = transport::pty_pair()?;
@@ -235,6 +284,7 @@ impl CoreLink {
             board,
             qemu,
             messages_out: 0,
+            damage: None,
         }
     }
 
@@ -257,13 +307,20 @@ impl CoreLink {
 
     /// Waits up to `timeout` for the next item.
     pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackError> {
-        match self.rx.recv_timeout(timeout) {
-            Ok(Ok(m)) => Ok(m),
-            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
-            Err(RecvTimeoutError::Timeout) => Err(TrackError::Core(format!(
+        self.recv_within(timeout)?.ok_or_else(|| {
+            TrackError::Core(format!(
                 "link {}: no answer from the core within {timeout:?}",
                 self.name
-            ))),
+            ))
+        })
+    }
+
+    /// Waits up to `timeout` for the next item; `None` if none came.
+    pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackError> {
+        match self.rx.recv_timeout(timeout) {
+            Ok(Ok(m)) => Ok(Some(m)),
+            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
             Err(RecvTimeoutError::Disconnected) => Err(TrackError::Core(format!(
                 "link {}: reader stopped",
                 self.name

@@ -133,6 +133,12 @@ pub enum TrackError {
     Option(String),
 }
 
+/// On a line with injected errors: a `Hello` unanswered this long is sent again.
+const RESEND_AFTER: Duration = Duration::from_millis(300);
+
+/// On a line with injected errors: tries of a `Configure` or an `Init` before giving up.
+const CONFIRM_TRIES: usize = 10;
+
 /// How the IMU stream is paced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Pacing {
@@ -158,6 +164,9 @@ pub struct Faults {
     pub blind_from: Option<f64>,
     /// Length of the blind stretch [s].
     pub blind_seconds: f64,
+    /// Bit errors on the line to the simulated board: the probability that a byte has a bit
+    /// flipped, in both directions. Damaged frames must be detected and dropped at both ends.
+    pub line_errors: Option<f64>,
     /// Seed of the injected faults.
     pub seed: u64,
 }
@@ -565,7 +574,11 @@ pub fn run(
     )?;
 
     // The link first: it fails most often, and fails before the renderer is made.
-    let mut link = CoreLink::open(&options.link)?;
+    let noise = options
+        .faults
+        .line_errors
+        .map(|rate| (rate, options.faults.seed));
+    let mut link = CoreLink::open_noisy(&options.link, noise)?;
     // The vision worker owns the renderer: created once, on its own thread, and always shut
     // down and joined before this function returns (a renderer torn down by the process's
     // exit crashes in the driver).
@@ -595,6 +608,7 @@ pub fn run(
         results: Vec::new(),
         frame_errors: Vec::new(),
         rng: StdRng::seed_from_u64(options.faults.seed),
+        resent_hellos: 0,
         injected_outliers: 0,
         sent_correspondences: 0,
         wall: Instant::now(),
@@ -625,6 +639,7 @@ pub fn run(
     if let Some(s) = search.as_mut() {
         s.stop();
     }
+    let damage = link.damage.clone();
     let closed = link.close();
     if session.clock.is_empty() {
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
@@ -663,7 +678,10 @@ pub fn run(
         options,
         &session,
         &adapter,
-        board.as_ref(),
+        output::LinkEnd {
+            board: board.as_ref(),
+            noise: damage.as_ref(),
+        },
         stopped_early,
         outcome.as_ref().err().map(|e| e.to_string()),
     )?;
@@ -956,6 +974,8 @@ pub struct Session<'a> {
     /// Frames that could not be analysed, with why.
     pub frame_errors: Vec<(usize, String)>,
     rng: StdRng,
+    /// `Hello`s sent again on a noisy line (lost, or their answer lost).
+    pub resent_hellos: usize,
     /// Correspondences replaced by outliers.
     pub injected_outliers: usize,
     /// Correspondences sent.
@@ -1055,11 +1075,13 @@ impl Session<'_> {
     }
 
     fn handshake(&mut self, link: &mut CoreLink) -> Result<protocol::HelloAck, TrackError> {
-        link.send(&HostToCore::Hello(protocol::Hello {
+        let hello = HostToCore::Hello(protocol::Hello {
             version: PROTOCOL_VERSION,
-        }))?;
+        });
+        link.send(&hello)?;
+        let deadline = Instant::now() + self.options.timeout;
         loop {
-            match link.recv(self.options.timeout)? {
+            match self.next_or_resend(link, &hello, deadline)? {
                 Incoming::Message(m @ (CoreToHost::HelloAck(_) | CoreToHost::Error(_))) => {
                     let ack = protocol::handshake::check_answer(&m)
                         .map_err(|e| TrackError::Core(format!("handshake: {e}")))?;
@@ -1071,17 +1093,65 @@ impl Session<'_> {
         }
     }
 
+    /// The next item from the core by `deadline`. On a line with injected errors a `Hello` or
+    /// its answer may be lost: then `hello` is sent again every [`RESEND_AFTER`].
+    fn next_or_resend(
+        &mut self,
+        link: &mut CoreLink,
+        hello: &HostToCore,
+        deadline: Instant,
+    ) -> Result<Incoming, TrackError> {
+        if link.damage.is_none() {
+            return link.recv(self.options.timeout);
+        }
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if let Some(item) = link.recv_within(left.min(RESEND_AFTER))? {
+                return Ok(item);
+            }
+            if left <= RESEND_AFTER {
+                return link.recv(Duration::ZERO);
+            }
+            link.send(hello)?;
+            self.resent_hellos += 1;
+        }
+    }
+
     /// Sends `Hello` and collects everything up to its answer.
     fn barrier(&mut self, link: &mut CoreLink) -> Result<(), TrackError> {
-        link.send(&HostToCore::Hello(protocol::Hello {
+        let hello = HostToCore::Hello(protocol::Hello {
             version: PROTOCOL_VERSION,
-        }))?;
+        });
+        link.send(&hello)?;
         let acks = self.log.acks;
+        let deadline = Instant::now() + self.options.timeout;
         while self.log.acks == acks {
-            let item = link.recv(self.options.timeout)?;
+            let item = self.next_or_resend(link, &hello, deadline)?;
             self.log.take(item);
         }
         Ok(())
+    }
+
+    /// Sends a `Configure` or `Init` and collects the answers. On a line with injected errors,
+    /// where it may be lost, it is sent again until a status with `reason` confirms it.
+    fn send_confirmed(
+        &mut self,
+        link: &mut CoreLink,
+        msg: &HostToCore,
+        reason: protocol::StatusReason,
+    ) -> Result<(), TrackError> {
+        for _ in 0..CONFIRM_TRIES {
+            let seen = self.log.statuses.len();
+            link.send(msg)?;
+            self.barrier(link)?;
+            let confirmed = self.log.statuses[seen..].iter().any(|s| s.reason == reason);
+            if link.damage.is_none() || confirmed || !self.log.errors.is_empty() {
+                return Ok(());
+            }
+        }
+        Err(TrackError::Core(format!(
+            "no confirmation of {msg:?} in {CONFIRM_TRIES} tries over the noisy line"
+        )))
     }
 
     fn drain(&mut self, link: &CoreLink) -> Result<(), TrackError> {
@@ -1139,7 +1209,11 @@ impl Session<'_> {
         let ack = self.handshake(link)?;
         let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
         check_latency(self.options.latency, &ack.capacities, &config)?;
-        link.send(&HostToCore::Configure(config))?;
+        self.send_confirmed(
+            link,
+            &HostToCore::Configure(config),
+            protocol::StatusReason::Configured,
+        )?;
         // A cold start initialises the core once the model is found (and then searches again
         // after a loss).
         let mut searcher = self
@@ -1148,9 +1222,9 @@ impl Session<'_> {
             .is_cold(self.dataset)
             .then(cold_start::Searcher::default);
         if searcher.is_none() {
-            link.send(&HostToCore::Init(self.init_message()?))?;
+            let init = HostToCore::Init(self.init_message()?);
+            self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
         }
-        self.barrier(link)?;
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
                 "refused the configuration: {}",

@@ -152,6 +152,34 @@ impl ColdStart {
     }
 }
 
+/// What the link's far end reports at the end of a run.
+pub(super) struct LinkEnd<'a> {
+    /// The simulated board's report.
+    pub board: Option<&'a BoardReport>,
+    /// The bit errors injected on its line.
+    pub noise: Option<&'a super::core::LineNoise>,
+}
+
+/// A run over a line with injected bit errors: what was damaged and what each end dropped.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct LineSummary {
+    /// Probability of a bit flip per byte, in both directions.
+    pub byte_error_rate: f64,
+    /// Frames the host sent that the line damaged.
+    pub damaged_to_core: u64,
+    /// Frames the core refused as undecodable (its decode errors).
+    pub refused_by_core: Option<u64>,
+    /// Messages the core decoded but found invalid (a damaged frame that passed its CRC
+    /// would show here).
+    pub invalid_at_core: Option<u64>,
+    /// Frames the core sent that the line damaged.
+    pub damaged_to_host: u64,
+    /// Frames the host refused as undecodable.
+    pub refused_by_host: u64,
+    /// `Hello`s sent again (they, or their answers, were lost).
+    pub resent_hellos: usize,
+}
+
 /// The median interval between the analysed frames [s] (1/30 s with fewer than two).
 fn frame_period(rows: &[FrameRow]) -> f64 {
     let mut dt: Vec<f64> = rows.windows(2).map(|w| w[1].t - w[0].t).collect();
@@ -342,6 +370,8 @@ pub struct Summary {
     pub cold_start: Option<ColdStart>,
     /// The searches' viewpoint database: read from the cache, or built and why.
     pub search_database: Option<String>,
+    /// With bit errors injected on the line: what was damaged and dropped.
+    pub line: Option<LineSummary>,
     /// Losses of a vision-only run and their searches.
     pub recoveries: Vec<RecoverySummary>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
@@ -533,6 +563,19 @@ impl fmt::Display for Summary {
                 total
             )?;
         }
+        if let Some(l) = &self.line {
+            writeln!(
+                f,
+                "line noise   {:e} per byte: {} frames damaged to the core, {} refused there; {} damaged to the host, {} refused here; {} Hellos sent again",
+                l.byte_error_rate,
+                l.damaged_to_core,
+                l.refused_by_core
+                    .map_or_else(|| "?".to_string(), |n| n.to_string()),
+                l.damaged_to_host,
+                l.refused_by_host,
+                l.resent_hellos
+            )?;
+        }
         if self.core_errors + self.core_rejected_frames > 0 {
             writeln!(
                 f,
@@ -670,10 +713,11 @@ pub(super) fn write_all(
     options: &TrackOptions,
     session: &Session,
     adapter: &str,
-    board: Option<&BoardReport>,
+    link: LinkEnd,
     stopped_early: bool,
     error: Option<String>,
 ) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
+    let board = link.board;
     let out = &options.out;
     let log = &session.log;
     let stamp0 = session.clock.first().copied().unwrap_or(0);
@@ -912,6 +956,15 @@ pub(super) fn write_all(
         divergences,
         without_vision,
         cold_start: ColdStart::of(&session.searches, frame_period(&rows)),
+        line: link.noise.map(|n| LineSummary {
+            byte_error_rate: n.byte_error_rate,
+            damaged_to_core: n.to_core.counts().1,
+            refused_by_core: board.map(|b| u64::from(b.counters.decode_errors)),
+            invalid_at_core: board.map(|b| u64::from(b.counters.invalid_messages)),
+            damaged_to_host: n.to_host.counts().1,
+            refused_by_host: log.rejected_frames as u64,
+            resent_hellos: session.resent_hellos,
+        }),
         search_database: session.database.as_ref().map(|p| match p {
             Provenance::Cached(path) => format!("{} (from the cache)", path.display()),
             Provenance::Built { path, why } => {
@@ -945,6 +998,7 @@ pub(super) fn write_all(
             "gated": b.counters.gated,
             "divergences": b.counters.divergences,
             "decode_errors": b.counters.decode_errors,
+            "invalid_messages": b.counters.invalid_messages,
         });
     }
     round_floats(&mut json);

@@ -156,14 +156,18 @@ impl Session<'_> {
         }
         let t0_ns = first.t_ns;
         let first_stamp = u64::try_from(t0_ns).unwrap_or(0);
-        link.send(&HostToCore::Configure(config))?;
+        self.send_confirmed(
+            link,
+            &HostToCore::Configure(config),
+            protocol::StatusReason::Configured,
+        )?;
         // Without a start pose the core is initialised once the cold start found the model.
         let start = self.vision_start(first_stamp);
         let mut started = start.is_some();
         if let Some(pose) = &start {
-            link.send(&HostToCore::Init(self.vision_init(pose)))?;
+            let init = HostToCore::Init(self.vision_init(pose));
+            self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
         }
-        self.barrier(link)?;
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
                 "refused the configuration: {}",

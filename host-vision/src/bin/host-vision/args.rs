@@ -299,6 +299,11 @@ pub struct TrackArgs {
     /// gone from the images while the camera moves, and must be found again.
     #[arg(long)]
     pub blind_at: Option<f64>,
+    /// Garble the line to the simulated board (--link sim): each byte, in both directions,
+    /// has one bit flipped with this probability; damaged frames are counted and dropped at
+    /// both ends.
+    #[arg(long)]
+    pub line_errors: Option<f64>,
 }
 
 /// Filter model on the command line.

@@ -314,6 +314,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         corrupt_seconds: 0.3,
         blind_from: a.blind_at,
         blind_seconds: 2.0,
+        line_errors: a.line_errors,
         seed: 1,
     };
     let interrupt = interrupt_flag();
