@@ -1,6 +1,6 @@
 //! Delayed correspondences: snapshots at camera triggers and the IMU samples since, so that a
 //! frame's correspondences, arriving after the core has integrated later samples, update the
-//! state at the trigger time and are re-propagated to the present (DESIGN.md §1, step 4).
+//! state at the trigger time and are re-propagated to the present (docs/FILTER.md §8).
 
 use heapless::Deque;
 

@@ -582,7 +582,7 @@ impl<T: Scalar> Device<T> {
         if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us {
             // The residual monitor's memory ends with tracking: the frames before the gap
             // judged the tracked state, the ones after it judge a dead-reckoned prediction
-            // (DESIGN.md §4.6 test 1; docs/notes/issue18-robustness.md). Two consecutive
+            // (docs/FILTER.md §9 test 1; docs/notes/issue18-robustness.md). Two consecutive
             // outlier frames after the gap still fire it.
             self.monitor = Monitor::default();
             self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);

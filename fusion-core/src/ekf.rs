@@ -276,8 +276,8 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
 }
 
 /// The component along `q0` of a measurement update's step from `q0` to `q`,
-/// `|q0ᵀ(q − q0)| / ‖q0‖²`: what the divergence monitor's quaternion test judges (DESIGN.md
-/// §4.6, test 3).
+/// `|q0ᵀ(q − q0)| / ‖q0‖²`: what the divergence monitor's quaternion test judges
+/// (docs/FILTER.md §9, test 3).
 ///
 /// Every measurement's Jacobian is tangent to the sphere through `q0` and the covariance's
 /// radial part is uncorrelated with the rest, so a correct update moves `q` perpendicular to

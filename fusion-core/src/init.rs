@@ -1,5 +1,5 @@
 //! (Re)initialisation: roll and pitch from the accelerometer averaged over a still window, yaw
-//! and position given, large initial covariance (paper §4.6, DESIGN.md §4).
+//! and position given, large initial covariance (paper §4.6, docs/FILTER.md §10).
 
 use nalgebra::{Matrix3, Matrix4x3, Vector3};
 use protocol::{InitAttitude, ModelKind};

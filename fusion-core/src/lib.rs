@@ -2,7 +2,7 @@
 //! IMU rate on a Cortex-M4F or on the PC. `no_std`, no allocation, fixed sizes, generic over
 //! the scalar (`f32` on the MCU, `f64` on the PC).
 //!
-//! Where the equations of DESIGN.md §4 live:
+//! Where the equations of docs/FILTER.md live (its table at the end says the same):
 //!
 //! | equation | module |
 //! |---|---|
@@ -13,7 +13,7 @@
 //! | accelerometer measurement (13, 16) | [`models::accel`] |
 //! | measurement update (LDLᵀ-decorrelated scalar updates, symmetric form) | [`ekf`] |
 //! | outlier gate (17) | [`models::correspondence::update`] |
-//! | divergence monitor (§4.6) | [`divergence`] |
+//! | divergence monitor (docs/FILTER.md §9) | [`divergence`] |
 //! | (re)initialisation | [`init`] |
 //! | delayed correspondences | [`delay`] |
 //! | device loop (protocol messages in and out) | [`device`] |

@@ -1,6 +1,6 @@
 //! Hamilton quaternions `[w, x, y, z]` as plain 4-vectors (the filter keeps the quaternion in
 //! its state vector, so it needs the raw vector and its Jacobians, not a unit-quaternion type).
-//! `q_ba` rotates vectors from frame `a` into frame `b`: `v_b = R(q_ba) v_a` (DESIGN.md §3).
+//! `q_ba` rotates vectors from frame `a` into frame `b`: `v_b = R(q_ba) v_a` (docs/FILTER.md §2).
 
 use nalgebra::{Matrix3, Matrix3x4, Matrix4, Matrix4x3, Vector3, Vector4};
 

@@ -74,7 +74,7 @@ pub struct ImuNoiseDensities {
     pub accelerometer_random_walk: f64,
 }
 
-/// Camera mount on the IMU, in the core's convention (DESIGN.md §3).
+/// Camera mount on the IMU, in the core's convention (docs/FILTER.md §2).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HandEye {
     /// Rotation sensor → camera.
@@ -105,7 +105,7 @@ impl HandEye {
         })
     }
 
-    /// Camera pose `(c_w, q_cw)` for an IMU pose `(s_w, q_ws)` (DESIGN.md §3).
+    /// Camera pose `(c_w, q_cw)` for an IMU pose `(s_w, q_ws)` (eq. 5-6).
     pub fn camera_pose(
         &self,
         s_w: &Vector3<f64>,

@@ -1,4 +1,4 @@
-//! Photometric KLT (DESIGN.md §5) on real images of `../shared/data` with known synthetic
+//! Photometric KLT (docs/VISION.md §5) on real images of `../shared/data` with known synthetic
 //! warps (skipped with a message when that folder is absent).
 //!
 //! How the live images are made: the source photograph is smoothed (Gaussian σ = 1 px) and

@@ -1,6 +1,6 @@
 //! Wire protocol between the embedded fusion core and the vision host.
 //!
-//! This crate is the only contract between the two ends (DESIGN.md §2). It holds:
+//! This crate is the only contract between the two ends (docs/ARCHITECTURE.md §5). It holds:
 //!
 //! - the message types ([`HostToCore`], [`CoreToHost`]) as serde types encoded with postcard;
 //! - the framing ([`encode_frame`]): postcard body, CRC-32C, COBS, `0x00` delimiter;

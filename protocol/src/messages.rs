@@ -1,6 +1,6 @@
 //! The messages. Units are SI (m, s, rad) unless a field says otherwise; time stamps are
 //! microseconds on the IMU's clock. Quaternions are Hamilton, `[w, x, y, z]`, and `q_ba` rotates
-//! a vector from frame `a` into frame `b` (DESIGN.md §3). Symmetric matrices are sent as their
+//! a vector from frame `a` into frame `b` (docs/FILTER.md §2). Symmetric matrices are sent as their
 //! upper triangle, row by row: [`Sym2`] = `[xx, xy, yy]`, [`Sym3`] = `[xx, xy, xz, yy, yz, zz]`,
 //! [`Sym6`] = the 21 entries `(0,0), (0,1) … (0,5), (1,1) … (5,5)`.
 //!
@@ -63,7 +63,7 @@ pub struct Hello {
     pub version: Version,
 }
 
-/// The three system models of the paper (DESIGN.md §4), and the vision-only fallback for a
+/// The three system models of the paper (docs/FILTER.md §3), and the vision-only fallback for a
 /// camera without an IMU.
 ///
 /// The in-memory discriminants start at 1 so that `Option<ModelKind>`'s `None` (and so an
@@ -172,7 +172,7 @@ pub struct HandEye {
     pub c_s: [f32; 3],
 }
 
-/// Divergence monitor thresholds (DESIGN.md §4, paper §4.6).
+/// Divergence monitor thresholds (docs/FILTER.md §9, paper §4.6).
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
 pub struct DivergenceParams {
     /// Low-pass factor `λ` of `g ← λg + (1−λ)s_i`, in (0, 1).

@@ -24,7 +24,7 @@ fn data_dir() -> Option<PathBuf> {
 /// Undistorted normalised points with their grid points.
 type Observations = Vec<(Vector2<f64>, Vector3<f64>)>;
 
-/// Hand-held motion, the physics behind the process noises (DESIGN.md §4, eq. 7 / 12 / 15, and
+/// Hand-held motion, the physics behind the process noises (docs/FILTER.md §4, eq. 7 / 12 / 15, and
 /// docs/notes/issue18-robustness.md): the largest linear acceleration of the rig [m/s²] (the
 /// figure the initial σ below already assumes; in this sequence the accelerometer's magnitude
 /// departs from g by at most 5.2 m/s² in 99 % of the samples) and the largest angular

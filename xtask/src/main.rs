@@ -2,8 +2,8 @@
 //!
 //! - `demo`: the main job: synthesise the default scenario (cached) and track it through the
 //!   simulated board over a pty serial link (`host-vision demo`);
-//! - `test`: every check CI runs: format, lints, tests, and the no_std crates built for the
-//!   Cortex-M4F target;
+//! - `test`: every check CI runs: format, the references in comments ([`references`]), lints,
+//!   tests, and the no_std crates built for the Cortex-M4F target;
 //! - `setup`: only the machine set-up both of the above start with.
 //!
 //! Set-up is idempotent and quick when everything is present: on Debian as root it installs
@@ -14,6 +14,8 @@ use std::env;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
+
+mod references;
 
 /// The Cortex-M4F target the no_std crates must build for.
 const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
@@ -263,6 +265,10 @@ fn test() -> Result<(), String> {
     let mut fmt = cargo();
     fmt.args(["fmt", "--all", "--check"]);
     run(fmt)?;
+
+    // Cheap, and a broken citation is found before minutes of lints and tests.
+    let cited = references::check(&workspace_root())?;
+    println!("xtask: {cited} section and equation references in comments resolve");
 
     let mut clippy = cargo();
     clippy.args([

@@ -8,5 +8,5 @@ pub mod imu;
 pub mod scenario;
 pub mod trajectory;
 
-/// Gravity in the world frame [m/s²] (z up, DESIGN.md §3).
+/// Gravity in the world frame [m/s²] (z up, docs/FILTER.md §2).
 pub const GRAVITY_W: [f64; 3] = [0.0, 0.0, -9.81];

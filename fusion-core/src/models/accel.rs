@@ -13,7 +13,7 @@ use crate::quat;
 use crate::scalar::Scalar;
 use crate::state::{ACC, ACC_BIAS, QUAT, State};
 
-/// Magnitude of gravity [m/s²]; `g_w = [0, 0, −GRAVITY]` (DESIGN.md §3).
+/// Magnitude of gravity [m/s²]; `g_w = [0, 0, −GRAVITY]` (docs/FILTER.md §2).
 pub const GRAVITY: f64 = 9.81;
 
 /// `s̈_w − g_w` (the free acceleration is zero in the gravity model's state).

@@ -1,4 +1,4 @@
-//! The paper's system and measurement models (DESIGN.md §4):
+//! The paper's system and measurement models (docs/FILTER.md §4, §5):
 //!
 //! - [`motion`]: time update, eq. 7 (gyro), 12 (gravity), 15 (acc);
 //! - [`gyro`]: gyroscope measurement, eq. 9;

@@ -3,7 +3,7 @@
 //!
 //! Pixel convention (as OpenCV and EuRoC/Kalibr): integer pixel coordinates `(u, v)` are pixel
 //! **centres**; pixel `(0, 0)` covers `[-0.5, 0.5]²`, `u` grows to the right and `v` downwards.
-//! Camera frame (DESIGN.md §3, as OpenCV): x right, y down, z forward along the optical axis.
+//! Camera frame (docs/FILTER.md §2, as OpenCV): x right, y down, z forward along the optical axis.
 
 mod calib;
 mod distortion;
@@ -104,7 +104,7 @@ impl Camera {
         self.pinhole.to_pixel(self.distortion.distort(n))
     }
 
-    /// Distorted pixel → undistorted normalised point (`m_n` of DESIGN.md §3).
+    /// Distorted pixel → undistorted normalised point (`m_n` of docs/FILTER.md §2).
     pub fn pixel_to_normalised(&self, p: Vector2<f64>) -> Option<Vector2<f64>> {
         self.distortion.undistort(self.pinhole.to_normalised(p))
     }

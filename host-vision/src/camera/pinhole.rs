@@ -1,4 +1,4 @@
-//! Pinhole intrinsics with skew (DESIGN.md §3).
+//! Pinhole intrinsics with skew (docs/FILTER.md §2).
 
 use nalgebra::{Matrix3, Vector2};
 

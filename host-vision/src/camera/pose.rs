@@ -1,4 +1,4 @@
-//! The camera pose as DESIGN.md §3 defines it: `q_cw` and the camera centre `c_w`.
+//! The camera pose as docs/FILTER.md §2 defines it: `q_cw` and the camera centre `c_w`.
 
 use nalgebra::{Matrix3, Matrix4, Quaternion, Rotation3, UnitQuaternion, Vector3};
 

@@ -1,6 +1,7 @@
-//! Registered features → the fusion core's 2D/3D correspondences (DESIGN.md §1 step 3, §4).
+//! Registered features → the fusion core's 2D/3D correspondences (docs/ARCHITECTURE.md §3,
+//! docs/FILTER.md §5).
 //!
-//! A registered pixel becomes the undistorted normalised point `m_n` of DESIGN.md §3; its
+//! A registered pixel becomes the undistorted normalised point `m_n` of docs/FILTER.md §2; its
 //! covariance follows through the Jacobian of the camera model (`Σ_n = A Σ_p Aᵀ` with
 //! `A = ∂m_n/∂p`, the inverse of the forward model's Jacobian), and it is paired with the
 //! feature's model point `m_w` and covariance.

@@ -1,7 +1,7 @@
 //! Photometric KLT: registers a rendered feature patch in the live image while estimating the
-//! local contrast and brightness change (DESIGN.md §5, after Jin, Favaro & Soatto 2001).
+//! local contrast and brightness change (docs/VISION.md §5, after Jin, Favaro & Soatto 2001).
 //!
-//! Model (DESIGN.md §5): `I(m) ≈ λ · J(m + d) + δ` for every pixel `m` of the window `W`
+//! Model (docs/VISION.md §5): `I(m) ≈ λ · J(m + d) + δ` for every pixel `m` of the window `W`
 //! around the feature, with `I` the (blurred) rendering — the template — and `J` the live
 //! image. We minimise
 //!
@@ -43,7 +43,7 @@ const LOCK_STEP: f64 = 0.5;
 /// Which parameters are estimated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum KltModel {
-    /// `d₁, d₂, λ, δ` (DESIGN.md §5).
+    /// `d₁, d₂, λ, δ` (docs/VISION.md §5).
     Photometric,
     /// `d₁, d₂` only; `λ = 1, δ = 0`.
     Translation,

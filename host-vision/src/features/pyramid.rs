@@ -1,5 +1,5 @@
 //! Gaussian image pyramids (factor 2) for coarse-to-fine registration, the matching validity
-//! mask pyramid, and the blur applied to the rendering against aliasing (DESIGN.md §5).
+//! mask pyramid, and the blur applied to the rendering against aliasing (docs/VISION.md §2).
 //!
 //! Level `k + 1` is level `k` smoothed with the 5-tap binomial kernel `[1 4 6 4 1] / 16` and
 //! sampled at its even pixels (as OpenCV's `pyrDown`). With integer pixel centres this makes
@@ -148,7 +148,7 @@ pub fn gaussian_kernel(sigma: f32) -> Option<Vec<f32>> {
     Some(kernel)
 }
 
-/// The blur of the rendered image against aliasing (DESIGN.md §5): the rendering has hard,
+/// The blur of the rendered image against aliasing (docs/VISION.md §2): the rendering has hard,
 /// aliased texture and silhouette edges the optics of the live camera never produce.
 pub fn antialias(rendered: &GrayF32, sigma: f32) -> GrayF32 {
     gaussian_blur(rendered, sigma)

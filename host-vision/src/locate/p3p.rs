@@ -2,9 +2,10 @@
 //!
 //! Persson & Nordberg, "Lambda Twist: An Accurate Fast Robust Perspective Three Point (P3P)
 //! Solver", ECCV 2018. The solver finds the depths `λ_i` of the three points along their
-//! bearings from the three distance constraints (eq. 4), by turning the intersection of two
-//! conics into the intersection of a degenerate conic (a pair of lines) with one of them,
-//! then recovers the rotation and translation from the two triangles (world and camera).
+//! bearings from the three distance constraints (Lambda Twist eq. 4), by turning the
+//! intersection of two conics into the intersection of a degenerate conic (a pair of lines)
+//! with one of them, then recovers the rotation and translation from the two triangles (world
+//! and camera).
 //!
 //! Where this code differs from the paper's Algorithm 1, it is for robustness, not speed:
 //! all real roots of the cubic are tried and the best-conditioned line pair is kept, the
@@ -19,7 +20,8 @@ const REFINE_ITERATIONS: usize = 5;
 /// Below this sine, two bearings or two world edges count as parallel (degenerate input).
 const PARALLEL_SINE: f64 = 1e-10;
 
-/// A solution is kept only if, after refinement, eq. 4 holds to this relative residual.
+/// A solution is kept only if, after refinement, Lambda Twist eq. 4 holds to this relative
+/// residual.
 const ACCEPT_RESIDUAL: f64 = 1e-6;
 
 /// Up to four poses `(q_cw, t)` with `x_c = q_cw * x_w + t` such that the world points `x_w[i]`
@@ -93,7 +95,7 @@ pub fn p3p(
     let m12 = Matrix3::new(1.0, -b12, 0.0, -b12, 1.0, 0.0, 0.0, 0.0, 0.0);
     let m13 = Matrix3::new(1.0, 0.0, -b13, 0.0, 0.0, 0.0, -b13, 0.0, 1.0);
     let m23 = Matrix3::new(0.0, 0.0, 0.0, 0.0, 1.0, -b23, 0.0, -b23, 1.0);
-    // Two homogeneous conics Λᵀ D_k Λ = 0 (eliminating the a's from eq. 4).
+    // Two homogeneous conics Λᵀ D_k Λ = 0 (eliminating the a's from Lambda Twist eq. 4).
     let d1 = m12 * a23 - m23 * a12;
     let d2 = m13 * a23 - m23 * a13;
 
@@ -138,7 +140,7 @@ pub fn p3p(
     out
 }
 
-/// The data of eq. 4 (squared distances, normalised, and bearing cosines).
+/// The data of Lambda Twist eq. 4 (squared distances, normalised, and bearing cosines).
 struct Constraints {
     a12: f64,
     a13: f64,
@@ -149,7 +151,7 @@ struct Constraints {
 }
 
 impl Constraints {
-    /// Residuals of eq. 4: λ_i² + λ_j² − 2 b_ij λ_i λ_j − a_ij for (12, 13, 23).
+    /// Residuals of Lambda Twist eq. 4: λ_i² + λ_j² − 2 b_ij λ_i λ_j − a_ij for (12, 13, 23).
     fn residual(&self, l: &Vector3<f64>) -> Vector3<f64> {
         Vector3::new(
             l[0] * l[0] + l[1] * l[1] - 2.0 * self.b12 * l[0] * l[1] - self.a12,
@@ -266,8 +268,8 @@ fn null_vector(m: &Matrix3<f64>) -> Option<Vector3<f64>> {
     (n > 0.0 && n.is_finite()).then(|| best / n)
 }
 
-/// Points of the plane `n·Λ = 0` on the conics (Λᵀ D1 Λ = Λᵀ D2 Λ = 0), scaled by eq. 4 and
-/// with positive depths (the paper's τ step, written without dividing by one λ).
+/// Points of the plane `n·Λ = 0` on the conics (Λᵀ D1 Λ = Λᵀ D2 Λ = 0), scaled by Lambda Twist
+/// eq. 4 and with positive depths (the paper's τ step, written without dividing by one λ).
 fn intersect_line(
     n: &Vector3<f64>,
     d1: &Matrix3<f64>,
@@ -325,7 +327,7 @@ fn intersect_line(
         if l.iter().any(|v| v.is_nan() || *v <= 0.0) {
             continue;
         }
-        // Scale from eq. 4 in least squares over the three constraints.
+        // Scale from Lambda Twist eq. 4 in least squares over the three constraints.
         let dq = c.quad(&l);
         let av = Vector3::new(c.a12, c.a13, c.a23);
         let den = dq.norm_squared();
@@ -343,7 +345,7 @@ fn intersect_line(
 
 /// Lambda Twist Sec. 3.8: Gauss-Newton on the sum of squares of eq. 4 (three equations, three
 /// unknowns, so each step is a Newton step), each step kept only if it lowers the residual.
-/// Returns `None` if the result does not satisfy eq. 4 or has a non-positive depth.
+/// Returns `None` if the result does not satisfy Lambda Twist eq. 4 or has a non-positive depth.
 fn refine_lambda(mut l: Vector3<f64>, c: &Constraints) -> Option<Vector3<f64>> {
     let mut r = c.residual(&l);
     let mut err = r.norm_squared();

@@ -13,7 +13,7 @@ use super::{Material, Mesh, Model, ModelError};
 /// Loads the default scene (else the first) of a glTF file, applying node transforms, with
 /// each material's base colour factor and base colour texture.
 ///
-/// glTF is metres with +Y up; the world frame has +Z up (DESIGN.md §3), so positions are
+/// glTF is metres with +Y up; the world frame has +Z up (docs/FILTER.md §2), so positions are
 /// rotated by +90° about x: `(x, y, z)_gltf → (x, −z, y)_w`.
 pub fn load_gltf(path: &Path) -> Result<Model, ModelError> {
     if !path.is_file() {

@@ -202,7 +202,7 @@ impl Start {
 
 impl Start {
     /// The IMU pose `(s_w, q_sw)` the core expects for the camera pose `pose`, through the
-    /// camera's mount (DESIGN.md §3: `q_cw = q_cs q_sw`, `c_w = s_w + R(q_sw)ᵀ c_s`).
+    /// camera's mount (eq. 5-6: `q_cw = q_cs q_sw`, `c_w = s_w + R(q_sw)ᵀ c_s`).
     pub fn imu_pose_of_camera(
         pose: &crate::camera::CameraPose,
         hand_eye: &crate::dataset::HandEye,
@@ -1486,7 +1486,7 @@ pub fn state_pose(s: &StateReport) -> (Vector3<f64>, UnitQuaternion<f64>) {
     (Vector3::from(s.s_w.map(f64::from)), q_sw.inverse())
 }
 
-/// Camera pose `(c_w, q_wc)` of a state report (DESIGN.md §3: `c_w = s_w + R(q_sw)ᵀ c_s`).
+/// Camera pose `(c_w, q_wc)` of a state report (eq. 5-6: `c_w = s_w + R(q_sw)ᵀ c_s`).
 pub fn camera_of_state(
     s: &StateReport,
     hand_eye: &crate::dataset::HandEye,

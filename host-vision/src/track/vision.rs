@@ -1,4 +1,4 @@
-//! One camera frame through the host's image analysis (DESIGN.md §1 step 2): undistort the live
+//! One camera frame through the host's image analysis (docs/ARCHITECTURE.md §3): undistort the live
 //! image, render the model at the predicted pose, extract features on demand, select a spread
 //! subset, register each with the photometric KLT, and turn the registered ones into
 //! correspondences. The renderer and its GPU resources are created once.

@@ -1,4 +1,4 @@
-//! The paper's test cases (§5) as simulation scenarios: trajectory with exact ground truth,
+//! The paper's test cases (paper §5) as simulation scenarios: trajectory with exact ground truth,
 //! scene description, IMU and camera options; and the EuRoC/ASL writers ([`euroc`]).
 //!
 //! | scenario | motion | scene |
