@@ -49,8 +49,10 @@ pub struct LocateConfig {
 impl Default for LocateConfig {
     fn default() -> Self {
         Self {
+            // A global budget, ranked by corner strength: a busy background's sharp corners
+            // take it before a small or blurred object's (issue15-cold-start.md §1).
             orb: OrbConfig {
-                max_keypoints: 1500,
+                max_keypoints: 3000,
                 ..OrbConfig::default()
             },
             matching: MatchConfig::default(),
