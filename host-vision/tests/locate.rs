@@ -288,7 +288,7 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
     let mut disagree = Vec::new();
     let mut raw_disagree = 0;
     println!(
-        "frame | keypoints matches inliers | registered rms[px] ncc | accepted | tracking: agreement"
+        "frame | keypoints matches inliers | registered rms[px] ncc | accepted | mirror (the other: registered rms ncc) | against tracking refitted (against its filter's pose)"
     );
     for (i, img) in frames(&dir.join("cube_video.mp4"), &wanted) {
         let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
@@ -300,7 +300,7 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
         // ambiguity of a planar face included). Without a refit that passes the rule, the
         // filter's pose itself.
         let reference = tracking.holds(i).map(|at| {
-            let v = vision.verify(&img, at, false).unwrap();
+            let (v, _) = host_vision::locate::converged(&mut vision, &img, at, false).unwrap();
             if locator.config().rule.holds(&v.assessment) {
                 (at, v.pose, true)
             } else {
@@ -329,7 +329,7 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
             (None, Some(_)) => "-".into(),
         };
         println!(
-            "{i:5} | {:5} {:4} {:4} | {:3} {:5.2} {:6.3} | {:3} | {agreement}",
+            "{i:5} | {:5} {:4} {:4} | {:3} {:5.2} {:6.3} | {:3} | {:6} {:16} | {agreement}",
             a.keypoints,
             a.matches,
             a.inliers,
@@ -337,6 +337,17 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
             a.rms_px.unwrap_or(f64::NAN),
             a.ncc.unwrap_or(f64::NAN),
             if a.accepted() { "yes" } else { "no" },
+            match (a.mirror_verified, a.mirror_chosen) {
+                (_, true) => "chosen",
+                (true, false) => "left",
+                _ => "",
+            },
+            a.other.map_or(String::new(), |o| format!(
+                "{:3} {:5.2} {:6.3}",
+                o.features,
+                o.rms_px.unwrap_or(f64::NAN),
+                o.ncc.unwrap_or(f64::NAN)
+            )),
         );
     }
     println!(

@@ -148,6 +148,48 @@ pub fn ransac_pose(
     })
 }
 
+/// The pose `x_c = q_cw x_w + t` with the best-fit plane of the model points `x_w` tilted the
+/// other way about the line of sight to their centroid (docs/notes/issue15-cold-start.md §4,
+/// eq. P1).
+///
+/// A plane seen from a distance large against its size shows the same image, to first order,
+/// tilted by `+θ` or `−θ` about an axis across the line of sight: only the perspective's
+/// second-order effects tell the two apart, so a fit may end in either. A cube showing one
+/// face has this two-fold ambiguity. Returns `None` for fewer than 3 points, a value that is
+/// not finite, or a plane that faces the camera (the two tilts are then one pose).
+pub fn mirrored_pose(
+    q_cw: &UnitQuaternion<f64>,
+    t: &Vector3<f64>,
+    x_w: &[Vector3<f64>],
+) -> Option<(UnitQuaternion<f64>, Vector3<f64>)> {
+    let x_c: Vec<Vector3<f64>> = x_w
+        .iter()
+        .map(|x| q_cw * x + t)
+        .filter(|x| x.iter().all(|v| v.is_finite()))
+        .collect();
+    if x_c.len() < 3 {
+        return None;
+    }
+    let centroid = x_c.iter().sum::<Vector3<f64>>() / x_c.len() as f64;
+    let scatter = x_c
+        .iter()
+        .map(|x| (x - centroid) * (x - centroid).transpose())
+        .sum::<Matrix3<f64>>();
+    let eigen = scatter.symmetric_eigen();
+    let (k, _) = eigen.eigenvalues.argmin();
+    let normal = eigen.eigenvectors.column(k).into_owned();
+    // Eq. P1: the normal mirrored about the line of sight to the centroid, and the rotation
+    // about the centroid that takes the one to the other.
+    let sight = centroid.try_normalize(MIN_DEPTH)?;
+    let mirrored = 2.0 * normal.dot(&sight) * sight - normal;
+    let axis = normal.cross(&mirrored);
+    let turn = UnitQuaternion::from_axis_angle(
+        &nalgebra::Unit::try_new(axis, 1e-9)?,
+        axis.norm().atan2(normal.dot(&mirrored)),
+    );
+    Some((turn * q_cw, turn * (t - centroid) + centroid))
+}
+
 /// Samples needed so that one of them is all inliers with probability `confidence`, for an
 /// inlier ratio `w` (`None`: no early stop).
 fn samples_needed(confidence: f64, w: f64) -> Option<usize> {
