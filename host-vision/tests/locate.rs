@@ -337,10 +337,10 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
             a.rms_px.unwrap_or(f64::NAN),
             a.ncc.unwrap_or(f64::NAN),
             if a.accepted() { "yes" } else { "no" },
-            match (a.mirror_verified, a.mirror_chosen) {
-                (_, true) => "chosen",
-                (true, false) => "left",
-                _ => "",
+            match (a.alternatives, a.mirror_chosen) {
+                (_, true) => "mirror".to_string(),
+                (0, false) => String::new(),
+                (n, false) => format!("{n} alt."),
             },
             a.other.map_or(String::new(), |o| format!(
                 "{:3} {:5.2} {:6.3}",

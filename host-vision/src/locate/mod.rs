@@ -109,9 +109,11 @@ pub struct Attempt {
     /// Whether the verified pose's mirror about the inliers' plane (the planar two-fold
     /// ambiguity, [`ransac::mirrored_pose`]) was verified too.
     pub mirror_verified: bool,
-    /// Whether the pose came from the mirrored candidate (it verified with the lower rms).
+    /// Whether the pose came from the mirror (it verified with the lower rms).
     pub mirror_chosen: bool,
-    /// The judgement of the pose not chosen, when the mirror was verified.
+    /// Other poses verified besides RANSAC's best: the mirror and RANSAC's runners-up.
+    pub alternatives: usize,
+    /// The judgement of the last pose not chosen, when another was verified.
     pub other: Option<Assessment>,
     /// Stage times.
     pub times: AttemptTimes,
@@ -214,6 +216,7 @@ impl Locator {
             mirror_verified: false,
             mirror_chosen: false,
             other: None,
+            alternatives: 0,
             times,
         };
         let Some(found) = found else {
@@ -229,8 +232,7 @@ impl Locator {
         // The planar two-fold ambiguity (§4, eq. P1): where the model points seen lie on one
         // plane, the pose with the plane tilted the other way explains them nearly as well,
         // and the fit may have ended in either. The mirror of the verified pose about the
-        // inliers' plane is verified too; the registrations' rms, which only the
-        // perspective's second-order effects make differ, picks between two that pass.
+        // inliers' plane is verified too.
         let inlier_points: Vec<Vector3<f64>> = x_w
             .iter()
             .zip(&found.inliers)
@@ -238,44 +240,68 @@ impl Locator {
             .map(|(x, _)| *x)
             .collect();
         let pose = verified.pose;
-        let mirror = mirrored_pose(&pose.q_cw, &-(pose.q_cw * pose.c_w), &inlier_points)
-            .map(|(q_cw, t)| CameraPose {
-                q_cw,
-                c_w: -(q_cw.inverse() * t),
-            })
-            // Another pose: a plane facing the camera has one.
-            .filter(|m| m.q_cw.angle_to(&pose.q_cw) > SAME_POSE_RAD);
-        if let Some(m) = mirror {
-            attempt.mirror_verified = true;
-            let (other, _) = converged(vision, raw, &m, keep_image)?;
-            // Which of the two is the pose is asked of the rule with tracking's feature count
-            // (a pose tracking would go on from) and the rms; whether the chosen one is accepted, of the
-            // cold start's stricter rule below. Asking the stricter rule first would take
-            // the wrong tilt whenever it happens to register more features than the right
-            // one, which registers too few to pass.
-            let plausible = TrackedRule {
-                min_features: TrackedRule::default().min_features,
-                ..self.config.rule
-            };
-            let rms = |a: &Assessment| a.rms_px.unwrap_or(f64::INFINITY);
-            let better = match (
-                plausible.holds(&other.assessment),
-                plausible.holds(&verified.assessment),
-            ) {
-                (true, false) => true,
-                (true, true) => rms(&other.assessment) < rms(&verified.assessment),
-                _ => false,
-            };
-            if better {
-                attempt.mirror_chosen = true;
+        let mirror =
+            mirrored_pose(&pose.q_cw, &-(pose.q_cw * pose.c_w), &inlier_points).map(|(q_cw, t)| {
+                CameraPose {
+                    q_cw,
+                    c_w: -(q_cw.inverse() * t),
+                }
+            });
+        // Which pose is the one is asked of the rule with tracking's feature count (a pose
+        // tracking would go on from) and the rms; whether the chosen one is accepted, of the
+        // cold start's stricter rule below. Asking the stricter rule first would take the
+        // wrong tilt whenever it happens to register more features than the right one, which
+        // registers too few to pass.
+        let plausible = TrackedRule {
+            min_features: TrackedRule::default().min_features,
+            ..self.config.rule
+        };
+        let rms = |a: &Assessment| a.rms_px.unwrap_or(f64::INFINITY);
+        let better = |a: &Assessment, b: &Assessment| match (plausible.holds(a), plausible.holds(b))
+        {
+            (true, false) => true,
+            (true, true) => rms(a) < rms(b),
+            _ => false,
+        };
+        // RANSAC's runners-up (other poses the matches fit, §4) are verified the same way.
+        let runners_up = found.runners_up.iter().map(|(q_cw, t)| CameraPose {
+            q_cw: *q_cw,
+            c_w: -(q_cw.inverse() * t),
+        });
+        let mut chosen_from = verified_from;
+        let mut map_is_chosen = true;
+        let mut tried = vec![candidate, verified.pose];
+        for (is_mirror, start) in mirror
+            .map(|m| (true, m))
+            .into_iter()
+            .chain(runners_up.map(|p| (false, p)))
+        {
+            // Another pose only: a plane facing the camera has one.
+            if tried
+                .iter()
+                .any(|p| p.q_cw.angle_to(&start.q_cw) < SAME_POSE_RAD)
+            {
+                continue;
+            }
+            tried.push(start);
+            attempt.mirror_verified |= is_mirror;
+            attempt.alternatives += 1;
+            let (other, other_from) = converged(vision, raw, &start, keep_image)?;
+            if better(&other.assessment, &verified.assessment) {
+                attempt.mirror_chosen = is_mirror;
                 attempt.other = Some(verified.assessment);
                 verified = other;
+                chosen_from = other_from;
+                map_is_chosen = true;
             } else {
                 attempt.other = Some(other.assessment);
-                // The feature map must be the chosen pose's, ready for tracking from it: the
-                // same verification again.
-                verified = vision.verify(raw, &verified_from, keep_image)?;
+                map_is_chosen = false;
             }
+        }
+        if !map_is_chosen {
+            // The feature map must be the chosen pose's, ready for tracking from it: the same
+            // verification again.
+            verified = vision.verify(raw, &chosen_from, keep_image)?;
         }
         attempt.times.verify = t.elapsed().as_secs_f64();
         let a = verified.assessment;

@@ -60,6 +60,11 @@ pub struct RansacPose {
     pub inliers: Vec<bool>,
     /// Minimal samples drawn.
     pub iterations: usize,
+    /// The best hypotheses of other poses (rotations 5° or more apart), refined, best first,
+    /// each with at least `min_inliers`: where the matches fit several poses alike (a face
+    /// seen nearly face on), the inlier count at the threshold does not tell them apart, and
+    /// the verification is asked instead.
+    pub runners_up: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
 }
 
 /// Pixels `u[i]` (undistorted, pinhole fx, fy, cx, cy) matched to world points `x_w[i]`.
@@ -101,7 +106,8 @@ pub fn ransac_pose(
     }
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
-    let mut best: Option<Hypothesis> = None;
+    // The best hypotheses of distinct poses, best first: the first drives the adaptive stop.
+    let mut top: Vec<Hypothesis> = Vec::with_capacity(RUNNERS_UP + 2);
     let mut needed = cfg.max_iterations;
     let mut iterations = 0;
     let m = usable.len();
@@ -115,22 +121,68 @@ pub fn ransac_pose(
         };
         for (q, t) in p3p(&[y0, y1, y2], &[x_w[idx[0]], x_w[idx[1]], x_w[idx[2]]]) {
             let h = score(&cam, u, x_w, &q, &t, thr2);
-            if best.as_ref().is_none_or(|b| h.better_than(b)) {
+            if top.first().is_none_or(|b| h.better_than(b)) {
                 // Adaptive stop: samples for `confidence` of one all-inlier draw (ratio w).
                 needed = samples_needed(cfg.confidence, h.count as f64 / n as f64)
                     .unwrap_or(cfg.max_iterations);
-                best = Some(h);
             }
+            keep_distinct(&mut top, h);
         }
     }
 
-    let mut best = best?;
-    // Refine on the inliers, recount, and keep the refined pose unless it scores worse.
+    let mut polished = top.into_iter().map(|h| polish(&cam, u, x_w, h, thr2));
+    let best = polished.next()?;
+    let runners_up = polished
+        .filter(|h| h.count >= cfg.min_inliers)
+        .map(|h| (h.q, h.t))
+        .collect();
+    (best.count >= cfg.min_inliers).then_some(RansacPose {
+        q_cw: best.q,
+        t: best.t,
+        inliers: best.inliers,
+        iterations,
+        runners_up,
+    })
+}
+
+/// Hypotheses kept besides the best, of poses distinct from it and from each other.
+const RUNNERS_UP: usize = 2;
+
+/// Two hypotheses whose rotations differ by less than this are one pose [rad].
+const DISTINCT_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
+/// Inserts `h` into `top` (best first, at most `1 + RUNNERS_UP`, distinct poses): a
+/// hypothesis of a pose already there replaces it only if better.
+fn keep_distinct(top: &mut Vec<Hypothesis>, h: Hypothesis) {
+    if let Some(k) = top.iter().position(|o| o.q.angle_to(&h.q) < DISTINCT_RAD) {
+        if !h.better_than(&top[k]) {
+            return;
+        }
+        top.remove(k);
+    }
+    let at = top
+        .iter()
+        .position(|o| h.better_than(o))
+        .unwrap_or(top.len());
+    if at <= RUNNERS_UP {
+        top.insert(at, h);
+        top.truncate(RUNNERS_UP + 1);
+    }
+}
+
+/// Refines `h` on its inliers and recounts, keeping the refined pose unless it scores worse.
+fn polish(
+    cam: &Pinhole,
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    mut best: Hypothesis,
+    thr2: f64,
+) -> Hypothesis {
     for _ in 0..REFINE_ROUNDS {
-        let Some((q, t)) = refine(&cam, u, x_w, &best.inliers, best.q, best.t) else {
+        let Some((q, t)) = refine(cam, u, x_w, &best.inliers, best.q, best.t) else {
             break;
         };
-        let h = score(&cam, u, x_w, &q, &t, thr2);
+        let h = score(cam, u, x_w, &q, &t, thr2);
         if h.cost > best.cost {
             break;
         }
@@ -140,12 +192,7 @@ pub fn ransac_pose(
             break;
         }
     }
-    (best.count >= cfg.min_inliers).then_some(RansacPose {
-        q_cw: best.q,
-        t: best.t,
-        inliers: best.inliers,
-        iterations,
-    })
+    best
 }
 
 /// The pose `x_c = q_cw x_w + t` with the best-fit plane of the model points `x_w` tilted the
