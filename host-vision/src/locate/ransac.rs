@@ -749,6 +749,73 @@ mod tests {
     }
 
     #[test]
+    fn a_plane_tilted_the_other_way_looks_alike_and_a_frontal_one_has_no_mirror() {
+        let cam = Pinhole {
+            fx: PINHOLE[0],
+            fy: PINHOLE[1],
+            cx: PINHOLE[2],
+            cy: PINHOLE[3],
+        };
+        // A 10 cm square in the world's z = 0 plane, 1 m ahead, tilted 20° about x.
+        let square: Vec<Vector3<f64>> = (0..25)
+            .map(|k| {
+                Vector3::new(
+                    0.025 * f64::from(k % 5) - 0.05,
+                    0.025 * f64::from(k / 5) - 0.05,
+                    0.0,
+                )
+            })
+            .collect();
+        let q = UnitQuaternion::from_euler_angles(20f64.to_radians(), 0.0, 0.0);
+        let t = Vector3::new(0.0, 0.0, 1.0);
+        let Some((q2, t2)) = mirrored_pose(&q, &t, &square) else {
+            panic!("no mirror")
+        };
+        let turned = q2.angle_to(&q).to_degrees();
+        let worst = square
+            .iter()
+            .map(|x| (cam.project(&(q * x + t)) - cam.project(&(q2 * x + t2))).norm())
+            .fold(0.0, f64::max);
+        println!("mirror: {turned:.1}° away, images {worst:.2} px apart at most");
+        // The tilt reversed (twice 20°), the image the same to a few pixels of the square's
+        // 100 px: only the perspective's second order tells them apart.
+        assert!((turned - 40.0).abs() < 1.0, "{turned}°");
+        assert!(worst < 3.0, "{worst} px");
+        // The centroid stays where it was.
+        let c = |q: &UnitQuaternion<f64>, t: &Vector3<f64>| {
+            square.iter().map(|x| q * x + t).sum::<Vector3<f64>>() / 25.0
+        };
+        assert!((c(&q, &t) - c(&q2, &t2)).norm() < 1e-9);
+        // Face on, the two tilts are one pose; too few points, no plane.
+        let frontal = UnitQuaternion::identity();
+        assert!(mirrored_pose(&frontal, &t, &square).is_none());
+        assert!(mirrored_pose(&q, &t, &square[..2]).is_none());
+    }
+
+    #[test]
+    fn runners_up_are_other_poses() {
+        let mut rng = StdRng::seed_from_u64(12);
+        let (u, x, q, _) = scene(&mut rng, 200, 60, 0.5);
+        let Some(p) = ransac_pose(PINHOLE, &u, &x, &RansacConfig::default()) else {
+            panic!("no pose")
+        };
+        assert!(p.runners_up.len() <= RUNNERS_UP);
+        for (k, (qa, _)) in p.runners_up.iter().enumerate() {
+            assert!(
+                qa.angle_to(&p.q_cw) >= DISTINCT_RAD,
+                "runner-up {k} is the best"
+            );
+            for (qb, _) in &p.runners_up[k + 1..] {
+                assert!(
+                    qa.angle_to(qb) >= DISTINCT_RAD,
+                    "two runners-up are one pose"
+                );
+            }
+        }
+        assert!(p.q_cw.angle_to(&q) < 0.05f64.to_radians());
+    }
+
+    #[test]
     fn samples_are_distinct() {
         // The three-index draw must never repeat an index (checked on small m).
         let mut rng = StdRng::seed_from_u64(11);
