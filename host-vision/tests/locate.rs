@@ -3,8 +3,9 @@
 //! `../shared/data` is not there.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, OnceLock};
+use std::time::Instant;
 
 use host_vision::camera::{Camera, CameraPose, read_camera_json, read_euroc_sensor_yaml};
 use host_vision::frames::{FrameInput, VideoOptions};
@@ -141,40 +142,99 @@ fn tum_poses(path: &Path) -> Vec<(f64, CameraPose)> {
         .collect()
 }
 
+/// One frame of the tracking run from the given start.
+#[derive(Debug, Clone, Copy)]
+struct TrackedFrame {
+    /// Whether the tracked rule held on it.
+    tracked: bool,
+    /// The pose of `trajectory_frames.tum` at its time.
+    pose: CameraPose,
+}
+
+/// The vision-only tracking run over the whole cube video from `frame0_pose.json`.
+struct Tracking {
+    /// Per video frame index (frames without a row or a pose are absent).
+    frames: std::collections::BTreeMap<usize, TrackedFrame>,
+    /// What the run's recoveries were, for the tables.
+    recoveries: Vec<host_vision::track::output::RecoverySummary>,
+}
+
+impl Tracking {
+    /// The pose of frame `i` where tracking holds on it.
+    fn holds(&self, i: usize) -> Option<&CameraPose> {
+        self.frames.get(&i).filter(|f| f.tracked).map(|f| &f.pose)
+    }
+}
+
+/// The tracking run, made once per test process: the tests that compare with it or mask the
+/// cube with it share it, so the suite tracks the video once (a test waiting on it blocks
+/// until the first one has made it).
+fn tracking(shared: &Path) -> &'static Tracking {
+    static RUN: OnceLock<Tracking> = OnceLock::new();
+    RUN.get_or_init(|| {
+        let dir = shared.join("visp-cube");
+        let video = dir.join("cube_video.mp4");
+        let out = tempfile::tempdir().unwrap();
+        let mut o = TrackOptions::new(video.clone(), out.path().join("track"));
+        o.filter = ModelKind::Vision;
+        o.frames = Some(FrameInput::Video(video));
+        o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
+        o.model = Some(dir.join("model/cube.obj"));
+        o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
+        o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
+        o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
+        o.overlay_every = 0;
+        // Its recoveries search with the same database: the test's cache, not the user's.
+        o.cache = cache();
+        let t = Instant::now();
+        let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {}).unwrap();
+        let poses = tum_poses(&out.path().join("track/trajectory_frames.tum"));
+        let frames = run
+            .frames
+            .iter()
+            .filter_map(|row| {
+                let (_, pose) = poses.iter().find(|(t, _)| (t - row.t).abs() < 1e-6)?;
+                Some((
+                    row.index,
+                    TrackedFrame {
+                        tracked: row.tracked == Some(true),
+                        pose: *pose,
+                    },
+                ))
+            })
+            .collect::<std::collections::BTreeMap<_, _>>();
+        let tracked = frames.values().filter(|f| f.tracked).count();
+        println!(
+            "tracking from the given start: {} frames with a pose, {tracked} tracked, {} recoveries, {:.1} s",
+            frames.len(),
+            run.summary.recoveries.len(),
+            t.elapsed().as_secs_f64()
+        );
+        for r in &run.summary.recoveries {
+            println!("  recovery: {r:?}");
+        }
+        Tracking {
+            frames,
+            recoveries: run.summary.recoveries.clone(),
+        }
+    })
+}
+
 #[test]
 fn the_cube_is_found_where_tracking_from_the_given_start_has_it() {
     let Some(shared) = shared() else { return };
     let dir = shared.join("visp-cube");
     let video = dir.join("cube_video.mp4");
-    let out = tempfile::tempdir().unwrap();
-    let mut o = TrackOptions::new(video.clone(), out.path().join("track"));
-    o.filter = ModelKind::Vision;
-    o.frames = Some(FrameInput::Video(video.clone()));
-    o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
-    o.model = Some(dir.join("model/cube.obj"));
-    o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
-    o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
-    o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
-    o.overlay_every = 0;
-    o.max_frames = Some(90);
-    let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {}).unwrap();
-    let tracked = tum_poses(&out.path().join("track/trajectory_frames.tum"));
+    let tracking = tracking(&shared);
     let model = cube_model(&shared);
-    let camera = o.camera.unwrap();
+    let camera = read_camera_json(&dir.join("camera.json")).unwrap();
     let (locator, mut vision) = locator_and_vision(&model, camera);
     // From frame 30 on: tracking first settles from the given pose onto the features'
     // consensus (about 25 mm away, see above), which takes it some twenty frames.
     for (i, img) in frames(&video, &[30, 60, 89]) {
-        let row = run.frames.iter().find(|r| r.index == i).unwrap();
-        assert_eq!(
-            row.tracked,
-            Some(true),
-            "tracking does not hold on frame {i}"
-        );
-        let (_, at) = tracked
-            .iter()
-            .find(|(t, _)| (t - row.t).abs() < 1e-6)
-            .expect("a tracked pose at the frame's time");
+        let at = tracking
+            .holds(i)
+            .unwrap_or_else(|| panic!("tracking does not hold on frame {i}"));
         let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
         let found = a
             .pose
@@ -193,11 +253,133 @@ fn the_cube_is_found_where_tracking_from_the_given_start_has_it() {
     }
 }
 
-/// The image with the rectangle around the cube's projection at frame 0's pose (grown by
-/// 30 px) filled with the image's mean: the cube is not there. The cube stands still until
-/// frame 92.
-fn without_the_cube(img: &GrayImage, camera: &Camera, shared: &Path, model: &Model) -> GrayImage {
-    let pose = read_start_pose(&shared.join("visp-cube/frame0_pose.json")).unwrap();
+/// The frames where at least half the cube is visible: all but 548-749, where a mug covers
+/// half of it or more.
+fn half_visible(frames: usize) -> Vec<usize> {
+    (0..frames).filter(|i| !(548..750).contains(i)).collect()
+}
+
+/// `n` of `items`, evenly spaced from the first to the last (a fixed rule, not a choice).
+fn evenly<T: Copy>(items: &[T], n: usize) -> Vec<T> {
+    if items.len() <= n || n < 2 {
+        return items.iter().copied().take(n.max(1)).collect();
+    }
+    (0..n)
+        .map(|k| items[(k * (items.len() - 1) + (n - 1) / 2) / (n - 1)])
+        .collect()
+}
+
+/// Frames of the cube video.
+const VIDEO_FRAMES: usize = 989;
+
+#[test]
+fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows() {
+    let Some(shared) = shared() else { return };
+    let dir = shared.join("visp-cube");
+    let tracking = tracking(&shared);
+    let model = cube_model(&shared);
+    let camera = read_camera_json(&dir.join("camera.json")).unwrap();
+    let (locator, mut vision) = locator_and_vision(&model, camera);
+    let wanted = evenly(&half_visible(VIDEO_FRAMES), 50);
+    assert_eq!(wanted.len(), 50);
+    let started = Instant::now();
+    let mut accepted = 0;
+    let mut compared = 0;
+    let mut disagree = Vec::new();
+    let mut raw_disagree = 0;
+    println!(
+        "frame | keypoints matches inliers | registered rms[px] ncc | accepted | mirror (the other: registered rms ncc) | against tracking refitted (against its filter's pose)"
+    );
+    for (i, img) in frames(&dir.join("cube_video.mp4"), &wanted) {
+        let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
+        accepted += usize::from(a.accepted());
+        // The reference: tracking's pose, re-fitted to its own registrations in this frame
+        // (the verification run from it). Tracking's output is the filter's pose, which a
+        // single visible face pins down poorly in the turn about the cube; the refit puts it
+        // where the frame's evidence has it, and keeps it in tracking's basin (the two-fold
+        // ambiguity of a planar face included). Without a refit that passes the rule, the
+        // filter's pose itself.
+        let reference = tracking.holds(i).map(|at| {
+            let (v, _) = host_vision::locate::converged(&mut vision, &img, at, false).unwrap();
+            if locator.config().rule.holds(&v.assessment) {
+                (at, v.pose, true)
+            } else {
+                (at, *at, false)
+            }
+        });
+        let agreement = match (a.pose, reference) {
+            (Some(found), Some((raw, refit, refitted))) => {
+                let (dr, dra) = difference(&found, raw);
+                let (dc, da) = difference(&found, &refit);
+                compared += 1;
+                if !(dc < 0.01 && da < 2.0) {
+                    disagree.push((i, dc, da));
+                }
+                if !(dr < 0.01 && dra < 2.0) {
+                    raw_disagree += 1;
+                }
+                format!(
+                    "{:.1} mm {da:.2}°{} (filter's pose: {:.1} mm {dra:.2}°)",
+                    dc * 1e3,
+                    if refitted { "" } else { " (no refit)" },
+                    dr * 1e3
+                )
+            }
+            (_, None) => "not tracked".into(),
+            (None, Some(_)) => "-".into(),
+        };
+        println!(
+            "{i:5} | {:5} {:4} {:4} | {:3} {:5.2} {:6.3} | {:3} | {:6} {:16} | {agreement}",
+            a.keypoints,
+            a.matches,
+            a.inliers,
+            a.registered,
+            a.rms_px.unwrap_or(f64::NAN),
+            a.ncc.unwrap_or(f64::NAN),
+            if a.accepted() { "yes" } else { "no" },
+            match (a.alternatives, a.mirror_chosen) {
+                (_, true) => "mirror".to_string(),
+                (0, false) => String::new(),
+                (n, false) => format!("{n} alt."),
+            },
+            a.other.map_or(String::new(), |o| format!(
+                "{:3} {:5.2} {:6.3}",
+                o.features,
+                o.rms_px.unwrap_or(f64::NAN),
+                o.ncc.unwrap_or(f64::NAN)
+            )),
+        );
+    }
+    println!(
+        "{accepted} of {} accepted ({:.1} %), {compared} compared with tracking: {} disagree with its refit, {raw_disagree} with the filter's pose; {:.1} s; recoveries of the tracking run: {}",
+        wanted.len(),
+        100.0 * accepted as f64 / wanted.len() as f64,
+        disagree.len(),
+        started.elapsed().as_secs_f64(),
+        tracking.recoveries.len()
+    );
+    assert!(
+        accepted * 10 >= wanted.len() * 9,
+        "{accepted} of {} accepted",
+        wanted.len()
+    );
+    // A one-face view pins a pose only to about 1-2 cm and 1-2°, and its two tilts can fit
+    // alike (docs/notes/issue15-cold-start.md §7): 9 in 10 compared frames must agree.
+    assert!(
+        disagree.len() * 10 <= compared,
+        "{} of {compared} disagree with tracking: {disagree:?}",
+        disagree.len()
+    );
+}
+
+/// The image with the rectangle around the cube's projection at `pose` (grown by 30 px)
+/// filled with the image's mean: the cube is not there.
+fn without_the_cube(
+    img: &GrayImage,
+    camera: &Camera,
+    pose: &CameraPose,
+    model: &Model,
+) -> GrayImage {
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
     for p in model.meshes.iter().flat_map(|m| &m.positions) {
         let p = Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]));
@@ -223,18 +405,42 @@ fn nothing_is_accepted_where_the_cube_is_not() {
     let model = cube_model(&shared);
     let camera = read_camera_json(&shared.join("visp-cube/camera.json")).unwrap();
     let (locator, mut vision) = locator_and_vision(&model, camera);
-    let mut accepted = 0;
+    let tracking = tracking(&shared);
+    // 40 frames spread over the video among those where tracking holds: its pose says where
+    // the cube is, to mask it out.
+    let held: Vec<usize> = tracking
+        .frames
+        .iter()
+        .filter(|(_, f)| f.tracked)
+        .map(|(i, _)| *i)
+        .collect();
+    let wanted = evenly(&held, 40);
+    assert_eq!(wanted.len(), 40, "tracking holds on {} frames", held.len());
+    let mut accepted = Vec::new();
     let mut tried = 0;
-    for (i, img) in frames(&shared.join("visp-cube/cube_video.mp4"), &[0, 30, 60, 90]) {
-        let masked = without_the_cube(&img, &camera, &shared, &model);
+    for (i, img) in frames(&shared.join("visp-cube/cube_video.mp4"), &wanted) {
+        let pose = tracking.holds(i).unwrap();
+        let masked = without_the_cube(&img, &camera, pose, &model);
         let (a, _) = locator.attempt(&mut vision, &masked, false).unwrap();
         println!(
-            "cube frame {i}, cube masked out: {} keypoints, {} matches, {} inliers, {} registered",
-            a.keypoints, a.matches, a.inliers, a.registered
+            "cube frame {i}, cube masked out: {} keypoints, {} matches, {} inliers, {} registered, rms {:.2} px, ncc {:.3}",
+            a.keypoints,
+            a.matches,
+            a.inliers,
+            a.registered,
+            a.rms_px.unwrap_or(f64::NAN),
+            a.ncc.unwrap_or(f64::NAN)
         );
         tried += 1;
-        accepted += usize::from(a.accepted());
+        if a.accepted() {
+            accepted.push(format!("cube frame {i}"));
+        }
     }
+    assert_eq!(tried, 40);
+    println!(
+        "{tried} cube frames with the cube masked out: {} poses accepted {accepted:?}",
+        accepted.len()
+    );
     // The 95 EuRoC frames of a room with no cube, through their own (distorted) camera.
     let euroc = shared.join("euroc-v101-micro/mav0/cam0");
     let calib = read_euroc_sensor_yaml(&euroc.join("sensor.yaml")).unwrap();
@@ -251,12 +457,15 @@ fn nothing_is_accepted_where_the_cube_is_not() {
         let (a, _) = locator.attempt(&mut room, &img, false).unwrap();
         with_candidate += usize::from(a.candidate.is_some());
         tried += 1;
-        accepted += usize::from(a.accepted());
+        if a.accepted() {
+            accepted.push(f.display().to_string());
+        }
     }
     println!(
-        "{tried} images without the cube: {accepted} poses accepted; {with_candidate} of the 95 room frames gave RANSAC a pose, none verified"
+        "{tried} images without the cube: {} poses accepted; {with_candidate} of the 95 room frames gave RANSAC a pose",
+        accepted.len()
     );
-    assert_eq!(accepted, 0);
+    assert!(accepted.is_empty(), "accepted on {accepted:?}");
 }
 
 #[test]

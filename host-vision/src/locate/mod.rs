@@ -25,13 +25,16 @@ use serde::Serialize;
 
 use crate::camera::CameraPose;
 use crate::track::TrackError;
-use crate::track::TrackedRule;
-use crate::track::vision::{FrameResult, Vision};
+use crate::track::vision::{FrameResult, Verified, Vision};
+use crate::track::{Assessment, TrackedRule};
 use database::Database;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
-use ransac::{RansacConfig, ransac_pose};
+use ransac::{RansacConfig, RansacPose, mirrored_pose, ransac_pose};
+
+/// Two candidate poses closer than this in rotation are one [rad].
+const SAME_POSE_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
 
 /// Settings of an attempt.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -49,8 +52,10 @@ pub struct LocateConfig {
 impl Default for LocateConfig {
     fn default() -> Self {
         Self {
+            // A global budget, ranked by corner strength: a busy background's sharp corners
+            // take it before a small or blurred object's (issue15-cold-start.md §1).
             orb: OrbConfig {
-                max_keypoints: 1500,
+                max_keypoints: 3000,
                 ..OrbConfig::default()
             },
             matching: MatchConfig::default(),
@@ -101,6 +106,15 @@ pub struct Attempt {
     /// The pose RANSAC found, verified or not.
     #[serde(skip)]
     pub candidate: Option<CameraPose>,
+    /// Whether the verified pose's mirror about the inliers' plane (the planar two-fold
+    /// ambiguity, [`ransac::mirrored_pose`]) was verified too.
+    pub mirror_verified: bool,
+    /// Whether the pose came from the mirror (it verified with the lower rms).
+    pub mirror_chosen: bool,
+    /// Other poses verified besides RANSAC's best: the mirror and RANSAC's runners-up.
+    pub alternatives: usize,
+    /// The judgement of the last pose not chosen, when another was verified.
+    pub other: Option<Assessment>,
     /// Stage times.
     pub times: AttemptTimes,
 }
@@ -199,6 +213,10 @@ impl Locator {
             ncc: None,
             pose: None,
             candidate: None,
+            mirror_verified: false,
+            mirror_chosen: false,
+            other: None,
+            alternatives: 0,
             times,
         };
         let Some(found) = found else {
@@ -206,15 +224,85 @@ impl Locator {
         };
         attempt.inliers = found.inliers.iter().filter(|&&i| i).count();
         attempt.iterations = found.iterations;
-        // x_c = R x_w + t  ⇒  the camera centre is −Rᵀ t.
-        let candidate = CameraPose {
-            q_cw: found.q_cw,
-            c_w: -(found.q_cw.inverse() * found.t),
-        };
+        let candidate = camera_pose(&found);
         attempt.candidate = Some(candidate);
 
         let t = Instant::now();
-        let verified = vision.verify(raw, &candidate, keep_image)?;
+        let (mut verified, verified_from) = converged(vision, raw, &candidate, keep_image)?;
+        // The planar two-fold ambiguity (§4, eq. P1): where the model points seen lie on one
+        // plane, the pose with the plane tilted the other way explains them nearly as well,
+        // and the fit may have ended in either. The mirror of the verified pose about the
+        // inliers' plane is verified too.
+        let inlier_points: Vec<Vector3<f64>> = x_w
+            .iter()
+            .zip(&found.inliers)
+            .filter(|(_, inl)| **inl)
+            .map(|(x, _)| *x)
+            .collect();
+        let pose = verified.pose;
+        let mirror =
+            mirrored_pose(&pose.q_cw, &-(pose.q_cw * pose.c_w), &inlier_points).map(|(q_cw, t)| {
+                CameraPose {
+                    q_cw,
+                    c_w: -(q_cw.inverse() * t),
+                }
+            });
+        // Which pose is the one is asked of the rule with tracking's feature count (a pose
+        // tracking would go on from) and the rms; whether the chosen one is accepted, of the
+        // cold start's stricter rule below. Asking the stricter rule first would take the
+        // wrong tilt whenever it happens to register more features than the right one, which
+        // registers too few to pass.
+        let plausible = TrackedRule {
+            min_features: TrackedRule::default().min_features,
+            ..self.config.rule
+        };
+        let rms = |a: &Assessment| a.rms_px.unwrap_or(f64::INFINITY);
+        let better = |a: &Assessment, b: &Assessment| match (plausible.holds(a), plausible.holds(b))
+        {
+            (true, false) => true,
+            (true, true) => rms(a) < rms(b),
+            _ => false,
+        };
+        // RANSAC's runners-up (other poses the matches fit, §4) are verified the same way.
+        let runners_up = found.runners_up.iter().map(|(q_cw, t)| CameraPose {
+            q_cw: *q_cw,
+            c_w: -(q_cw.inverse() * t),
+        });
+        let mut chosen_from = verified_from;
+        let mut map_is_chosen = true;
+        let mut tried = vec![candidate, verified.pose];
+        for (is_mirror, start) in mirror
+            .map(|m| (true, m))
+            .into_iter()
+            .chain(runners_up.map(|p| (false, p)))
+        {
+            // Another pose only: a plane facing the camera has one.
+            if tried
+                .iter()
+                .any(|p| p.q_cw.angle_to(&start.q_cw) < SAME_POSE_RAD)
+            {
+                continue;
+            }
+            tried.push(start);
+            attempt.mirror_verified |= is_mirror;
+            attempt.alternatives += 1;
+            let (other, other_from) = converged(vision, raw, &start, keep_image)?;
+            if better(&other.assessment, &verified.assessment) {
+                attempt.mirror_chosen = is_mirror;
+                attempt.other = Some(verified.assessment);
+                verified = other;
+                chosen_from = other_from;
+                map_is_chosen = true;
+            } else {
+                attempt.other = Some(other.assessment);
+                map_is_chosen = false;
+            }
+        }
+        if !map_is_chosen {
+            // The feature map must be the chosen pose's, ready for tracking from it: the same
+            // verification again.
+            verified = vision.verify(raw, &chosen_from, keep_image)?;
+        }
         attempt.times.verify = t.elapsed().as_secs_f64();
         let a = verified.assessment;
         attempt.registered = a.features;
@@ -225,4 +313,48 @@ impl Locator {
         }
         Ok((attempt, verified.result))
     }
+}
+
+/// The camera pose of a RANSAC result: `x_c = R x_w + t`, so the camera centre is `−Rᵀ t`.
+fn camera_pose(found: &RansacPose) -> CameraPose {
+    CameraPose {
+        q_cw: found.q_cw,
+        c_w: -(found.q_cw.inverse() * found.t),
+    }
+}
+
+/// Verifications run from a pose before it is judged, at most: each re-registers the
+/// features from the last re-fitted pose.
+const MAX_VERIFICATIONS: usize = 4;
+
+/// A verification has converged when it moves the pose less than this [m]...
+const CONVERGED_M: f64 = 1e-3;
+
+/// ... and less than this [rad].
+const CONVERGED_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
+
+/// [`Vision::verify`] from `pose`, run again from its re-fitted pose until that stops moving
+/// (or [`MAX_VERIFICATIONS`] times). One verification is two rounds of registration and
+/// re-fit; where the pose is poorly pinned down (one face of a cube, seen nearly face on),
+/// it is still moving after them, and a judgement or a comparison made there is a judgement
+/// of an arbitrary point on the way (§5). Returns the last verification and the pose it ran
+/// from (verifying from it again gives the same result, and its feature map).
+pub fn converged(
+    vision: &mut Vision,
+    raw: &GrayImage,
+    pose: &CameraPose,
+    keep_image: bool,
+) -> Result<(Verified, CameraPose), TrackError> {
+    let mut from = *pose;
+    let mut verified = vision.verify(raw, &from, keep_image)?;
+    for _ in 1..MAX_VERIFICATIONS {
+        let moved = (verified.pose.c_w - from.c_w).norm();
+        let turned = verified.pose.q_cw.angle_to(&from.q_cw);
+        if moved < CONVERGED_M && turned < CONVERGED_RAD {
+            break;
+        }
+        from = verified.pose;
+        verified = vision.verify(raw, &from, keep_image)?;
+    }
+    Ok((verified, from))
 }

@@ -60,6 +60,11 @@ pub struct RansacPose {
     pub inliers: Vec<bool>,
     /// Minimal samples drawn.
     pub iterations: usize,
+    /// The best hypotheses of other poses (rotations 5° or more apart), refined, best first,
+    /// each with at least `min_inliers`: where the matches fit several poses alike (a face
+    /// seen nearly face on), the inlier count at the threshold does not tell them apart, and
+    /// the verification is asked instead.
+    pub runners_up: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
 }
 
 /// Pixels `u[i]` (undistorted, pinhole fx, fy, cx, cy) matched to world points `x_w[i]`.
@@ -101,7 +106,8 @@ pub fn ransac_pose(
     }
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
-    let mut best: Option<Hypothesis> = None;
+    // The best hypotheses of distinct poses, best first: the first drives the adaptive stop.
+    let mut top: Vec<Hypothesis> = Vec::with_capacity(RUNNERS_UP + 2);
     let mut needed = cfg.max_iterations;
     let mut iterations = 0;
     let m = usable.len();
@@ -115,22 +121,68 @@ pub fn ransac_pose(
         };
         for (q, t) in p3p(&[y0, y1, y2], &[x_w[idx[0]], x_w[idx[1]], x_w[idx[2]]]) {
             let h = score(&cam, u, x_w, &q, &t, thr2);
-            if best.as_ref().is_none_or(|b| h.better_than(b)) {
+            if top.first().is_none_or(|b| h.better_than(b)) {
                 // Adaptive stop: samples for `confidence` of one all-inlier draw (ratio w).
                 needed = samples_needed(cfg.confidence, h.count as f64 / n as f64)
                     .unwrap_or(cfg.max_iterations);
-                best = Some(h);
             }
+            keep_distinct(&mut top, h);
         }
     }
 
-    let mut best = best?;
-    // Refine on the inliers, recount, and keep the refined pose unless it scores worse.
+    let mut polished = top.into_iter().map(|h| polish(&cam, u, x_w, h, thr2));
+    let best = polished.next()?;
+    let runners_up = polished
+        .filter(|h| h.count >= cfg.min_inliers)
+        .map(|h| (h.q, h.t))
+        .collect();
+    (best.count >= cfg.min_inliers).then_some(RansacPose {
+        q_cw: best.q,
+        t: best.t,
+        inliers: best.inliers,
+        iterations,
+        runners_up,
+    })
+}
+
+/// Hypotheses kept besides the best, of poses distinct from it and from each other.
+const RUNNERS_UP: usize = 2;
+
+/// Two hypotheses whose rotations differ by less than this are one pose [rad].
+const DISTINCT_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
+
+/// Inserts `h` into `top` (best first, at most `1 + RUNNERS_UP`, distinct poses): a
+/// hypothesis of a pose already there replaces it only if better.
+fn keep_distinct(top: &mut Vec<Hypothesis>, h: Hypothesis) {
+    if let Some(k) = top.iter().position(|o| o.q.angle_to(&h.q) < DISTINCT_RAD) {
+        if !h.better_than(&top[k]) {
+            return;
+        }
+        top.remove(k);
+    }
+    let at = top
+        .iter()
+        .position(|o| h.better_than(o))
+        .unwrap_or(top.len());
+    if at <= RUNNERS_UP {
+        top.insert(at, h);
+        top.truncate(RUNNERS_UP + 1);
+    }
+}
+
+/// Refines `h` on its inliers and recounts, keeping the refined pose unless it scores worse.
+fn polish(
+    cam: &Pinhole,
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    mut best: Hypothesis,
+    thr2: f64,
+) -> Hypothesis {
     for _ in 0..REFINE_ROUNDS {
-        let Some((q, t)) = refine(&cam, u, x_w, &best.inliers, best.q, best.t) else {
+        let Some((q, t)) = refine(cam, u, x_w, &best.inliers, best.q, best.t) else {
             break;
         };
-        let h = score(&cam, u, x_w, &q, &t, thr2);
+        let h = score(cam, u, x_w, &q, &t, thr2);
         if h.cost > best.cost {
             break;
         }
@@ -140,12 +192,49 @@ pub fn ransac_pose(
             break;
         }
     }
-    (best.count >= cfg.min_inliers).then_some(RansacPose {
-        q_cw: best.q,
-        t: best.t,
-        inliers: best.inliers,
-        iterations,
-    })
+    best
+}
+
+/// The pose `x_c = q_cw x_w + t` with the best-fit plane of the model points `x_w` tilted the
+/// other way about the line of sight to their centroid (docs/notes/issue15-cold-start.md §4,
+/// eq. P1).
+///
+/// A plane seen from a distance large against its size shows the same image, to first order,
+/// tilted by `+θ` or `−θ` about an axis across the line of sight: only the perspective's
+/// second-order effects tell the two apart, so a fit may end in either. A cube showing one
+/// face has this two-fold ambiguity. Returns `None` for fewer than 3 points, a value that is
+/// not finite, or a plane that faces the camera (the two tilts are then one pose).
+pub fn mirrored_pose(
+    q_cw: &UnitQuaternion<f64>,
+    t: &Vector3<f64>,
+    x_w: &[Vector3<f64>],
+) -> Option<(UnitQuaternion<f64>, Vector3<f64>)> {
+    let x_c: Vec<Vector3<f64>> = x_w
+        .iter()
+        .map(|x| q_cw * x + t)
+        .filter(|x| x.iter().all(|v| v.is_finite()))
+        .collect();
+    if x_c.len() < 3 {
+        return None;
+    }
+    let centroid = x_c.iter().sum::<Vector3<f64>>() / x_c.len() as f64;
+    let scatter = x_c
+        .iter()
+        .map(|x| (x - centroid) * (x - centroid).transpose())
+        .sum::<Matrix3<f64>>();
+    let eigen = scatter.symmetric_eigen();
+    let (k, _) = eigen.eigenvalues.argmin();
+    let normal = eigen.eigenvectors.column(k).into_owned();
+    // Eq. P1: the normal mirrored about the line of sight to the centroid, and the rotation
+    // about the centroid that takes the one to the other.
+    let sight = centroid.try_normalize(MIN_DEPTH)?;
+    let mirrored = 2.0 * normal.dot(&sight) * sight - normal;
+    let axis = normal.cross(&mirrored);
+    let turn = UnitQuaternion::from_axis_angle(
+        &nalgebra::Unit::try_new(axis, 1e-9)?,
+        axis.norm().atan2(normal.dot(&mirrored)),
+    );
+    Some((turn * q_cw, turn * (t - centroid) + centroid))
 }
 
 /// Samples needed so that one of them is all inliers with probability `confidence`, for an
@@ -657,6 +746,73 @@ mod tests {
         assert_eq!(samples_needed(0.999, 1.0), Some(1));
         assert_eq!(samples_needed(0.999, 0.0), None);
         assert_eq!(samples_needed(1.0, 0.5), None);
+    }
+
+    #[test]
+    fn a_plane_tilted_the_other_way_looks_alike_and_a_frontal_one_has_no_mirror() {
+        let cam = Pinhole {
+            fx: PINHOLE[0],
+            fy: PINHOLE[1],
+            cx: PINHOLE[2],
+            cy: PINHOLE[3],
+        };
+        // A 10 cm square in the world's z = 0 plane, 1 m ahead, tilted 20° about x.
+        let square: Vec<Vector3<f64>> = (0..25)
+            .map(|k| {
+                Vector3::new(
+                    0.025 * f64::from(k % 5) - 0.05,
+                    0.025 * f64::from(k / 5) - 0.05,
+                    0.0,
+                )
+            })
+            .collect();
+        let q = UnitQuaternion::from_euler_angles(20f64.to_radians(), 0.0, 0.0);
+        let t = Vector3::new(0.0, 0.0, 1.0);
+        let Some((q2, t2)) = mirrored_pose(&q, &t, &square) else {
+            panic!("no mirror")
+        };
+        let turned = q2.angle_to(&q).to_degrees();
+        let worst = square
+            .iter()
+            .map(|x| (cam.project(&(q * x + t)) - cam.project(&(q2 * x + t2))).norm())
+            .fold(0.0, f64::max);
+        println!("mirror: {turned:.1}° away, images {worst:.2} px apart at most");
+        // The tilt reversed (twice 20°), the image the same to a few pixels of the square's
+        // 100 px: only the perspective's second order tells them apart.
+        assert!((turned - 40.0).abs() < 1.0, "{turned}°");
+        assert!(worst < 3.0, "{worst} px");
+        // The centroid stays where it was.
+        let c = |q: &UnitQuaternion<f64>, t: &Vector3<f64>| {
+            square.iter().map(|x| q * x + t).sum::<Vector3<f64>>() / 25.0
+        };
+        assert!((c(&q, &t) - c(&q2, &t2)).norm() < 1e-9);
+        // Face on, the two tilts are one pose; too few points, no plane.
+        let frontal = UnitQuaternion::identity();
+        assert!(mirrored_pose(&frontal, &t, &square).is_none());
+        assert!(mirrored_pose(&q, &t, &square[..2]).is_none());
+    }
+
+    #[test]
+    fn runners_up_are_other_poses() {
+        let mut rng = StdRng::seed_from_u64(12);
+        let (u, x, q, _) = scene(&mut rng, 200, 60, 0.5);
+        let Some(p) = ransac_pose(PINHOLE, &u, &x, &RansacConfig::default()) else {
+            panic!("no pose")
+        };
+        assert!(p.runners_up.len() <= RUNNERS_UP);
+        for (k, (qa, _)) in p.runners_up.iter().enumerate() {
+            assert!(
+                qa.angle_to(&p.q_cw) >= DISTINCT_RAD,
+                "runner-up {k} is the best"
+            );
+            for (qb, _) in &p.runners_up[k + 1..] {
+                assert!(
+                    qa.angle_to(qb) >= DISTINCT_RAD,
+                    "two runners-up are one pose"
+                );
+            }
+        }
+        assert!(p.q_cw.angle_to(&q) < 0.05f64.to_radians());
     }
 
     #[test]

@@ -316,9 +316,14 @@ impl Vision {
             }
             let Some(last) = &self.last else { break };
             registered = last.registered.len();
+            // Too few registrations to re-fit a pose (and none at all would leave the robust
+            // fit's median without values): judged where it is.
+            if registered < 6 {
+                break;
+            }
             match robust_fit(&self.ideal, &pose, &last.registered) {
-                Some((fitted, _)) if last.registered.len() >= 6 => pose = fitted,
-                _ => break,
+                Some((fitted, _)) => pose = fitted,
+                None => break,
             }
         }
         self.map.set_config(tracking);
