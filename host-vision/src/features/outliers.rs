@@ -54,10 +54,11 @@ const MIN_SCALE_PX: f64 = 0.05;
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     let n = values.len();
-    if n % 2 == 1 {
-        values[n / 2]
-    } else {
-        0.5 * (values[n / 2 - 1] + values[n / 2])
+    match n {
+        // No values: no spread either (callers judge at least a few).
+        0 => 0.0,
+        _ if n % 2 == 1 => values[n / 2],
+        _ => 0.5 * (values[n / 2 - 1] + values[n / 2]),
     }
 }
 
@@ -76,12 +77,15 @@ fn residuals(
 /// Eq. R1: the pose minimising `Σ ρ_H(|r_i|)` over `pairs` (registered pixel of the ideal
 /// `camera`, model point), from `start`, with the Huber scale re-estimated from the residuals
 /// at every step. Returns the pose and the residual magnitudes there [px], or `None` when a
-/// point falls behind the camera or the normal equations are singular.
+/// point falls behind the camera, there are no pairs, or the normal equations are singular.
 pub fn robust_fit(
     camera: &Camera,
     start: &CameraPose,
     pairs: &[Registration],
 ) -> Option<(CameraPose, Vec<f64>)> {
+    if pairs.is_empty() {
+        return None;
+    }
     let pin = &camera.pinhole;
     let mut pose = *start;
     for _ in 0..ITERATIONS {
