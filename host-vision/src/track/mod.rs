@@ -726,7 +726,7 @@ enum WorkerDone {
     Assess(Result<Assessment, TrackError>),
     /// With the database's provenance, on the attempt that loaded or built it.
     Locate(
-        Result<crate::locate::Attempt, TrackError>,
+        Box<Result<crate::locate::Attempt, TrackError>>,
         Option<crate::locate::database::Provenance>,
     ),
 }
@@ -916,7 +916,7 @@ fn vision_worker(
                         None => Err(TrackError::Vision("no cold-start database".into())),
                     }
                 })();
-                WorkerDone::Locate(attempt, provenance.take())
+                WorkerDone::Locate(Box::new(attempt), provenance.take())
             }
         };
         if results.send(done).is_err() {
