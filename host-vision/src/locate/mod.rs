@@ -229,10 +229,10 @@ impl Locator {
 
         let t = Instant::now();
         let (mut verified, verified_from) = converged(vision, raw, &candidate, keep_image)?;
-        // The planar two-fold ambiguity (§4, eq. P1): where the model points seen lie on one
-        // plane, the pose with the plane tilted the other way explains them nearly as well,
-        // and the fit may have ended in either. The mirror of the verified pose about the
-        // inliers' plane is verified too.
+        // The planar two-fold ambiguity (docs/notes/issue15-cold-start.md §4, eq. P1): where
+        // the model points seen lie on one plane, the pose with the plane tilted the other way
+        // explains them nearly as well, and the fit may have ended in either. The mirror of the
+        // verified pose about the inliers' plane is verified too.
         let inlier_points: Vec<Vector3<f64>> = x_w
             .iter()
             .zip(&found.inliers)
@@ -263,7 +263,8 @@ impl Locator {
             (true, true) => rms(a) < rms(b),
             _ => false,
         };
-        // RANSAC's runners-up (other poses the matches fit, §4) are verified the same way.
+        // RANSAC's runners-up (other poses the matches fit, docs/notes/issue15-cold-start.md §4)
+        // are verified the same way.
         let runners_up = found.runners_up.iter().map(|(q_cw, t)| CameraPose {
             q_cw: *q_cw,
             c_w: -(q_cw.inverse() * t),
@@ -337,7 +338,7 @@ const CONVERGED_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
 /// (or [`MAX_VERIFICATIONS`] times). One verification is two rounds of registration and
 /// re-fit; where the pose is poorly pinned down (one face of a cube, seen nearly face on),
 /// it is still moving after them, and a judgement or a comparison made there is a judgement
-/// of an arbitrary point on the way (§5). Returns the last verification and the pose it ran
+/// of an arbitrary point on the way (docs/notes/issue15-cold-start.md §5). Returns the last verification and the pose it ran
 /// from (verifying from it again gives the same result, and its feature map).
 pub fn converged(
     vision: &mut Vision,
