@@ -14,11 +14,12 @@ use host_vision::locate::run::{LocateError, LocateInput, LocateOptions, run};
 use host_vision::locate::{LocateConfig, Locator};
 use host_vision::model::{self, Model};
 use host_vision::start_pose::read_start_pose;
+use host_vision::track;
 use host_vision::track::vision::{Vision, VisionOptions};
-use host_vision::track::{self, TrackOptions};
 use image::GrayImage;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
-use protocol::ModelKind;
+
+mod cube;
 
 fn shared() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data");
@@ -173,19 +174,10 @@ fn tracking(shared: &Path) -> &'static Tracking {
     static RUN: OnceLock<Tracking> = OnceLock::new();
     RUN.get_or_init(|| {
         let dir = shared.join("visp-cube");
-        let video = dir.join("cube_video.mp4");
         let out = tempfile::tempdir().unwrap();
-        let mut o = TrackOptions::new(video.clone(), out.path().join("track"));
-        o.filter = ModelKind::Vision;
-        o.frames = Some(FrameInput::Video(video));
-        o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
-        o.model = Some(dir.join("model/cube.obj"));
+        // Its recoveries search with the same database as these tests.
+        let mut o = cube::vision_only(&dir, out.path().join("track"));
         o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
-        o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
-        o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
-        o.overlay_every = 0;
-        // Its recoveries search with the same database: the test's cache, not the user's.
-        o.cache = cache();
         let t = Instant::now();
         let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {}).unwrap();
         let poses = tum_poses(&out.path().join("track/trajectory_frames.tum"));

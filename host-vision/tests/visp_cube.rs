@@ -14,11 +14,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use host_vision::camera::read_camera_json;
-use host_vision::frames::FrameInput;
 use host_vision::start_pose::read_start_pose;
-use host_vision::track::{self, FrameRow, TrackOptions};
-use protocol::ModelKind;
+use host_vision::track::{self, FrameRow};
+
+mod cube;
 
 fn data() -> Option<PathBuf> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/visp-cube");
@@ -47,19 +46,9 @@ fn median(mut v: Vec<f64>) -> f64 {
 fn the_cube_video_is_tracked_vision_only_through_pushes_turns_and_the_mug() {
     let Some(dir) = data() else { return };
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("visp-cube");
-    let video = dir.join("cube_video.mp4");
-    let mut o = TrackOptions::new(video.clone(), out.clone());
-    o.filter = ModelKind::Vision;
-    o.frames = Some(FrameInput::Video(video));
-    o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
-    o.model = Some(dir.join("model/cube.obj"));
+    let mut o = cube::vision_only(&dir, out.clone());
     o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
-    o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
-    o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
-    o.overlay_every = 0;
     o.overwrite = true;
-    // The searches behind the mug build their database here, not in the user's cache.
-    o.cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache");
     let run = track::run(&o, Arc::new(AtomicBool::new(false)), &mut |_, _, _, _| {})
         .expect("the cube video tracks");
     let s = &run.summary;
@@ -132,16 +121,7 @@ fn the_cube_video_is_tracked_vision_only_through_pushes_turns_and_the_mug() {
 fn the_cube_video_is_tracked_from_a_cold_start_and_found_again_after_a_loss() {
     let Some(dir) = data() else { return };
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("visp-cube-cold");
-    let video = dir.join("cube_video.mp4");
-    let mut o = TrackOptions::new(video.clone(), out);
-    o.filter = ModelKind::Vision;
-    o.frames = Some(FrameInput::Video(video));
-    o.camera = Some(read_camera_json(&dir.join("camera.json")).unwrap());
-    o.model = Some(dir.join("model/cube.obj"));
-    o.cache = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("locate-cache");
-    o.tuning.expected_accel = track::config::OBJECT_IN_HAND_ACCEL;
-    o.tuning.angular_noise = track::config::OBJECT_IN_HAND_ANGULAR_NOISE;
-    o.overlay_every = 0;
+    let mut o = cube::vision_only(&dir, out);
     o.overwrite = true;
     o.faults.corrupt_from = Some(10.0);
     o.faults.corrupt_seconds = 0.3;

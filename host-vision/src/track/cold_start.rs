@@ -142,7 +142,7 @@ impl Session<'_> {
                 None => return Ok(()),
             },
         };
-        self.database = self.database.take().or(from);
+        self.keep_provenance(from);
         searcher.job = None;
         self.found(link, searcher, job, attempt, now_us)
     }

@@ -1033,6 +1033,13 @@ impl Session<'_> {
         }
     }
 
+    /// Keeps where the searches' database came from, told by the attempt that loaded it.
+    fn keep_provenance(&mut self, from: Option<crate::locate::database::Provenance>) {
+        if self.database.is_none() {
+            self.database = from;
+        }
+    }
+
     /// Closes an open recovery: tracking came back by itself at `t_us`.
     fn end_recovery(&mut self, t_us: u64) {
         if let Some(r) = self.recoveries.last_mut().filter(|r| r.ended_at.is_none()) {

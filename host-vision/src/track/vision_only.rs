@@ -220,7 +220,7 @@ impl Session<'_> {
                 // The cold start: one attempt per frame until a pose is verified; the frame
                 // it was found in is then tracked from it.
                 let (a, from) = search.locate(frame.image.clone(), self.options.cache.clone())?;
-                self.database = self.database.take().or(from);
+                self.keep_provenance(from);
                 self.searches.push(Search::new(frame.index, t_us, a));
                 let Some(pose) = a.pose else {
                     frames += 1;
@@ -252,7 +252,7 @@ impl Session<'_> {
                 };
                 if let Some((a, from)) = done {
                     in_search = None;
-                    self.database = self.database.take().or(from);
+                    self.keep_provenance(from);
                     self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
                     if let Some(pose) = a.pose {
                         link.send(&HostToCore::Init(self.vision_init(&pose)))?;
@@ -353,7 +353,7 @@ impl Session<'_> {
         }
         if let Some((index, at_us, since)) = in_search {
             let (a, from) = search.locate_result()?;
-            self.database = self.database.take().or(from);
+            self.keep_provenance(from);
             self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
         }
         self.barrier(link)?;
