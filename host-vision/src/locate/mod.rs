@@ -7,8 +7,11 @@
 //! 3. the pose by P3P ([`p3p`]) inside RANSAC ([`ransac`]), refined on the inliers;
 //! 4. verification before use ([`crate::track::vision::Vision::verify`]): the model rendered
 //!    at the pose, its features registered with the photometric KLT, the pose re-fitted, and
-//!    the tracked rule ([`crate::track::TrackedRule`]) applied. Only a verified pose is used.
+//!    the tracked rule ([`crate::track::TrackedRule`]) applied. Only a verified pose is used;
+//! 5. where several poses verify (the two tilts of a plane, RANSAC's runners-up), the one the
+//!    image's evidence favours ([`choice`]), or none when it cannot tell.
 
+pub mod choice;
 pub mod database;
 pub mod index;
 pub mod matching;
@@ -27,6 +30,8 @@ use crate::camera::CameraPose;
 use crate::track::TrackError;
 use crate::track::vision::{FrameResult, Verified, Vision};
 use crate::track::{Assessment, TrackedRule};
+use choice::{Choice, choose};
+pub use choice::{Comparison, Evidence, compare};
 use database::Database;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
@@ -106,6 +111,9 @@ pub struct Attempt {
     /// The pose RANSAC found, verified or not.
     #[serde(skip)]
     pub candidate: Option<CameraPose>,
+    /// The verified pose chosen, accepted or not.
+    #[serde(skip)]
+    pub chosen: Option<CameraPose>,
     /// Whether the verified pose's mirror about the inliers' plane (the planar two-fold
     /// ambiguity, [`ransac::mirrored_pose`]) was verified too.
     pub mirror_verified: bool,
@@ -113,10 +121,29 @@ pub struct Attempt {
     pub mirror_chosen: bool,
     /// Other poses verified besides RANSAC's best: the mirror and RANSAC's runners-up.
     pub alternatives: usize,
-    /// The judgement of the last pose not chosen, when another was verified.
-    pub other: Option<Assessment>,
+    /// The chosen pose against its own mirror on its own registrations, where that is another
+    /// pose (the tilt check of [`choice::choose`]).
+    pub tilt_check: Option<Comparison>,
+    /// Whether two of the poses verified were both plausible and the evidence could not tell
+    /// them apart (eqs. P2, P3): the attempt is refused.
+    pub ambiguous: bool,
     /// Stage times.
     pub times: AttemptTimes,
+    /// The other poses verified, each with how the live image tells it from the chosen one.
+    pub rivals: [Option<Rival>; 4],
+}
+
+/// A verified pose other than the chosen one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Rival {
+    /// The pose.
+    #[serde(skip)]
+    pub pose: CameraPose,
+    /// Its judgement.
+    pub assessment: Assessment,
+    /// The chosen pose (first) and this one judged against each other (eqs. P2, P3), when
+    /// both were plausible and not one minimum.
+    pub compared: Option<Comparison>,
 }
 
 impl Attempt {
@@ -213,11 +240,14 @@ impl Locator {
             ncc: None,
             pose: None,
             candidate: None,
+            chosen: None,
             mirror_verified: false,
             mirror_chosen: false,
-            other: None,
+            ambiguous: false,
+            tilt_check: None,
             alternatives: 0,
             times,
+            rivals: [None; 4],
         };
         let Some(found) = found else {
             return Ok((attempt, None));
@@ -228,18 +258,19 @@ impl Locator {
         attempt.candidate = Some(candidate);
 
         let t = Instant::now();
-        let (mut verified, verified_from) = converged(vision, raw, &candidate, keep_image)?;
+        let (first, first_from) = converged(vision, raw, &candidate, keep_image)?;
         // The planar two-fold ambiguity (docs/notes/issue15-cold-start.md §4, eq. P1): where
         // the model points seen lie on one plane, the pose with the plane tilted the other way
         // explains them nearly as well, and the fit may have ended in either. The mirror of the
-        // verified pose about the inliers' plane is verified too.
+        // verified pose about the inliers' plane is verified too, and so are RANSAC's
+        // runners-up (other poses the matches fit, §4).
         let inlier_points: Vec<Vector3<f64>> = x_w
             .iter()
             .zip(&found.inliers)
             .filter(|(_, inl)| **inl)
             .map(|(x, _)| *x)
             .collect();
-        let pose = verified.pose;
+        let pose = first.pose;
         let mirror =
             mirrored_pose(&pose.q_cw, &-(pose.q_cw * pose.c_w), &inlier_points).map(|(q_cw, t)| {
                 CameraPose {
@@ -247,31 +278,16 @@ impl Locator {
                     c_w: -(q_cw.inverse() * t),
                 }
             });
-        // Which pose is the one is asked of the rule with tracking's feature count (a pose
-        // tracking would go on from) and the rms; whether the chosen one is accepted, of the
-        // cold start's stricter rule below. Asking the stricter rule first would take the
-        // wrong tilt whenever it happens to register more features than the right one, which
-        // registers too few to pass.
-        let plausible = TrackedRule {
-            min_features: TrackedRule::default().min_features,
-            ..self.config.rule
-        };
-        let rms = |a: &Assessment| a.rms_px.unwrap_or(f64::INFINITY);
-        let better = |a: &Assessment, b: &Assessment| match (plausible.holds(a), plausible.holds(b))
-        {
-            (true, false) => true,
-            (true, true) => rms(a) < rms(b),
-            _ => false,
-        };
-        // RANSAC's runners-up (other poses the matches fit, docs/notes/issue15-cold-start.md §4)
-        // are verified the same way.
         let runners_up = found.runners_up.iter().map(|(q_cw, t)| CameraPose {
             q_cw: *q_cw,
             c_w: -(q_cw.inverse() * t),
         });
-        let mut chosen_from = verified_from;
-        let mut map_is_chosen = true;
-        let mut tried = vec![candidate, verified.pose];
+        let mut tried = vec![candidate, first.pose];
+        // The verified poses, where each one's last verification ran from, and which is the
+        // mirror.
+        let mut verified = vec![first];
+        let mut from = vec![first_from];
+        let mut mirrored = vec![false];
         for (is_mirror, start) in mirror
             .map(|m| (true, m))
             .into_iter()
@@ -287,32 +303,50 @@ impl Locator {
             tried.push(start);
             attempt.mirror_verified |= is_mirror;
             attempt.alternatives += 1;
-            let (other, other_from) = converged(vision, raw, &start, keep_image)?;
-            if better(&other.assessment, &verified.assessment) {
-                attempt.mirror_chosen = is_mirror;
-                attempt.other = Some(verified.assessment);
-                verified = other;
-                chosen_from = other_from;
-                map_is_chosen = true;
-            } else {
-                attempt.other = Some(other.assessment);
-                map_is_chosen = false;
+            let (v, v_from) = converged(vision, raw, &start, keep_image)?;
+            verified.push(v);
+            from.push(v_from);
+            mirrored.push(is_mirror);
+        }
+        let (chosen, compared, tilt_check) = choose(vision, raw, &verified, &self.config.rule)?;
+        attempt.tilt_check = tilt_check;
+        let k = match chosen {
+            Choice::One(k) => k,
+            // Judged as the lowest-rms pose, refused below.
+            Choice::Ambiguous(k) => {
+                attempt.ambiguous = true;
+                k
+            }
+        };
+        attempt.mirror_chosen = mirrored[k];
+        let mut r = 0;
+        for (j, v) in verified.iter().enumerate() {
+            if j != k && r < attempt.rivals.len() {
+                attempt.rivals[r] = Some(Rival {
+                    pose: v.pose,
+                    assessment: v.assessment,
+                    compared: compared[k][j],
+                });
+                r += 1;
             }
         }
-        if !map_is_chosen {
+        let last = verified.len() - 1;
+        let mut best = verified.swap_remove(k);
+        if k != last {
             // The feature map must be the chosen pose's, ready for tracking from it: the same
             // verification again.
-            verified = vision.verify(raw, &chosen_from, keep_image)?;
+            best = vision.verify(raw, &from[k], keep_image)?;
         }
         attempt.times.verify = t.elapsed().as_secs_f64();
-        let a = verified.assessment;
+        attempt.chosen = Some(best.pose);
+        let a = best.assessment;
         attempt.registered = a.features;
         attempt.rms_px = a.rms_px;
         attempt.ncc = a.ncc;
-        if self.config.rule.holds(&a) {
-            attempt.pose = Some(verified.pose);
+        if !attempt.ambiguous && self.config.rule.holds(&a) {
+            attempt.pose = Some(best.pose);
         }
-        Ok((attempt, verified.result))
+        Ok((attempt, best.result))
     }
 }
 

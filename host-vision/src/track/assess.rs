@@ -59,12 +59,24 @@ pub fn masked_ncc(
     live: &GrayImage,
     mask: &GrayImage,
 ) -> (usize, Option<f64>) {
-    if rendered.dimensions() != live.dimensions() || mask.dimensions() != live.dimensions() {
+    if mask.dimensions() != live.dimensions() {
+        return (0, None);
+    }
+    ncc_where(rendered, live, mask.pixels().map(|m| m.0[0] != 0))
+}
+
+/// [`masked_ncc`] over the pixels where `within` (one flag per pixel, row by row) is set.
+fn ncc_where(
+    rendered: &GrayImage,
+    live: &GrayImage,
+    within: impl Iterator<Item = bool>,
+) -> (usize, Option<f64>) {
+    if rendered.dimensions() != live.dimensions() {
         return (0, None);
     }
     let (mut n, mut sa, mut sb, mut saa, mut sbb, mut sab) = (0usize, 0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((a, b), m) in rendered.pixels().zip(live.pixels()).zip(mask.pixels()) {
-        if m.0[0] == 0 {
+    for ((a, b), inside) in rendered.pixels().zip(live.pixels()).zip(within) {
+        if !inside {
             continue;
         }
         let (a, b) = (f64::from(a.0[0]), f64::from(b.0[0]));
@@ -84,6 +96,59 @@ pub fn masked_ncc(
     let vb = sbb - sb * sb / k;
     let denom = (va * vb).sqrt();
     (n, (denom > 1e-9).then(|| cov / denom))
+}
+
+/// Two renderings differ at a pixel of both masks by more than this [grey levels]: well
+/// above the renderer's own interpolation noise on one texture, so that only what the two
+/// poses put in different places counts.
+pub const CONTRAST_GREY: i16 = 12;
+
+/// How the live image tells two poses apart (docs/notes/issue15-cold-start.md §5, eq. P2).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Contrast {
+    /// Pixels where the two renderings disagree: in one mask only, or in both and differing
+    /// by more than [`CONTRAST_GREY`].
+    pub pixels: usize,
+    /// Correlation of the first rendering with the live image over those of the pixels it
+    /// renders.
+    pub first: Option<f64>,
+    /// The same for the second.
+    pub second: Option<f64>,
+}
+
+/// Eq. P2: each of two renderings (`gray`, `mask`) correlated with `live` over the pixels
+/// where it disagrees with the other. Where the two agree, the live image cannot favour
+/// either; where they disagree, the one that is right correlates and the other does not.
+pub fn contrast(
+    first: (&GrayImage, &GrayImage),
+    second: (&GrayImage, &GrayImage),
+    live: &GrayImage,
+) -> Contrast {
+    let dims = live.dimensions();
+    if [first.0, first.1, second.0, second.1]
+        .iter()
+        .any(|i| i.dimensions() != dims)
+    {
+        return Contrast::default();
+    }
+    let differs: Vec<(bool, bool)> = first
+        .0
+        .pixels()
+        .zip(first.1.pixels())
+        .zip(second.0.pixels().zip(second.1.pixels()))
+        .map(|((ga, ma), (gb, mb))| {
+            let (ma, mb) = (ma.0[0] != 0, mb.0[0] != 0);
+            let apart = (i16::from(ga.0[0]) - i16::from(gb.0[0])).abs() > CONTRAST_GREY;
+            let d = ma != mb || (ma && mb && apart);
+            (d && ma, d && mb)
+        })
+        .collect();
+    let pixels = differs.iter().filter(|(a, b)| *a || *b).count();
+    Contrast {
+        pixels,
+        first: ncc_where(first.0, live, differs.iter().map(|d| d.0)).1,
+        second: ncc_where(second.0, live, differs.iter().map(|d| d.1)).1,
+    }
 }
 
 /// When a frame counts as tracked (issue 14's rule).

@@ -37,7 +37,7 @@ use protocol::{
 use rand::rngs::StdRng;
 use rand::{RngExt as _, SeedableRng};
 
-pub use self::assess::{Assessment, TrackedRule};
+pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
 pub use self::output::{FrameRow, Summary};

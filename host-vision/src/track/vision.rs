@@ -22,7 +22,7 @@ use crate::model::Model;
 use crate::render::{RenderView, Renderer};
 
 use super::TrackError;
-use super::assess::{Assessment, masked_ncc, reprojection_rms};
+use super::assess::{Assessment, Contrast, contrast, masked_ncc, reprojection_rms};
 
 /// Image-analysis parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -168,6 +168,9 @@ pub struct Verified {
     pub assessment: Assessment,
     /// The last round's analysis (its prediction is the pose of the round before).
     pub result: Option<FrameResult>,
+    /// The last round's registrations (registered pixel, model point): the evidence the pose
+    /// was fitted to.
+    pub registered: Vec<Registration>,
 }
 
 /// The last analysed frame, kept for [`Vision::assess`].
@@ -196,6 +199,22 @@ impl std::fmt::Debug for Vision {
             .field("map_features", &self.map.len())
             .finish()
     }
+}
+
+/// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`.
+fn render_at(
+    renderer: &mut Renderer,
+    ideal: &Camera,
+    clip: (f64, f64),
+    pose: &CameraPose,
+) -> Result<crate::render::Frame, TrackError> {
+    let view = RenderView {
+        pinhole: ideal.pinhole,
+        pose: *pose,
+        near: clip.0,
+        far: clip.1,
+    };
+    Ok(renderer.render(&view)?)
 }
 
 /// The camera pose of a prediction.
@@ -246,13 +265,7 @@ impl Vision {
             .map(|(r, _)| *r)
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
-        let view = RenderView {
-            pinhole: self.ideal.pinhole,
-            pose: *pose,
-            near: self.options.clip.0,
-            far: self.options.clip.1,
-        };
-        let rendering = self.renderer.render(&view)?;
+        let rendering = render_at(&mut self.renderer, &self.ideal, self.options.clip, pose)?;
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
         Ok(Assessment {
             features,
@@ -260,6 +273,21 @@ impl Vision {
             ncc,
             ncc_pixels,
         })
+    }
+
+    /// How the live image `raw` tells the poses `a` and `b` apart: each rendering correlated
+    /// with it where the two renderings disagree (eq. P2, [`super::assess::contrast`]).
+    pub fn contrast(
+        &mut self,
+        raw: &GrayImage,
+        a: &CameraPose,
+        b: &CameraPose,
+    ) -> Result<Contrast, TrackError> {
+        let live = self.undistort(raw)?;
+        let clip = self.options.clip;
+        let ra = render_at(&mut self.renderer, &self.ideal, clip, a)?;
+        let rb = render_at(&mut self.renderer, &self.ideal, clip, b)?;
+        Ok(contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live))
     }
 
     /// The live image of `raw` undistorted into the ideal camera the analysis works in.
@@ -333,6 +361,10 @@ impl Vision {
             pose,
             assessment,
             result,
+            registered: self
+                .last
+                .as_ref()
+                .map_or_else(Vec::new, |l| l.registered.clone()),
         })
     }
 
