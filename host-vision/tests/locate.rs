@@ -360,7 +360,11 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
                 let (dr, dra) = difference(&found, &raw);
                 let (dc, da) = difference(&found, refit.as_ref().map_or(&raw, |v| &v.pose));
                 compared += 1;
-                sigmas.extend(refit.as_ref().map(|r| pose_sigma(vision.ideal_camera(), r).0));
+                sigmas.extend(
+                    refit
+                        .as_ref()
+                        .map(|r| pose_sigma(vision.ideal_camera(), r).0),
+                );
                 let mut note = String::new();
                 if !(dc < 0.01 && da < 2.0) {
                     // Which of the two the image favours, by the locator's own judgement of
@@ -376,11 +380,13 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
                         verdict.is_some_and(|c| c.verdict == Some(std::cmp::Ordering::Less));
                     if favours_found && da > 5.0 {
                         other_tilt.push((i, dc, da));
-                        note = " (the image favours the located pose: tracking is on the other tilt)".into();
+                        note =
+                            " (the image favours the located pose: tracking is on the other tilt)"
+                                .into();
                     } else {
-                        let (sc, sa) = refit
-                            .as_ref()
-                            .map_or((f64::NAN, f64::NAN), |r| pose_sigma(vision.ideal_camera(), r));
+                        let (sc, sa) = refit.as_ref().map_or((f64::NAN, f64::NAN), |r| {
+                            pose_sigma(vision.ideal_camera(), r)
+                        });
                         // Within what the frame pins down: two estimates from one frame, each
                         // with the reference's σ along the worst directions, so their
                         // difference has √2 σ; its 95 % bound is 1.96 √2 σ.
@@ -393,7 +399,11 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
                         }
                         note = format!(
                             " ({}; the image: {:?}; the reference's σ {:.1} mm, {sa:.2}°)",
-                            if pinned { "within the 95 % bound of what this frame pins down" } else { "disagrees" },
+                            if pinned {
+                                "within the 95 % bound of what this frame pins down"
+                            } else {
+                                "disagrees"
+                            },
                             verdict.and_then(|c| c.verdict),
                             sc * 1e3
                         );
@@ -442,7 +452,9 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
             );
         }
         for r in a.rivals.iter().flatten() {
-            let apart = a.chosen.map_or((f64::NAN, f64::NAN), |c| difference(&c, &r.pose));
+            let apart = a
+                .chosen
+                .map_or((f64::NAN, f64::NAN), |c| difference(&c, &r.pose));
             let p2 = r.compared.map_or(String::from("-"), |c| {
                 format!(
                     "{:.3}/{:.3} over {}",

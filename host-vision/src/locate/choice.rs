@@ -25,9 +25,9 @@ use serde::Serialize;
 use crate::camera::{Camera, CameraPose};
 use crate::features::outliers::{Registration, robust_fit};
 use crate::locate::ransac::mirrored_pose;
-use nalgebra::Vector3;
 use crate::track::vision::{Verified, Vision};
 use crate::track::{Contrast, TrackError, TrackedRule};
+use nalgebra::Vector3;
 
 /// Two poses closer than this [m] and [`SAME_MINIMUM_RAD`] are one minimum: within what one
 /// frame's registrations pin a one-face view down to (and the 1 cm, 2° a found pose is asked
@@ -119,7 +119,10 @@ fn shared_registrations(verified: &[&Verified]) -> Vec<Registration> {
             None => shared.push(((*px, *p), 1.0)),
         }
     }
-    shared.into_iter().map(|((sum, p), n)| (sum / n, p)).collect()
+    shared
+        .into_iter()
+        .map(|((sum, p), n)| (sum / n, p))
+        .collect()
 }
 
 /// Whether two poses are one minimum.
@@ -312,6 +315,47 @@ pub fn choose(
     Ok((choice, compared, check))
 }
 
+/// The tilt check of a tracked pose (docs/notes/issue15-cold-start.md §5.2): `pose` verified
+/// in the raw frame `raw`, against its own mirror (eqs. P1–P3). Where the image favours the
+/// mirror decisively, the mirror is verified in its turn; the verified mirror is returned when
+/// it passes `rule` (the cold start's: a flip re-initialises the core as a found pose does)
+/// and the image favours it over the tracked pose again. `None`: the tracked pose stands.
+///
+/// Tracking follows a face that turns through face on along either branch of the two-fold
+/// ambiguity, and can leave on the wrong one: on the cube video, 150 mm and 18° off for a
+/// second (frames 779–796) while the rule held.
+pub fn check_tilt(
+    vision: &mut Vision,
+    raw: &GrayImage,
+    pose: &CameraPose,
+    rule: &TrackedRule,
+) -> Result<Option<CameraPose>, TrackError> {
+    let plausible_rule = TrackedRule {
+        min_features: TrackedRule::default().min_features,
+        ..*rule
+    };
+    let (tracked, _) = super::converged(vision, raw, pose, false)?;
+    if !plausible_rule.holds(&tracked.assessment) {
+        return Ok(None);
+    }
+    let Some(mirror) = mirror_of(&tracked) else {
+        return Ok(None);
+    };
+    if same_minimum(&mirror.pose, &tracked.pose) {
+        return Ok(None);
+    }
+    let first = compare(vision, raw, &tracked, &mirror)?;
+    if first.one_minimum() || first.verdict != Some(Ordering::Greater) {
+        return Ok(None);
+    }
+    let (flipped, _) = super::converged(vision, raw, &mirror.pose, false)?;
+    if !rule.holds(&flipped.assessment) || same_minimum(&flipped.pose, &tracked.pose) {
+        return Ok(None);
+    }
+    let second = compare(vision, raw, &flipped, &tracked)?;
+    Ok((!second.one_minimum() && second.verdict == Some(Ordering::Less)).then_some(flipped.pose))
+}
+
 /// `v`'s pose mirrored about the plane of its registrations' model points (eq. P1), as a
 /// hypothesis with the same registrations; `None` where the plane faces the camera.
 fn mirror_of(v: &Verified) -> Option<Verified> {
@@ -390,7 +434,8 @@ mod tests {
     }
 
     #[test]
-    fn eq_p3_favours_the_true_tilt_where_the_perspective_shows_it_and_cannot_tell_where_it_does_not() {
+    fn eq_p3_favours_the_true_tilt_where_the_perspective_shows_it_and_cannot_tell_where_it_does_not()
+     {
         let cam = camera();
         // A 20 cm face at 40 cm, tilted 12°, and a 10 cm face at 60 cm (the cube video's),
         // tilted 10°: the perspective leaves the registrations no second minimum, and the

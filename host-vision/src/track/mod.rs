@@ -616,6 +616,8 @@ pub fn run(
         searches: Vec::new(),
         recoveries: Vec::new(),
         database: None,
+        tilt_checks: 0,
+        tilt_flips: Vec::new(),
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(
@@ -712,6 +714,8 @@ enum WorkerJob {
     /// Find the model in a raw frame with no pose given (the cold start), with the viewpoint
     /// database of this cache folder.
     Locate(image::GrayImage, PathBuf),
+    /// Check the tilt of a tracked pose in its raw frame ([`crate::locate::choice::check_tilt`]).
+    CheckTilt(image::GrayImage, crate::camera::CameraPose),
 }
 
 /// An attempt's answer, with the database's provenance on the attempt that loaded it.
@@ -729,6 +733,8 @@ enum WorkerDone {
         Box<Result<crate::locate::Attempt, TrackError>>,
         Option<crate::locate::database::Provenance>,
     ),
+    /// The other tilt, where it is the pose.
+    CheckTilt(Result<Option<crate::camera::CameraPose>, TrackError>),
 }
 
 impl VisionWorker {
@@ -834,6 +840,31 @@ impl VisionWorker {
         }
     }
 
+    /// Starts the tilt check of the tracked `pose` in its raw frame `image` (its answer comes
+    /// by [`Self::tilt_result`]).
+    fn send_tilt_check(
+        &self,
+        image: image::GrayImage,
+        pose: crate::camera::CameraPose,
+    ) -> Result<(), TrackError> {
+        self.send_job(WorkerJob::CheckTilt(image, pose))
+    }
+
+    /// The answer of the tilt check sent: waited for (`block`), or only if it is ready
+    /// (`Ok(None)` when not). Its value is the other tilt, where that is the pose.
+    #[allow(clippy::type_complexity)]
+    fn tilt_result(
+        &self,
+        block: bool,
+    ) -> Result<Option<Option<crate::camera::CameraPose>>, TrackError> {
+        match self.recv_any(block)? {
+            Some(WorkerDone::CheckTilt(r)) => r.map(Some),
+            Some(_) => Err(Self::out_of_order()),
+            None if block => Err(Self::stopped()),
+            None => Ok(None),
+        }
+    }
+
     /// Judges the last analysed frame at `pose` over the correspondences `applied` (no frame
     /// may be in flight).
     fn assess(
@@ -918,6 +949,14 @@ fn vision_worker(
                 })();
                 WorkerDone::Locate(Box::new(attempt), provenance.take())
             }
+            WorkerJob::CheckTilt(image, pose) => {
+                WorkerDone::CheckTilt(crate::locate::choice::check_tilt(
+                    &mut vision,
+                    &image,
+                    &pose,
+                    &crate::locate::LocateConfig::default().rule,
+                ))
+            }
         };
         if results.send(done).is_err() {
             return;
@@ -990,6 +1029,11 @@ pub struct Session<'a> {
     /// Where the searches' viewpoint database came from (read from the cache, or built and
     /// why).
     pub database: Option<crate::locate::database::Provenance>,
+    /// Tilt checks of tracked poses run (vision-only runs).
+    pub tilt_checks: usize,
+    /// Where a tilt check put tracking on the other tilt of a face: the frame checked and
+    /// when the flip was applied [s].
+    pub tilt_flips: Vec<(usize, f64)>,
 }
 
 /// A loss of a vision-only run and its search.

@@ -188,6 +188,24 @@ fn frame_period(rows: &[FrameRow]) -> f64 {
     dt.get(dt.len() / 2).copied().unwrap_or(1.0 / 30.0)
 }
 
+/// The tilt checks of a vision-only run (docs/notes/issue15-cold-start.md §5.2).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct TiltChecks {
+    /// Checks run.
+    pub checks: usize,
+    /// Where one put tracking on the other tilt.
+    pub flips: Vec<TiltFlip>,
+}
+
+/// A flip to the other tilt of a face.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct TiltFlip {
+    /// The frame checked.
+    pub frame: usize,
+    /// When the flip was applied [s].
+    pub at_s: f64,
+}
+
 /// A loss and its search.
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct RecoverySummary {
@@ -374,6 +392,9 @@ pub struct Summary {
     pub line: Option<LineSummary>,
     /// Losses of a vision-only run and their searches.
     pub recoveries: Vec<RecoverySummary>,
+    /// Tilt checks of tracked poses (vision-only runs), and where one put tracking on the
+    /// other tilt of a face.
+    pub tilt_checks: TiltChecks,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
     pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
@@ -528,6 +549,22 @@ impl fmt::Display for Summary {
                 } else {
                     ""
                 }
+            )?;
+        }
+        if self.tilt_checks.checks > 0 {
+            let flips: Vec<String> = self
+                .tilt_checks
+                .flips
+                .iter()
+                .map(|t| format!("frame {} (at {:.2} s)", t.frame, t.at_s))
+                .collect();
+            writeln!(
+                f,
+                "tilt checks  {}, {} put tracking on the other tilt of a face{}{}",
+                self.tilt_checks.checks,
+                flips.len(),
+                if flips.is_empty() { "" } else { ": " },
+                flips.join(", ")
             )?;
         }
         writeln!(f, "divergences  {}", self.divergences.len())?;
@@ -972,6 +1009,14 @@ pub(super) fn write_all(
             }
         }),
         recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
+        tilt_checks: TiltChecks {
+            checks: session.tilt_checks,
+            flips: session
+                .tilt_flips
+                .iter()
+                .map(|&(frame, at_s)| TiltFlip { frame, at_s })
+                .collect(),
+        },
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0

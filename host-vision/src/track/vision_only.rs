@@ -22,6 +22,8 @@ use super::{
     FrameImage, FrameJob, Pending, Progress, Search, Session, Start, TrackError, TrackOptions,
     VisionWorker,
 };
+use image::GrayImage;
+
 use crate::camera::CameraPose;
 use crate::dataset::Dataset;
 use crate::frames::{Frame, FrameSource};
@@ -39,6 +41,10 @@ const LOST_AFTER_US: u64 = 500_000;
 /// While lost, one search every this many frames: an attempt costs several frame periods, and
 /// the frames between keep the loop going.
 const SEARCH_EVERY: usize = 5;
+
+/// While tracked, one tilt check every this many frames at most (docs/notes/issue15-cold-start.md
+/// §5.2): it runs on the search thread, one at a time, and costs about as much as an attempt.
+const TILT_CHECK_EVERY: usize = 5;
 
 /// Frame rate assumed when the input states none [Hz].
 const DEFAULT_CAMERA_RATE_HZ: f64 = 30.0;
@@ -187,6 +193,9 @@ impl Session<'_> {
         // The recovery attempt with the search thread: its frame's index, time [µs], and
         // since when the model was lost [µs].
         let mut in_search: Option<(usize, u64, u64)> = None;
+        // The tilt check sent to the search thread: its frame's index.
+        let mut in_check: Option<usize> = None;
+        let mut since_check = 0usize;
         let live = source.is_live();
         let search = search.ok_or_else(|| TrackError::Vision("no search thread".into()))?;
         let rule = super::TrackedRule::default();
@@ -261,11 +270,22 @@ impl Session<'_> {
                     }
                 }
             }
+            // The tilt check sent at an earlier frame, taken like a search's answer: where it
+            // found tracking on the other tilt of a face, the core is re-initialised there.
+            if let Some(index) = in_check {
+                if let Some(flip) = search.tilt_result(!live)? {
+                    in_check = None;
+                    if let Some(pose) = flip {
+                        link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                        self.tilt_flips.push((index, t_us as f64 * 1e-6));
+                    }
+                }
+            }
             let lost =
                 diverged || untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
             if !lost {
                 self.end_recovery(t_us);
-            } else if since_search >= SEARCH_EVERY && in_search.is_none() {
+            } else if since_search >= SEARCH_EVERY && in_search.is_none() && in_check.is_none() {
                 since_search = 0;
                 search.send_locate(frame.image.clone(), self.options.cache.clone())?;
                 in_search = Some((frame.index, t_us, untracked_since.unwrap_or(t_us)));
@@ -283,6 +303,12 @@ impl Session<'_> {
             self.barrier(link)?;
             frames += 1;
             let mut tracked = false;
+            let mut checked: Option<(GrayImage, CameraPose)> = None;
+            let check_due = since_check >= TILT_CHECK_EVERY
+                && in_check.is_none()
+                && in_search.is_none()
+                && untracked_since.is_none();
+            let check_image = check_due.then(|| frame.image.clone());
             if let Some(p) = self.log.predictions.get(&t_us).copied() {
                 let every = self.options.overlay_every;
                 let omega_c = self
@@ -339,7 +365,19 @@ impl Session<'_> {
                     let a = worker.assess(pose, applied)?;
                     self.assessments.insert(p.frame_id, a);
                     tracked = rule.holds(&a);
+                    if tracked && let Some(image) = check_image {
+                        checked = Some((image, pose));
+                    }
                 }
+            }
+            match checked {
+                Some((image, pose)) => {
+                    search.send_tilt_check(image, pose)?;
+                    in_check = Some(frame.index);
+                    self.tilt_checks += 1;
+                    since_check = 0;
+                }
+                None => since_check += 1,
             }
             if tracked {
                 untracked_since = None;
@@ -350,6 +388,9 @@ impl Session<'_> {
             if frames.is_multiple_of(10) {
                 progress(frames, total, self.results.len(), self.log.mode());
             }
+        }
+        if in_check.is_some() {
+            search.tilt_result(true)?;
         }
         if let Some((index, at_us, since)) = in_search {
             let (a, from) = search.locate_result()?;
