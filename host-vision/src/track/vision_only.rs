@@ -272,13 +272,13 @@ impl Session<'_> {
             }
             // The tilt check sent at an earlier frame, taken like a search's answer: where it
             // found tracking on the other tilt of a face, the core is re-initialised there.
-            if let Some(index) = in_check {
-                if let Some(flip) = search.tilt_result(!live)? {
-                    in_check = None;
-                    if let Some(pose) = flip {
-                        link.send(&HostToCore::Init(self.vision_init(&pose)))?;
-                        self.tilt_flips.push((index, t_us as f64 * 1e-6));
-                    }
+            if let Some(index) = in_check
+                && let Some(flip) = search.tilt_result(!live)?
+            {
+                in_check = None;
+                if let Some(pose) = flip {
+                    link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                    self.tilt_flips.push((index, t_us as f64 * 1e-6));
                 }
             }
             let lost =
