@@ -438,9 +438,9 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
                 (n, false, _) => format!("{n} alt."),
             },
         );
-        if let Some(c) = a.tilt_check {
+        if let Some(c) = a.mirror_check {
             println!(
-                "      tilt check against its own mirror: eq. P2 {:.3}/{:.3} over {} | eq. P3 {}",
+                "      mirror check: eq. P2 {:.3}/{:.3} over {} | eq. P3 {}",
                 c.contrast.first.unwrap_or(f64::NAN),
                 c.contrast.second.unwrap_or(f64::NAN),
                 c.contrast.pixels,

@@ -246,7 +246,7 @@ pub type Comparisons = Vec<Vec<Option<Comparison>>>;
 /// one, which registers too few.) Of those, the one the evidence favours over every other
 /// plausible pose that is not the same minimum ([`compare`]); the lowest-rms one where the
 /// favoured poses are one minimum. The chosen one is then compared with its own mirror (the
-/// tilt check, returned); where that does not favour it, the choice is ambiguous.
+/// mirror check, returned); where that does not favour it, the choice is ambiguous.
 pub fn choose(
     vision: &mut Vision,
     raw: &GrayImage,
@@ -295,7 +295,7 @@ pub fn choose(
         };
         return Ok((choice, compared, None));
     };
-    // The tilt check: the winner against its own mirror on its own registrations. The mirror
+    // The mirror check: the winner against its own mirror on its own registrations. The mirror
     // verified above may have walked back into the winner's basin, leaving the other tilt
     // untried although the registrations would fit it.
     let check = match mirror_of(&verified[winner]) {

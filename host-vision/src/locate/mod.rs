@@ -122,8 +122,8 @@ pub struct Attempt {
     /// Other poses verified besides RANSAC's best: the mirror and RANSAC's runners-up.
     pub alternatives: usize,
     /// The chosen pose against its own mirror on its own registrations, where that is another
-    /// pose (the tilt check of [`choice::choose`]).
-    pub tilt_check: Option<Comparison>,
+    /// pose (the mirror check of [`choice::choose`]).
+    pub mirror_check: Option<Comparison>,
     /// Whether two of the poses verified were both plausible and the evidence could not tell
     /// them apart (eqs. P2, P3): the attempt is refused.
     pub ambiguous: bool,
@@ -244,7 +244,7 @@ impl Locator {
             mirror_verified: false,
             mirror_chosen: false,
             ambiguous: false,
-            tilt_check: None,
+            mirror_check: None,
             alternatives: 0,
             times,
             rivals: [None; 4],
@@ -308,8 +308,8 @@ impl Locator {
             from.push(v_from);
             mirrored.push(is_mirror);
         }
-        let (chosen, compared, tilt_check) = choose(vision, raw, &verified, &self.config.rule)?;
-        attempt.tilt_check = tilt_check;
+        let (chosen, compared, mirror_check) = choose(vision, raw, &verified, &self.config.rule)?;
+        attempt.mirror_check = mirror_check;
         let k = match chosen {
             Choice::One(k) => k,
             // Judged as the lowest-rms pose, refused below.
