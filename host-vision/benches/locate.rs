@@ -71,7 +71,7 @@ fn locate(c: &mut Criterion) {
         let (a, _) = locator.attempt(&mut vision, img, false).expect("attempt");
         let t = a.times;
         eprintln!(
-            "attempt {name}: accepted {}, {} keypoints, {} matches, {} inliers, {} registered; detect {:.1} ms, match {:.1} ms, RANSAC {:.1} ms, verify {:.1} ms",
+            "attempt {name}: accepted {}, {} keypoints, {} matches, {} inliers, {} registered; detect {:.1} ms, match {:.1} ms, RANSAC {:.1} ms, verify {:.1} ms, choose {:.1} ms",
             a.accepted(),
             a.keypoints,
             a.matches,
@@ -80,7 +80,8 @@ fn locate(c: &mut Criterion) {
             t.detect * 1e3,
             t.matching * 1e3,
             t.ransac * 1e3,
-            t.verify * 1e3
+            t.verify * 1e3,
+            t.choose * 1e3
         );
         g.bench_function(format!("one attempt {name}"), |b| {
             b.iter(|| locator.attempt(&mut vision, img, false).expect("attempt"))

@@ -84,8 +84,10 @@ pub struct AttemptTimes {
     pub matching: f64,
     /// RANSAC and refinement.
     pub ransac: f64,
-    /// Verification (renderings, registration, judgement).
+    /// Verification (renderings, registration, judgement), the choice excluded.
     pub verify: f64,
+    /// The choice among the verified poses and the mirror check (eqs. P2, P3).
+    pub choose: f64,
 }
 
 /// What an attempt found.
@@ -308,7 +310,9 @@ impl Locator {
             from.push(v_from);
             mirrored.push(is_mirror);
         }
+        let t_choose = Instant::now();
         let (chosen, compared, mirror_check) = choose(vision, raw, &verified, &self.config.rule)?;
+        attempt.times.choose = t_choose.elapsed().as_secs_f64();
         attempt.mirror_check = mirror_check;
         let k = match chosen {
             Choice::One(k) => k,
@@ -337,7 +341,7 @@ impl Locator {
             // verification again.
             best = vision.verify(raw, &from[k], keep_image)?;
         }
-        attempt.times.verify = t.elapsed().as_secs_f64();
+        attempt.times.verify = t.elapsed().as_secs_f64() - attempt.times.choose;
         attempt.chosen = Some(best.pose);
         let a = best.assessment;
         attempt.registered = a.features;

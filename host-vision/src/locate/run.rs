@@ -302,17 +302,22 @@ impl std::fmt::Display for LocateReport {
         let t = &a.times;
         writeln!(
             f,
-            "time         detect {:.1} ms, match {:.1} ms, RANSAC {:.1} ms, verify {:.1} ms",
+            "time         detect {:.1} ms, match {:.1} ms, RANSAC {:.1} ms, verify {:.1} ms, choose {:.1} ms",
             t.detect * 1e3,
             t.matching * 1e3,
             t.ransac * 1e3,
-            t.verify * 1e3
+            t.verify * 1e3,
+            t.choose * 1e3
         )?;
         match &self.c_m_o {
             Some(m) => writeln!(
                 f,
                 "pose         accepted: model at [{:.4}, {:.4}, {:.4}] m in the camera",
                 m[0][3], m[1][3], m[2][3]
+            )?,
+            None if a.ambiguous => writeln!(
+                f,
+                "pose         not accepted: ambiguous, poses verified that the image cannot tell apart (the two tilts of a face seen nearly face on?); try another view"
             )?,
             None if a.candidate.is_some() => writeln!(
                 f,

@@ -1113,7 +1113,7 @@ impl Search {
         Self {
             index,
             t: t_us as f64 * 1e-6,
-            ms: (t.detect + t.matching + t.ransac + t.verify) * 1e3,
+            ms: (t.detect + t.matching + t.ransac + t.verify + t.choose) * 1e3,
             attempt,
         }
     }
