@@ -224,6 +224,52 @@ mod tests {
     }
 
     #[test]
+    fn eq_p2_correlates_each_rendering_where_the_two_disagree_only() {
+        let (w, h) = (60, 40);
+        let texture = |x: u32, y: u32| ((x * 37 + y * 91 + (x * y) % 17) % 200 + 20) as u8;
+        let full = GrayImage::from_fn(w, h, |_, _| image::Luma([255]));
+        // The live image shows the texture on columns 0..40 and a flat background beyond.
+        let live = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if x < 40 { texture(x, y) } else { 128 }])
+        });
+        // The right pose renders the texture where it is; the wrong one renders it 45 columns
+        // wide (a sliver the image does not show) and shifted by one column on 30..40.
+        let right_mask =
+            GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 40 { 255 } else { 0 }]));
+        let right = GrayImage::from_fn(w, h, |x, y| image::Luma([texture(x, y)]));
+        let wrong_mask =
+            GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 45 { 255 } else { 0 }]));
+        let wrong = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if x >= 30 {
+                texture(x + 1, y)
+            } else {
+                texture(x, y)
+            }])
+        });
+        let c = contrast((&right, &right_mask), (&wrong, &wrong_mask), &live);
+        // Columns 0..30 agree and do not count; 30..45 disagree (some pixels of 30..40 differ
+        // by less than the grey threshold).
+        assert!(c.pixels > 200 && c.pixels <= 15 * 40, "{c:?}");
+        assert!(c.first.unwrap() > 0.99, "{c:?}");
+        assert!(c.second.unwrap() < 0.5, "{c:?}");
+        // Swapped, the figures swap.
+        let d = contrast((&wrong, &wrong_mask), (&right, &right_mask), &live);
+        assert_eq!((d.first, d.second, d.pixels), (c.second, c.first, c.pixels));
+        // Two equal renderings disagree nowhere: no figures.
+        let same = contrast((&right, &full), (&right, &full), &live);
+        assert_eq!((same.pixels, same.first, same.second), (0, None, None));
+        // Another size: nothing.
+        assert_eq!(
+            contrast(
+                (&right, &right_mask),
+                (&wrong, &wrong_mask),
+                &GrayImage::new(3, 3)
+            ),
+            Contrast::default()
+        );
+    }
+
+    #[test]
     fn rms_of_exact_points_is_zero_and_counts_only_points_in_front() {
         let camera = pinhole_camera(
             640,
