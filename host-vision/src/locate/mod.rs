@@ -265,7 +265,7 @@ impl Locator {
         // the model points seen lie on one plane, the pose with the plane tilted the other way
         // explains them nearly as well, and the fit may have ended in either. The mirror of the
         // verified pose about the inliers' plane is verified too, and so are RANSAC's
-        // runners-up (other poses the matches fit, §4).
+        // runners-up: other poses the matches fit (docs/notes/issue15-cold-start.md §4).
         let inlier_points: Vec<Vector3<f64>> = x_w
             .iter()
             .zip(&found.inliers)
