@@ -12,8 +12,8 @@ use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{ErrorCode, InvalidField};
-use crate::handshake::Version;
 use crate::limits::{MAX_CORRESPONDENCES_PER_MESSAGE, MAX_PARTS_PER_FRAME};
+use crate::version::Version;
 
 /// Symmetric 2×2 matrix, upper triangle `[xx, xy, yy]`.
 pub type Sym2 = [f32; 3];
