@@ -10,7 +10,7 @@ use std::io::{self, Read as _, Write as _};
 use std::thread::JoinHandle;
 
 use fusion_core::device::{Counters, DeviceIo};
-use fusion_core::scalar::Scalar;
+use fusion_core::kernels::Kernels;
 
 use crate::transport::{self, Duplex};
 
@@ -55,7 +55,7 @@ pub fn spawn(
         .spawn(move || serve(link, precision))
 }
 
-fn serve_with<T: Scalar>(link: Duplex) -> io::Result<BoardReport> {
+fn serve_with<T: Kernels>(link: Duplex) -> io::Result<BoardReport> {
     // On the heap: the f64 device is 26 KB.
     let mut io = Box::<DeviceIo<T>>::default();
     let Duplex {

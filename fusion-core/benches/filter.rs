@@ -4,7 +4,7 @@
 use std::hint::black_box;
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use fusion_core::Scalar;
+use fusion_core::Kernels;
 use fusion_core::filter::{Filter, ImuSample};
 use fusion_core::init::{StillWindow, initial_state};
 use fusion_core::models::correspondence::{self, Observation};
@@ -14,7 +14,7 @@ use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use protocol::{InitAttitude, ModelKind};
 
 /// A filter that has run for a while (realistic covariance fill-in).
-fn warmed<T: Scalar>(model: ModelKind) -> (Params<T>, Filter<T>) {
+fn warmed<T: Kernels>(model: ModelKind) -> (Params<T>, Filter<T>) {
     let mut cfg = protocol::samples::config();
     cfg.model = model;
     // No vision here: dead reckoning must not count as divergence.
@@ -42,7 +42,7 @@ fn warmed<T: Scalar>(model: ModelKind) -> (Params<T>, Filter<T>) {
     (prm, f)
 }
 
-fn imu_step<T: Scalar>(c: &mut Criterion, name: &str) {
+fn imu_step<T: Kernels>(c: &mut Criterion, name: &str) {
     for model in ModelKind::INERTIAL {
         let (prm, filter) = warmed::<T>(model);
         let mut t = filter.t_us;
@@ -67,7 +67,7 @@ fn imu_step<T: Scalar>(c: &mut Criterion, name: &str) {
     }
 }
 
-fn correspondence_update<T: Scalar>(c: &mut Criterion, name: &str) {
+fn correspondence_update<T: Kernels>(c: &mut Criterion, name: &str) {
     let (prm, filter) = warmed::<T>(ModelKind::Acc);
     // A point 2 m in front of the camera, registered close to its projection.
     let pose = fusion_core::state::camera_pose(&filter.st, &prm.hand_eye);

@@ -4,7 +4,7 @@
 
 use heapless::Deque;
 
-use crate::filter::{Filter, ImuSample};
+use crate::filter::{Filter, ImuSample, StepKernel};
 use crate::params::Params;
 use crate::scalar::Scalar;
 use crate::state::StateVec;
@@ -189,7 +189,10 @@ impl<T: Scalar> DelayLine<T> {
         frame_id: u32,
         prm: &Params<T>,
         live: &mut Filter<T>,
-    ) -> Option<Result<(), StatusReason>> {
+    ) -> Option<Result<(), StatusReason>>
+    where
+        T: StepKernel,
+    {
         let start = self.snapshots.iter().position(|s| s.frame_id == frame_id)?;
         let seq = {
             let s = self.snapshots.iter_mut().nth(start)?;

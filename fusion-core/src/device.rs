@@ -14,6 +14,7 @@ use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing};
 use crate::divergence::Monitor;
 use crate::filter::{Filter, ImuSample};
 use crate::init::{StillWindow, initialise};
+use crate::kernels::Kernels;
 use crate::models::correspondence::{self, Observation, Rejection};
 use crate::params::Params;
 use crate::quat::{self, Quat};
@@ -246,7 +247,10 @@ impl<T: Scalar> Device<T> {
     pub fn params(&self) -> Option<&Params<T>> {
         self.prm.as_ref()
     }
+}
 
+// What runs the filter needs its hot paths compiled in this crate (`crate::kernels`).
+impl<T: Kernels> Device<T> {
     /// Reports a frame the decoder rejected.
     pub fn decode_error(&mut self, e: DecodeError, out: Out) {
         Counters::bump(&mut self.counters.decode_errors);
@@ -872,7 +876,9 @@ impl<T: Scalar> DeviceIo<T> {
             answer: AnswerBuf([0; MAX_FRAME_LEN]),
         }
     }
+}
 
+impl<T: Kernels> DeviceIo<T> {
     /// Consumes received bytes; every answer is passed to `send` as one encoded frame.
     pub fn receive(&mut self, bytes: &[u8], send: &mut dyn FnMut(&[u8])) {
         let buf = &mut self.answer.0;

@@ -24,7 +24,7 @@ use protocol::StatusReason;
 
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::{N, State, all_finite_generic};
+use crate::state::{N, State, StateKernels, all_finite_generic};
 
 /// State of the monitor.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -97,7 +97,10 @@ impl<T: Scalar> Monitor<T> {
     /// Test 2, and full finiteness, once per camera period of IMU time (at each trigger, and
     /// without triggers too): the covariance grows slowly, so checking it at frame rate costs
     /// a fraction and misses nothing.
-    pub fn frame(st: &State<T>, prm: &Params<T>) -> Option<StatusReason> {
+    pub fn frame(st: &State<T>, prm: &Params<T>) -> Option<StatusReason>
+    where
+        T: StateKernels,
+    {
         if !st.is_finite() {
             Some(StatusReason::NonFiniteState)
         } else if st.cov_frobenius() > prm.cov_threshold {

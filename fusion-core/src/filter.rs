@@ -80,11 +80,14 @@ impl<T: Scalar> Filter<T> {
 
     /// Applies one IMU sample (its time stamp must be after the filter's). Returns the reason
     /// if the state diverged.
-    pub fn imu_step(&mut self, prm: &Params<T>, s: &ImuSample<T>) -> Result<(), StatusReason> {
+    pub fn imu_step(&mut self, prm: &Params<T>, s: &ImuSample<T>) -> Result<(), StatusReason>
+    where
+        T: StepKernel,
+    {
         T::imu_step(self, prm, s)
     }
 
-    /// [`Self::imu_step`], instantiated through [`crate::scalar::Kernels`].
+    /// [`Self::imu_step`], instantiated through [`StepKernel`].
     pub(crate) fn imu_step_generic(
         &mut self,
         prm: &Params<T>,
@@ -118,6 +121,33 @@ impl<T: Scalar> Filter<T> {
         }
     }
 }
+
+/// [`Filter::imu_step`], compiled in this crate for each scalar (why: [`crate::kernels`]).
+pub trait StepKernel: Scalar {
+    /// [`Filter::imu_step`] (every IMU sample).
+    fn imu_step(
+        f: &mut Filter<Self>,
+        prm: &Params<Self>,
+        s: &ImuSample<Self>,
+    ) -> Result<(), StatusReason>;
+}
+
+macro_rules! step_kernel {
+    ($t:ty) => {
+        impl StepKernel for $t {
+            #[inline(never)]
+            fn imu_step(
+                f: &mut Filter<Self>,
+                prm: &Params<Self>,
+                s: &ImuSample<Self>,
+            ) -> Result<(), StatusReason> {
+                f.imu_step_generic(prm, s)
+            }
+        }
+    };
+}
+step_kernel!(f32);
+step_kernel!(f64);
 
 /// The gyro (eq. 9) and, except in the gyro model, accelerometer (eq. 13 / 16) readings of one
 /// sample as one measurement with uncorrelated noise (3 or 6 axes), linearised at the prior;

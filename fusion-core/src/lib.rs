@@ -17,6 +17,10 @@
 //! | (re)initialisation | [`init`] |
 //! | delayed correspondences | [`delay`] |
 //! | device loop (protocol messages in and out) | [`device`] |
+//!
+//! The hot paths of the filter are compiled in this crate for `f32` and `f64` ([`kernels`]):
+//! code generic over the scalar that runs the filter or the device bounds it on [`Kernels`],
+//! while [`Scalar`] is the arithmetic alone.
 #![no_std]
 
 #[cfg(test)]
@@ -28,6 +32,7 @@ pub mod divergence;
 pub mod ekf;
 pub mod filter;
 pub mod init;
+pub mod kernels;
 pub mod models;
 pub mod params;
 pub mod quat;
@@ -38,5 +43,6 @@ mod testutil;
 pub mod trig;
 
 pub use device::{Device, DeviceIo};
+pub use kernels::Kernels;
 pub use protocol::{ModelKind, PROTOCOL_VERSION};
 pub use scalar::Scalar;

@@ -1,89 +1,10 @@
 //! The filter's scalar: `f32` on the MCU, `f64` on the PC.
 
 use nalgebra::RealField;
-use protocol::StatusReason;
 
-use crate::filter::{Filter, ImuSample};
-use crate::models::correspondence::{self, Observation, Rejection};
-use crate::params::Params;
-use crate::state::{self, CameraPose, HandEye, State};
-
-/// The filter's hot paths, monomorphised for each scalar *in this crate*.
-///
-/// Generic code is compiled, and optimised, in the crate that instantiates it: without this
-/// hook the firmware would build the filter at its own size-first opt-level. The impls below are
-/// not generic, so they are compiled here, with this crate's profile (the firmware builds
-/// `fusion-core` at opt-level 3 and everything else for size).
-pub trait Kernels: Sized {
-    /// [`Filter::imu_step`].
-    fn imu_step(
-        f: &mut Filter<Self>,
-        prm: &Params<Self>,
-        s: &ImuSample<Self>,
-    ) -> Result<(), StatusReason>
-    where
-        Self: Scalar;
-    /// [`correspondence::update`].
-    fn correspondence_update(
-        st: &mut State<Self>,
-        prm: &Params<Self>,
-        obs: &Observation<Self>,
-    ) -> (Self, Result<Self, Rejection>)
-    where
-        Self: Scalar;
-    /// [`State::cov_frobenius`] (every `State` report).
-    fn cov_frobenius(st: &State<Self>) -> Self
-    where
-        Self: Scalar;
-    /// [`state::all_finite`] (every divergence check).
-    fn all_finite(values: &[Self]) -> bool
-    where
-        Self: Scalar;
-    /// [`state::camera_pose`] (every pose prediction).
-    fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self>
-    where
-        Self: Scalar;
-}
-
-macro_rules! kernels {
-    ($t:ty) => {
-        impl Kernels for $t {
-            #[inline(never)]
-            fn imu_step(
-                f: &mut Filter<Self>,
-                prm: &Params<Self>,
-                s: &ImuSample<Self>,
-            ) -> Result<(), StatusReason> {
-                f.imu_step_generic(prm, s)
-            }
-            #[inline(never)]
-            fn correspondence_update(
-                st: &mut State<Self>,
-                prm: &Params<Self>,
-                obs: &Observation<Self>,
-            ) -> (Self, Result<Self, Rejection>) {
-                correspondence::update_generic(st, prm, obs)
-            }
-            #[inline(never)]
-            fn cov_frobenius(st: &State<Self>) -> Self {
-                st.cov_frobenius_generic()
-            }
-            #[inline(never)]
-            fn all_finite(values: &[Self]) -> bool {
-                state::all_finite_generic(values)
-            }
-            #[inline(never)]
-            fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self> {
-                state::camera_pose_generic(st, he)
-            }
-        }
-    };
-}
-kernels!(f32);
-kernels!(f64);
-
-/// A floating-point scalar the filter runs on.
-pub trait Scalar: RealField + Copy + Default + Kernels {
+/// A floating-point scalar the filter runs on: its arithmetic. The functions that run the filter
+/// also need its hot paths compiled in this crate ([`crate::kernels::Kernels`]).
+pub trait Scalar: RealField + Copy + Default {
     /// Bits of the type (reported to the host in `HelloAck`).
     const BITS: u8;
     /// Smallest variance a covariance diagonal entry of an active state may reach.

@@ -80,11 +80,14 @@ impl<T: Scalar> State<T> {
 
     /// Frobenius norm of the covariance, from its upper triangle (the covariance is
     /// symmetric): `‖P‖² = Σ P_ii² + 2 Σ_{i<j} P_ij²`, half the work of all entries.
-    pub fn cov_frobenius(&self) -> T {
+    pub fn cov_frobenius(&self) -> T
+    where
+        T: StateKernels,
+    {
         T::cov_frobenius(self)
     }
 
-    /// [`Self::cov_frobenius`], compiled through [`crate::scalar::Kernels`].
+    /// [`Self::cov_frobenius`], compiled through [`StateKernels`].
     pub(crate) fn cov_frobenius_generic(&self) -> T {
         let mut diag = T::zero();
         let mut off = T::zero();
@@ -106,7 +109,10 @@ impl<T: Scalar> State<T> {
     }
 
     /// Whether every entry of mean and covariance is finite.
-    pub fn is_finite(&self) -> bool {
+    pub fn is_finite(&self) -> bool
+    where
+        T: StateKernels,
+    {
         all_finite(self.x.as_slice()) && all_finite(self.p.as_slice())
     }
 }
@@ -114,11 +120,11 @@ impl<T: Scalar> State<T> {
 /// Whether every value is finite, branch-free: `v · 0` is `±0` for a finite `v` and NaN for
 /// `±∞` and NaN, so the sum of those products is zero exactly when all are finite (one
 /// multiply-add per value instead of a compare and branch).
-pub fn all_finite<T: Scalar>(values: &[T]) -> bool {
+pub fn all_finite<T: StateKernels>(values: &[T]) -> bool {
     T::all_finite(values)
 }
 
-/// [`all_finite`], compiled through [`crate::scalar::Kernels`].
+/// [`all_finite`], compiled through [`StateKernels`].
 pub(crate) fn all_finite_generic<T: Scalar>(values: &[T]) -> bool {
     let zero = T::zero();
     values.iter().fold(zero, |acc, &v| acc + v * zero) == zero
@@ -160,11 +166,11 @@ pub struct CameraPose<T: Scalar> {
 
 /// Camera pose from the state (eq. 5-6): `c_w = s_w + R(q_sw)ᵀ c_s`, `q_cw = q_cs ⊙ q_sw`,
 /// with its covariance `J P Jᵀ`.
-pub fn camera_pose<T: Scalar>(st: &State<T>, he: &HandEye<T>) -> CameraPose<T> {
+pub fn camera_pose<T: StateKernels>(st: &State<T>, he: &HandEye<T>) -> CameraPose<T> {
     T::camera_pose(st, he)
 }
 
-/// [`camera_pose`], compiled through [`crate::scalar::Kernels`].
+/// [`camera_pose`], compiled through [`StateKernels`].
 pub(crate) fn camera_pose_generic<T: Scalar>(st: &State<T>, he: &HandEye<T>) -> CameraPose<T> {
     let q = st.q().normalize();
     let r = quat::rot(&q);
@@ -199,6 +205,37 @@ pub(crate) fn camera_pose_generic<T: Scalar>(st: &State<T>, he: &HandEye<T>) -> 
         cov: j * p * j.transpose(),
     }
 }
+
+/// The state's hot functions, compiled in this crate for each scalar (why: [`crate::kernels`]).
+pub trait StateKernels: Scalar {
+    /// [`State::cov_frobenius`] (every `State` report).
+    fn cov_frobenius(st: &State<Self>) -> Self;
+    /// [`all_finite`] (every divergence check).
+    fn all_finite(values: &[Self]) -> bool;
+    /// [`camera_pose`] (every pose prediction).
+    fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self>;
+}
+
+macro_rules! state_kernels {
+    ($t:ty) => {
+        impl StateKernels for $t {
+            #[inline(never)]
+            fn cov_frobenius(st: &State<Self>) -> Self {
+                st.cov_frobenius_generic()
+            }
+            #[inline(never)]
+            fn all_finite(values: &[Self]) -> bool {
+                all_finite_generic(values)
+            }
+            #[inline(never)]
+            fn camera_pose(st: &State<Self>, he: &HandEye<Self>) -> CameraPose<Self> {
+                camera_pose_generic(st, he)
+            }
+        }
+    };
+}
+state_kernels!(f32);
+state_kernels!(f64);
 
 #[cfg(test)]
 mod tests {

@@ -4,7 +4,7 @@ use core::fmt;
 
 use serde::{Deserialize, Serialize};
 
-use crate::handshake::Version;
+use crate::version::Version;
 
 /// Why a received frame was rejected. The decoder has already resynchronised when it reports
 /// one of these: the next frame after the delimiter decodes normally.

@@ -4,35 +4,10 @@
 
 use core::fmt;
 
-use serde::{Deserialize, Serialize};
-
 use crate::error::ErrorCode;
 use crate::messages::{Capacities, CoreToHost, HelloAck, ModelKind};
-
-/// A protocol version. Its layout (two `u16`) never changes.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct Version {
-    /// Incompatible changes increment this.
-    pub major: u16,
-    /// Compatible changes increment this.
-    pub minor: u16,
-}
-
-impl fmt::Display for Version {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}.{}", self.major, self.minor)
-    }
-}
-
-impl Version {
-    /// Whether two peers of these versions can talk.
-    pub const fn compatible_with(self, other: Version) -> bool {
-        self.major == other.major
-    }
-}
-
-/// The version this crate implements.
-pub const PROTOCOL_VERSION: Version = Version { major: 2, minor: 2 };
+// Defined in `version`, below the messages that carry them; re-exported where they were.
+pub use crate::version::{PROTOCOL_VERSION, Version};
 
 /// The core's answer to a `Hello` from a host speaking `host`.
 pub fn answer_hello(host: Version, model: Option<ModelKind>, capacities: Capacities) -> CoreToHost {

@@ -8,7 +8,7 @@
 //!   rejects corrupted or oversized frames with a typed [`DecodeError`] and resynchronises on
 //!   the next delimiter;
 //! - field validation of incoming messages ([`HostToCore::validate`]);
-//! - the version handshake ([`handshake`]);
+//! - the protocol version ([`version`]) and the handshake ([`handshake`]);
 //! - every size bound as an exported constant ([`limits`]).
 //!
 //! It is `no_std` and never allocates. With the `std` feature, [`io`] adds blocking framed
@@ -31,10 +31,12 @@ pub mod limits;
 pub mod messages;
 pub mod samples;
 pub mod validate;
+pub mod version;
 
 pub use decoder::{Decoder, Frames};
 pub use error::{DecodeError, EncodeError, ErrorCode, InvalidField};
 pub use framing::{body_len, crc32c, encode_frame};
-pub use handshake::{HandshakeError, PROTOCOL_VERSION, Version};
+pub use handshake::HandshakeError;
 pub use limits::*;
 pub use messages::*;
+pub use version::{PROTOCOL_VERSION, Version};

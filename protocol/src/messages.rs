@@ -11,9 +11,9 @@
 use heapless::Vec;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{ErrorCode, InvalidField};
-use crate::handshake::Version;
+use crate::error::ErrorCode;
 use crate::limits::{MAX_CORRESPONDENCES_PER_MESSAGE, MAX_PARTS_PER_FRAME};
+use crate::version::Version;
 
 /// Symmetric 2×2 matrix, upper triangle `[xx, xy, yy]`.
 pub type Sym2 = [f32; 3];
@@ -591,13 +591,6 @@ impl HostToCore {
             HostToCore::Reset => "Reset",
             HostToCore::Tick(_) => "Tick",
         }
-    }
-
-    /// Checks every field against its documented range: finite numbers, unit quaternions,
-    /// positive semi-definite covariances, part indices in range, parameters in range. The core
-    /// calls this on every message before use and answers [`ErrorCode::Invalid`] on failure.
-    pub fn validate(&self) -> Result<(), InvalidField> {
-        crate::validate::host_message(self)
     }
 }
 

@@ -4,8 +4,8 @@
 use heapless::Vec;
 
 use crate::error::{DecodeError, ErrorCode, InvalidField};
-use crate::handshake::{PROTOCOL_VERSION, Version};
 use crate::messages::*;
+use crate::version::{PROTOCOL_VERSION, Version};
 
 /// A typical configuration: acc model, noise close to an XSens MT9-class IMU, hand-eye of a
 /// camera looking along the sensor's x axis.

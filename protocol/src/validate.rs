@@ -27,7 +27,18 @@ const PSD_TOLERANCE: f32 = 1e-5;
 /// leave it room to do so.
 pub const COVARIANCE_THRESHOLD_MARGIN: f32 = 2.0;
 
-pub(crate) fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
+// Here with the checks rather than with the messages, which the checks use.
+impl HostToCore {
+    /// Checks every field against its documented range: finite numbers, unit quaternions,
+    /// positive semi-definite covariances, part indices in range, parameters in range. The core
+    /// calls this on every message before use and answers [`crate::ErrorCode::Invalid`] on
+    /// failure.
+    pub fn validate(&self) -> Result<(), InvalidField> {
+        host_message(self)
+    }
+}
+
+fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
     match msg {
         // A tick's only field is its time stamp, which the core checks against its clock.
         HostToCore::Hello(_) | HostToCore::Reset | HostToCore::Tick(_) => Ok(()),

@@ -7,7 +7,7 @@ use std::collections::VecDeque;
 use firmware_sim::sim::camera::{self, Mount, Pinhole};
 use firmware_sim::sim::imu::{ImuNoise, ImuReading, ImuSim};
 use firmware_sim::sim::trajectory::{Kinematics, Trajectory};
-use fusion_core::{Device, Scalar};
+use fusion_core::{Device, Kernels, Scalar};
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use protocol::{
     Config, CoreToHost, Correspondence, Correspondences, ErrorCode, Hello, HostToCore, ImuSample,
@@ -144,7 +144,7 @@ pub struct Driver<'s, T: Scalar> {
     pub transcript: Option<(Vec<HostToCore>, Vec<CoreToHost>)>,
 }
 
-impl<'s, T: Scalar> Driver<'s, T> {
+impl<'s, T: Kernels> Driver<'s, T> {
     /// Opens the session: `Hello`, `Configure`, `Init`.
     pub fn new(sc: &'s Scenario) -> Self {
         let mut d = Driver {
@@ -323,7 +323,7 @@ impl<'s, T: Scalar> Driver<'s, T> {
 }
 
 /// Runs the scenario; `each` sees the device after every IMU sample with the truth.
-pub fn run<T: Scalar>(
+pub fn run<T: Kernels>(
     sc: &Scenario,
     mut each: impl FnMut(&Device<T>, &Kinematics, &ImuReading),
 ) -> Outcome {

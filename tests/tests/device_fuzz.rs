@@ -2,7 +2,7 @@
 //! and random messages of every kind with arbitrary field values (random postcard bodies that
 //! happen to decode), then random bytes through the framed byte interface.
 
-use fusion_core::{Device, DeviceIo, Scalar};
+use fusion_core::{Device, DeviceIo, Kernels};
 use protocol::{HostToCore, Mode, ModelKind};
 use tests::harness::{Driver, scenes};
 
@@ -32,7 +32,7 @@ fn random_message(rng: &mut Rng) -> Option<HostToCore> {
     postcard::from_bytes::<HostToCore>(&body).ok()
 }
 
-fn run<T: Scalar>(model: ModelKind, seed: u64) -> (usize, Mode) {
+fn run<T: Kernels>(model: ModelKind, seed: u64) -> (usize, Mode) {
     let sc = scenes::standard(model, 12.0, 2.0, seed);
     let mut d = Driver::<T>::new(&sc);
     let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);

@@ -2,8 +2,10 @@
 //!
 //! - `demo`: the main job: synthesise the default scenario (cached) and track it through the
 //!   simulated board over a pty serial link (`host-vision demo`);
-//! - `test`: every check CI runs: format, the references in comments ([`references`]), lints,
-//!   tests, and the no_std crates built for the Cortex-M4F target;
+//! - `test`: every check CI runs: format, the references in comments ([`references`]), the
+//!   module layering ([`layers`]), lints, tests, and the no_std crates built for the Cortex-M4F
+//!   target;
+//! - `layers`: only the layering check, printing each tree's modules bottom up;
 //! - `setup`: only the machine set-up both of the above start with.
 //!
 //! Set-up is idempotent and quick when everything is present: on Debian as root it installs
@@ -15,6 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
+mod layers;
 mod references;
 
 /// The Cortex-M4F target the no_std crates must build for.
@@ -43,12 +46,14 @@ fn main() -> ExitCode {
         Some("test") => setup(TEST_PACKAGES, true).and_then(|_| test()),
         Some("firmware") => setup(TEST_PACKAGES, true).and_then(|_| firmware_report()),
         Some("setup") => setup(TEST_PACKAGES, true),
+        Some("layers") => layering(),
         _ => {
             eprintln!(
-                "usage: cargo xtask <demo|test|setup>\n\n  \
+                "usage: cargo xtask <demo|test|firmware|layers|setup>\n\n  \
                  demo   run the main job on the built-in default scenario\n  \
                  test   run every check CI runs (fmt, clippy, tests, thumbv7em builds)\n  \
                  firmware  build the Cortex-M4F image, run its benchmark under QEMU, print the footprint\n  \
+                 layers  check that the modules import each other without cycles; print their layers\n  \
                  setup  install what the two commands need (Debian, as root)"
             );
             return ExitCode::from(2);
@@ -242,6 +247,18 @@ fn setup(packages: &[&str], dev_tools: bool) -> Result<(), String> {
     }
 }
 
+/// The layering check ([`layers`]): fails on a cycle, else prints each tree's layers.
+fn layering() -> Result<(), String> {
+    for layering in layers::check(&workspace_root())? {
+        println!(
+            "xtask: {}: modules without import cycles; bottom up, each uses only modules of \
+             the lines above it:\n{layering}",
+            layering.tree
+        );
+    }
+    Ok(())
+}
+
 fn demo(extra: &[String]) -> Result<(), String> {
     let mut cmd = cargo();
     cmd.args([
@@ -269,6 +286,7 @@ fn test() -> Result<(), String> {
     // Cheap, and a broken citation is found before minutes of lints and tests.
     let cited = references::check(&workspace_root())?;
     println!("xtask: {cited} section and equation references in comments resolve");
+    layering()?;
 
     let mut clippy = cargo();
     clippy.args([

@@ -443,7 +443,7 @@ pub fn check(root: &Path) -> Result<usize, String> {
     }
 }
 
-fn relative(root: &Path, f: &Path) -> String {
+pub(crate) fn relative(root: &Path, f: &Path) -> String {
     f.strip_prefix(root)
         .unwrap_or(f)
         .to_string_lossy()
@@ -451,7 +451,7 @@ fn relative(root: &Path, f: &Path) -> String {
 }
 
 /// Files ending in `.ext` below `dir`, skipping build output and hidden folders.
-fn walk(dir: &Path, ext: &str, out: &mut Vec<std::path::PathBuf>) -> Result<(), String> {
+pub(crate) fn walk(dir: &Path, ext: &str, out: &mut Vec<std::path::PathBuf>) -> Result<(), String> {
     let entries = fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     for entry in entries {
         let entry = entry.map_err(|e| format!("{}: {e}", dir.display()))?;

@@ -136,7 +136,7 @@ pub fn linearise<T: Scalar>(
 /// when applied, the step's radial quaternion error ([`crate::ekf::radial_step`]).
 ///
 /// The covariance must be symmetric (every update and time update keeps it so).
-pub fn update<T: Scalar>(
+pub fn update<T: UpdateKernel>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
@@ -144,7 +144,7 @@ pub fn update<T: Scalar>(
     T::correspondence_update(st, prm, obs)
 }
 
-/// [`update`], instantiated through [`crate::scalar::Kernels`].
+/// [`update`], instantiated through [`UpdateKernel`].
 pub(crate) fn update_generic<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
@@ -184,6 +184,33 @@ pub(crate) fn update_generic<T: Scalar>(
     let radial = f.apply(st, prm.n, &mut u);
     (f.nis, Ok(radial))
 }
+
+/// [`update`], compiled in this crate for each scalar (why: [`crate::kernels`]).
+pub trait UpdateKernel: Scalar {
+    /// [`update`] (every correspondence).
+    fn correspondence_update(
+        st: &mut State<Self>,
+        prm: &Params<Self>,
+        obs: &Observation<Self>,
+    ) -> (Self, Result<Self, Rejection>);
+}
+
+macro_rules! update_kernel {
+    ($t:ty) => {
+        impl UpdateKernel for $t {
+            #[inline(never)]
+            fn correspondence_update(
+                st: &mut State<Self>,
+                prm: &Params<Self>,
+                obs: &Observation<Self>,
+            ) -> (Self, Result<Self, Rejection>) {
+                update_generic(st, prm, obs)
+            }
+        }
+    };
+}
+update_kernel!(f32);
+update_kernel!(f64);
 
 #[cfg(test)]
 mod tests {

@@ -16,6 +16,7 @@ pub mod assess;
 mod cold_start;
 pub mod config;
 pub mod core;
+mod frame_row;
 pub mod output;
 pub mod overlay;
 pub mod plot;
@@ -40,7 +41,8 @@ use rand::{RngExt as _, SeedableRng};
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
-pub use self::output::{FrameRow, Summary};
+pub use self::frame_row::FrameRow;
+pub use self::output::Summary;
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 
 use crate::camera::{CalibError, CameraError};

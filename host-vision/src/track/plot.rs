@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 
 use super::TrackError;
-use super::output::FrameRow;
+use super::frame_row::FrameRow;
 
 /// One named series of `(t, value)`.
 #[derive(Debug, Clone)]

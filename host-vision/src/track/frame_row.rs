@@ -1,0 +1,51 @@
+//! One analysed frame as the outputs record it: a row of `frames.csv`, and what the summary and
+//! the plots are computed from.
+
+use serde::Serialize;
+
+/// One analysed frame.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct FrameRow {
+    /// The image's row in `mav0/cam0/data.csv` (from 0; frames before the core's
+    /// initialisation ended get no prediction and no row).
+    pub index: usize,
+    /// Time since the first IMU sample [s].
+    pub t: f64,
+    /// Frame id the core gave the trigger (from 0, counting the triggers it predicted).
+    pub frame_id: u32,
+    /// Fraction of the image covered by the model rendered at the prediction.
+    pub model_coverage: f64,
+    /// Map features predicted visible.
+    pub visible: usize,
+    /// Features added.
+    pub added: usize,
+    /// Features registered (tried).
+    pub tried: usize,
+    /// Registered.
+    pub registered: usize,
+    /// Correspondences sent.
+    pub sent: usize,
+    /// Accepted by the core.
+    pub accepted: usize,
+    /// Gated out (or otherwise rejected) by the core.
+    pub gated: usize,
+    /// Mean prediction error [px] (predicted → registered).
+    pub prediction_error_px: Option<f64>,
+    /// Camera position error of the prediction [m], with ground truth.
+    pub position_error_m: Option<f64>,
+    /// Rendering [ms].
+    pub render_ms: f64,
+    /// Pyramids [ms].
+    pub pyramids_ms: f64,
+    /// Registration [ms].
+    pub klt_ms: f64,
+    /// Whole frame [ms].
+    pub total_ms: f64,
+    /// Reprojection rms [px] of the registered features at the pose estimated with this
+    /// frame (vision-only runs; [`super::assess`]).
+    pub rms_px: Option<f64>,
+    /// Rendered-vs-live correlation over the model's mask at that pose (vision-only runs).
+    pub ncc: Option<f64>,
+    /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
+    pub tracked: Option<bool>,
+}
