@@ -30,6 +30,19 @@ impl CameraPose {
         })
     }
 
+    /// From the extrinsics `x_c = R(q_cw) x_w + t`: the camera centre is `−Rᵀ t`.
+    pub fn from_extrinsics(q_cw: UnitQuaternion<f64>, t: &Vector3<f64>) -> Self {
+        Self {
+            q_cw,
+            c_w: -(q_cw.inverse() * t),
+        }
+    }
+
+    /// The extrinsics' translation `t = −R(q_cw) c_w`.
+    pub fn translation(&self) -> Vector3<f64> {
+        -(self.q_cw * self.c_w)
+    }
+
     /// A camera at `eye` looking at `target`, with image "up" (−y_c) as close to `up_w` as
     /// possible.
     pub fn look_at(

@@ -51,6 +51,13 @@ const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
 /// A residual scale below this is numerical noise [px], not a measured spread.
 const MIN_SCALE_PX: f64 = 0.05;
 
+/// The robust scale σ [px] of 2D residual magnitudes: their median over the Rayleigh median,
+/// at least [`MIN_SCALE_PX`].
+pub fn robust_scale(magnitudes: &[f64]) -> f64 {
+    let mut m = magnitudes.to_vec();
+    (median(&mut m) / RAYLEIGH_MEDIAN).max(MIN_SCALE_PX)
+}
+
 fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     let n = values.len();
@@ -90,8 +97,8 @@ pub fn robust_fit(
     let mut pose = *start;
     for _ in 0..ITERATIONS {
         let r = residuals(camera, &pose, pairs)?;
-        let mut mags: Vec<f64> = r.iter().map(|v| v.norm()).collect();
-        let scale = (median(&mut mags) / RAYLEIGH_MEDIAN).max(MIN_SCALE_PX);
+        let mags: Vec<f64> = r.iter().map(|v| v.norm()).collect();
+        let scale = robust_scale(&mags);
         let (mut a, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
         for ((_, p_w), r) in pairs.iter().zip(&r) {
             let p = pose.world_to_camera(p_w);

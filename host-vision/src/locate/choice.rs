@@ -23,7 +23,7 @@ use image::GrayImage;
 use serde::Serialize;
 
 use crate::camera::{Camera, CameraPose};
-use crate::features::outliers::{Registration, robust_fit};
+use crate::features::outliers::{Registration, robust_fit, robust_scale};
 use crate::locate::ransac::mirrored_pose;
 use crate::track::vision::{Verified, Vision};
 use crate::track::{Contrast, TrackError, TrackedRule};
@@ -50,12 +50,6 @@ const SAME_POINT_M: f64 = 1e-3;
 
 /// Residuals beyond this many scales count as outliers, at this cost (eq. P3).
 const TRUNCATE_SCALES: f64 = 3.0;
-
-/// Rayleigh median: the median of the magnitude of a 2D Gaussian residual of unit σ.
-const RAYLEIGH_MEDIAN: f64 = 1.177_410_022_515_474_7;
-
-/// Smallest residual scale [px] (registrations are not better than this).
-const MIN_SCALE_PX: f64 = 0.05;
 
 /// Two poses re-fitted to the registrations of both (eq. P3).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -86,12 +80,7 @@ pub fn common_evidence(camera: &Camera, a: &Verified, b: &Verified) -> Option<Ev
     let shared = shared_registrations(&[a, b]);
     let (first, ea) = robust_fit(camera, &a.pose, &shared)?;
     let (second, eb) = robust_fit(camera, &b.pose, &shared)?;
-    let scale = |e: &[f64]| {
-        let mut v = e.to_vec();
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0) / RAYLEIGH_MEDIAN
-    };
-    let sigma = scale(&ea).min(scale(&eb)).max(MIN_SCALE_PX);
+    let sigma = robust_scale(&ea).min(robust_scale(&eb));
     let c2 = (TRUNCATE_SCALES * sigma).powi(2);
     let cost = |e: &[f64]| e.iter().map(|x| (x * x).min(c2)).sum::<f64>() / (2.0 * sigma * sigma);
     Some(Evidence {
@@ -194,9 +183,7 @@ impl Comparison {
     pub fn one_minimum(&self) -> bool {
         self.evidence.is_some_and(|e| e.one_minimum())
     }
-}
 
-impl Comparison {
     /// The same comparison with the two poses swapped.
     fn swapped(&self) -> Self {
         Self {
@@ -356,16 +343,19 @@ pub fn check_tilt(
     Ok((!second.one_minimum() && second.verdict == Some(Ordering::Less)).then_some(flipped.pose))
 }
 
+/// `pose` mirrored about the plane of the model points `x_w` (eq. P1,
+/// [`mirrored_pose`]); `None` where the plane faces the camera.
+pub fn mirrored(pose: &CameraPose, x_w: &[Vector3<f64>]) -> Option<CameraPose> {
+    let (q_cw, t) = mirrored_pose(&pose.q_cw, &pose.translation(), x_w)?;
+    Some(CameraPose::from_extrinsics(q_cw, &t))
+}
+
 /// `v`'s pose mirrored about the plane of its registrations' model points (eq. P1), as a
 /// hypothesis with the same registrations; `None` where the plane faces the camera.
 fn mirror_of(v: &Verified) -> Option<Verified> {
     let points: Vec<Vector3<f64>> = v.registered.iter().map(|r| r.1).collect();
-    let (q_cw, t) = mirrored_pose(&v.pose.q_cw, &-(v.pose.q_cw * v.pose.c_w), &points)?;
     Some(Verified {
-        pose: CameraPose {
-            q_cw,
-            c_w: -(q_cw.inverse() * t),
-        },
+        pose: mirrored(&v.pose, &points)?,
         assessment: v.assessment,
         result: None,
         registered: v.registered.clone(),
@@ -419,11 +409,7 @@ mod tests {
             }
         }
         let points: Vec<Vector3<f64>> = registered.iter().map(|r| r.1).collect();
-        let (mq, mt) = mirrored_pose(&q_cw, &-(q_cw * c_w), &points).unwrap();
-        let mirror = CameraPose {
-            q_cw: mq,
-            c_w: -(mq.inverse() * mt),
-        };
+        let mirror = mirrored(&truth, &points).unwrap();
         let verified = |pose: CameraPose| Verified {
             pose,
             assessment: Assessment::default(),

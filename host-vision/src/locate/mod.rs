@@ -36,7 +36,7 @@ use database::Database;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
-use ransac::{RansacConfig, RansacPose, mirrored_pose, ransac_pose};
+use ransac::{RansacConfig, ransac_pose};
 
 /// Two candidate poses closer than this in rotation are one [rad].
 const SAME_POSE_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
@@ -256,7 +256,7 @@ impl Locator {
         };
         attempt.inliers = found.inliers.iter().filter(|&&i| i).count();
         attempt.iterations = found.iterations;
-        let candidate = camera_pose(&found);
+        let candidate = CameraPose::from_extrinsics(found.q_cw, &found.t);
         attempt.candidate = Some(candidate);
 
         let t = Instant::now();
@@ -272,18 +272,11 @@ impl Locator {
             .filter(|(_, inl)| **inl)
             .map(|(x, _)| *x)
             .collect();
-        let pose = first.pose;
-        let mirror =
-            mirrored_pose(&pose.q_cw, &-(pose.q_cw * pose.c_w), &inlier_points).map(|(q_cw, t)| {
-                CameraPose {
-                    q_cw,
-                    c_w: -(q_cw.inverse() * t),
-                }
-            });
-        let runners_up = found.runners_up.iter().map(|(q_cw, t)| CameraPose {
-            q_cw: *q_cw,
-            c_w: -(q_cw.inverse() * t),
-        });
+        let mirror = choice::mirrored(&first.pose, &inlier_points);
+        let runners_up = found
+            .runners_up
+            .iter()
+            .map(|(q_cw, t)| CameraPose::from_extrinsics(*q_cw, t));
         let mut tried = vec![candidate, first.pose];
         // The verified poses, where each one's last verification ran from, and which is the
         // mirror.
@@ -351,14 +344,6 @@ impl Locator {
             attempt.pose = Some(best.pose);
         }
         Ok((attempt, best.result))
-    }
-}
-
-/// The camera pose of a RANSAC result: `x_c = R x_w + t`, so the camera centre is `−Rᵀ t`.
-fn camera_pose(found: &RansacPose) -> CameraPose {
-    CameraPose {
-        q_cw: found.q_cw,
-        c_w: -(found.q_cw.inverse() * found.t),
     }
 }
 
