@@ -7,10 +7,12 @@
 //! board's answers depend only on the bytes it received, so a replay is deterministic.
 
 use std::io::{self, Read as _, Write as _};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::mpsc::Receiver;
 use std::thread::JoinHandle;
 
 use fusion_core::device::{Counters, DeviceIo};
-use fusion_core::kernels::Kernels;
 
 use crate::transport::{self, Duplex};
 
@@ -23,26 +25,157 @@ pub enum Precision {
     F64,
 }
 
-/// What the board did in one session.
+/// What the board did, over all its sessions.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BoardReport {
     /// Bytes received.
     pub bytes_in: u64,
     /// Bytes sent.
     pub bytes_out: u64,
-    /// The device's counters at the end.
+    /// Connections served.
+    pub sessions: u32,
+    /// Resets through the [`ResetPin`] (each a new core with nothing of the old one).
+    pub resets: u32,
+    /// The device's counters at the end (since the last reset).
     pub counters: Counters,
 }
 
-/// Serves one session on `link` until the host closes it.
+/// The board's reset line, for fault injection: each [`ResetPin::pulse`] power-cycles the
+/// core before it handles the next bytes, as a brown-out or a watchdog does (what it held is
+/// gone, bytes in flight included).
+#[derive(Clone, Debug, Default)]
+pub struct ResetPin(Arc<AtomicU32>);
+
+impl ResetPin {
+    /// Requests a reset.
+    pub fn pulse(&self) {
+        self.0.fetch_add(1, Ordering::SeqCst);
+    }
+
+    /// Resets requested and not yet applied, cleared.
+    fn take(&self) -> u32 {
+        self.0.swap(0, Ordering::SeqCst)
+    }
+}
+
+/// One simulated board: a fusion core that outlives the connections to it, as a powered
+/// board outlives its host's process and its cable.
+pub struct Board {
+    core: Core,
+    pin: ResetPin,
+    report: BoardReport,
+}
+
+/// The device, of either width. On the heap: the f64 device is 26 KB.
+enum Core {
+    F32(Box<DeviceIo<f32>>),
+    F64(Box<DeviceIo<f64>>),
+}
+
+impl std::fmt::Debug for Board {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Board")
+            .field("report", &self.report)
+            .finish()
+    }
+}
+
+impl Board {
+    /// A board just powered on, with its reset line `pin`.
+    pub fn new(precision: Precision, pin: ResetPin) -> Self {
+        let mut board = Board {
+            core: Core::F32(Box::default()),
+            pin,
+            report: BoardReport {
+                bytes_in: 0,
+                bytes_out: 0,
+                sessions: 0,
+                resets: 0,
+                counters: Counters::default(),
+            },
+        };
+        board.power_on(precision);
+        board
+    }
+
+    fn power_on(&mut self, precision: Precision) {
+        self.core = match precision {
+            Precision::F32 => Core::F32(Box::default()),
+            Precision::F64 => Core::F64(Box::default()),
+        };
+    }
+
+    fn precision(&self) -> Precision {
+        match self.core {
+            Core::F32(_) => Precision::F32,
+            Core::F64(_) => Precision::F64,
+        }
+    }
+
+    /// What the board did so far.
+    pub fn report(&self) -> BoardReport {
+        let counters = match &self.core {
+            Core::F32(io) => *io.device.counters(),
+            Core::F64(io) => *io.device.counters(),
+        };
+        BoardReport {
+            counters,
+            ..self.report
+        }
+    }
+
+    /// Serves one connection until the host closes it; the core keeps its state for the next.
+    /// A transport error ends the connection with that error.
+    pub fn serve(&mut self, link: Duplex) -> io::Result<()> {
+        self.report.sessions += 1;
+        let Duplex {
+            mut reader,
+            mut writer,
+            ..
+        } = link;
+        let mut buf = [0u8; 4096];
+        let mut out = Vec::with_capacity(4096);
+        loop {
+            let n = match reader.read(&mut buf) {
+                Ok(0) => return Ok(()),
+                Ok(n) => n,
+                Err(e) if transport::is_poll_timeout(&e) => continue,
+                // The host hung up.
+                Err(e) if transport::is_hang_up(&e) => return Ok(()),
+                Err(e) => return Err(e),
+            };
+            let resets = self.pin.take();
+            if resets > 0 {
+                self.report.resets += resets;
+                self.power_on(self.precision());
+            }
+            self.report.bytes_in += n as u64;
+            out.clear();
+            let mut send = |frame: &[u8]| out.extend_from_slice(frame);
+            match &mut self.core {
+                Core::F32(io) => io.receive(&buf[..n], &mut send),
+                Core::F64(io) => io.receive(&buf[..n], &mut send),
+            }
+            if !out.is_empty() {
+                match writer.write_all(&out).and_then(|_| writer.flush()) {
+                    Ok(()) => self.report.bytes_out += out.len() as u64,
+                    // The host hung up while answers were in flight.
+                    Err(e) if transport::is_hang_up(&e) => return Ok(()),
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+    }
+}
+
+/// Serves one session on `link` until the host closes it, on a new board.
 ///
 /// Returns the report on a clean end of stream; a transport error ends the session with that
 /// error.
 pub fn serve(link: Duplex, precision: Precision) -> io::Result<BoardReport> {
-    match precision {
-        Precision::F32 => serve_with::<f32>(link),
-        Precision::F64 => serve_with::<f64>(link),
-    }
+    let mut board = Board::new(precision, ResetPin::default());
+    board.serve(link)?;
+    Ok(board.report())
 }
 
 /// Runs [`serve`] on its own thread (named after the link).
@@ -55,43 +188,23 @@ pub fn spawn(
         .spawn(move || serve(link, precision))
 }
 
-fn serve_with<T: Kernels>(link: Duplex) -> io::Result<BoardReport> {
-    // On the heap: the f64 device is 26 KB.
-    let mut io = Box::<DeviceIo<T>>::default();
-    let Duplex {
-        mut reader,
-        mut writer,
-        ..
-    } = link;
-    let mut buf = [0u8; 4096];
-    let mut out = Vec::with_capacity(4096);
-    let (mut bytes_in, mut bytes_out) = (0u64, 0u64);
-    loop {
-        let n = match reader.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => n,
-            Err(e) if transport::is_poll_timeout(&e) => continue,
-            // The host hung up.
-            Err(e) if transport::is_hang_up(&e) => break,
-            Err(e) => return Err(e),
-        };
-        bytes_in += n as u64;
-        out.clear();
-        io.receive(&buf[..n], &mut |frame| out.extend_from_slice(frame));
-        if !out.is_empty() {
-            match writer.write_all(&out).and_then(|_| writer.flush()) {
-                Ok(()) => bytes_out += out.len() as u64,
-                // The host hung up while answers were in flight.
-                Err(e) if transport::is_hang_up(&e) => break,
-                Err(e) => return Err(e),
+/// Runs one board on its own thread, serving the connections that arrive on `connections`
+/// one after another with the same core (a cable pulled and plugged back in, a host
+/// restarted), until the sender is dropped. `pin` resets it.
+pub fn spawn_serving(
+    connections: Receiver<Duplex>,
+    precision: Precision,
+    pin: ResetPin,
+) -> io::Result<JoinHandle<io::Result<BoardReport>>> {
+    std::thread::Builder::new()
+        .name("board".into())
+        .spawn(move || {
+            let mut board = Board::new(precision, pin);
+            for link in connections {
+                board.serve(link)?;
             }
-        }
-    }
-    Ok(BoardReport {
-        bytes_in,
-        bytes_out,
-        counters: *io.device.counters(),
-    })
+            Ok(board.report())
+        })
 }
 
 #[cfg(test)]

@@ -57,7 +57,7 @@ pub fn serve(link: Duplex) -> io::Result<PeerLog> {
         }
         match &msg {
             HostToCore::Hello(hello) => {
-                writer.send(&handshake::answer_hello(hello.version, None, CAPACITIES))?;
+                writer.send(&handshake::answer_hello(hello.version, None, 0, CAPACITIES))?;
             }
             HostToCore::Reset => {
                 for (_, reply) in samples::core_messages() {

@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! firmware-sim --link pty                 # opens a pty, prints the path to give the host
-//! firmware-sim --link tcp:127.0.0.1:7000  # listens for one host
+//! firmware-sim --link tcp:127.0.0.1:7000  # listens for one host (--forever: host after host)
 //! firmware-sim --link serial:/dev/ttyUSB0 # a real serial line
 //! firmware-sim --link stdio               # as a child process
 //! ```
@@ -11,7 +11,7 @@ use std::io::Write as _;
 
 use anyhow::Context as _;
 use clap::Parser;
-use firmware_sim::board::{self, Precision};
+use firmware_sim::board::{Board, Precision, ResetPin};
 use firmware_sim::transport;
 
 /// Prints a line on stderr; a closed stderr (the user's pipe is gone) is not worth a panic.
@@ -34,9 +34,10 @@ struct Cli {
     /// Scalar type of the core.
     #[arg(long, value_enum, default_value = "f32")]
     precision: Precision,
-    /// Serve sessions until killed (default: one session, which ends when the host closes the
-    /// link; the board then prints its report and exits). With pty, each session has a new
-    /// device.
+    /// Serve sessions until killed, one after another, with the same core: a host that
+    /// restarts, or comes back after its cable was pulled, finds the core as the last one left
+    /// it, still tracking (default: one session, which ends when the host closes the link; the
+    /// board then prints its report and exits). With pty, each session has a new device path.
     #[arg(long)]
     forever: bool,
 }
@@ -50,15 +51,6 @@ fn open(link: &str) -> anyhow::Result<transport::Duplex> {
     }
     if link == "stdio" {
         return Ok(transport::stdio());
-    }
-    if let Some(addr) = link.strip_prefix("tcp:") {
-        let listener =
-            std::net::TcpListener::bind(addr).with_context(|| format!("listening on {addr}"))?;
-        note!(
-            "board: waiting for the host on tcp:{}",
-            listener.local_addr()?
-        );
-        return Ok(transport::tcp_accept(&listener)?);
     }
     if let Some(rest) = link.strip_prefix("serial:") {
         let (path, baud) = match rest.rsplit_once('@') {
@@ -76,11 +68,27 @@ fn open(link: &str) -> anyhow::Result<transport::Duplex> {
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    let mut board = Board::new(cli.precision, ResetPin::default());
+    // A TCP board listens once and takes its hosts one after another.
+    let listener = match cli.link.strip_prefix("tcp:") {
+        Some(addr) => {
+            let l = std::net::TcpListener::bind(addr)
+                .with_context(|| format!("listening on {addr}"))?;
+            note!("board: waiting for the host on tcp:{}", l.local_addr()?);
+            Some(l)
+        }
+        None => None,
+    };
     loop {
-        let link = open(&cli.link)?;
+        let link = match &listener {
+            Some(l) => transport::tcp_accept(l)?,
+            None => open(&cli.link)?,
+        };
         let name = link.name.clone();
-        let report = board::serve(link, cli.precision)
+        board
+            .serve(link)
             .with_context(|| format!("serving the host on {name}"))?;
+        let report = board.report();
         note!(
             "board: session on {name} ended: {} bytes in, {} out, {} IMU samples applied, {} correspondences accepted, {} gated, {} divergences",
             report.bytes_in,

@@ -269,6 +269,7 @@ impl<T: Kernels> Device<T> {
                 let answer = handshake::answer_hello(
                     h.version,
                     self.config.map(|c| c.model),
+                    self.config.map_or(0, |c| c.session),
                     Self::capacities(),
                 );
                 self.greeted = matches!(answer, CoreToHost::HelloAck(_));
@@ -283,6 +284,17 @@ impl<T: Kernels> Device<T> {
             HostToCore::Imu(s) => self.imu(s, out),
             HostToCore::Tick(t) => self.tick(t, out),
             HostToCore::Correspondences(c) => self.correspondences(c, out),
+            HostToCore::Query => {
+                out(CoreToHost::Status(Status {
+                    t_us: self.last_t_us.unwrap_or(0),
+                    mode: self.mode,
+                    reason: StatusReason::Queried,
+                }));
+                if matches!(self.phase, Phase::Running) {
+                    out(CoreToHost::State(self.state_report()));
+                }
+            }
+            HostToCore::Resume(r) => self.resume(r, out),
             HostToCore::Reset => {
                 self.restart_clock();
                 if self.prm.is_some() {
@@ -377,6 +389,54 @@ impl<T: Kernels> Device<T> {
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Initialising, StatusReason::HostRequest, out);
+    }
+
+    /// Starts the filter at once from a state the core reported before it was reset
+    /// (`HostToCore::Resume`, protocol/PROTOCOL.md §8): the estimate as it was, at its time
+    /// (the first sample propagates it from there), with the initial covariance and the tilt
+    /// σ about the vertical too, as a soft re-initialisation has. No still window: the device
+    /// is moving, and gravity could not level it. The anchor is that state: it was tracked.
+    fn resume(&mut self, r: &protocol::Resume, out: Out) {
+        let Some(prm) = self.prm else {
+            Counters::bump(&mut self.counters.out_of_order);
+            out(CoreToHost::error(ErrorCode::NotConfigured));
+            return;
+        };
+        let f = T::from_wire;
+        let v = |a: &[f32; 3]| Vector3::new(f(a[0]), f(a[1]), f(a[2]));
+        let q = &r.q_sw;
+        let q_sw = Quat::new(f(q[0]), f(q[1]), f(q[2]), f(q[3])).normalize();
+        let st = &mut self.filter.st;
+        st.x.fill(T::zero());
+        st.set_v3(POS, &v(&r.s_w));
+        st.set_v3(VEL, &v(&r.v_w));
+        st.set_q(&q_sw);
+        st.set_v3(OMEGA, &v(&r.omega_s));
+        if prm.model.has_imu() {
+            st.set_v3(GYRO_BIAS, &v(&r.gyro_bias));
+        }
+        if matches!(
+            prm.model,
+            protocol::ModelKind::Gravity | protocol::ModelKind::Acc
+        ) {
+            st.set_v3(ACC_BIAS, &v(&r.accel_bias));
+        }
+        if prm.model == protocol::ModelKind::Acc {
+            st.set_v3(ACC, &v(&r.a_w));
+        }
+        crate::init::reset_covariance(st, &prm, f(prm.init_sigma.tilt));
+        self.filter.t_us = r.t_us;
+        self.filter.quat_norm_error = T::zero();
+        self.anchor = Anchor {
+            position: v(&r.s_w),
+            q_sw,
+            yaw: Some(quat::yaw_of(&quat::conj(&q_sw))),
+            from_vision: true,
+            age_us: 0,
+        };
+        self.restart_phase(Phase::Running);
+        self.set_mode(Mode::Reinitialising, StatusReason::HostRequest, out);
+        self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
     }
 
     /// Re-anchors the running filter at a pose the host found (`InitAttitude::KeepTilt`; the

@@ -107,6 +107,11 @@ pub enum InvalidField {
     /// covariance that `init_sigma` gives: the test would fire right after every
     /// initialisation.
     CovarianceThreshold,
+    /// `session` is 0, which a [`crate::HelloAck`] reports for a core with no configuration
+    /// (since 3.0).
+    Session,
+    /// A `Resume` state that is not finite, or whose quaternion is not a unit one (since 3.0).
+    Resume,
 }
 
 impl fmt::Display for InvalidField {
@@ -146,6 +151,12 @@ impl fmt::Display for InvalidField {
                 "divergence covariance threshold below twice the initial covariance's norm \
                  (from init_sigma): it would fire after every initialisation",
             ),
+            InvalidField::Session => {
+                f.write_str("session id 0 (reserved for a core with no configuration)")
+            }
+            InvalidField::Resume => {
+                f.write_str("resume state not finite, or its quaternion not a unit one")
+            }
         }
     }
 }

@@ -9,13 +9,20 @@ use crate::messages::{Capacities, CoreToHost, HelloAck, ModelKind};
 // Defined in `version`, below the messages that carry them; re-exported where they were.
 pub use crate::version::{PROTOCOL_VERSION, Version};
 
-/// The core's answer to a `Hello` from a host speaking `host`.
-pub fn answer_hello(host: Version, model: Option<ModelKind>, capacities: Capacities) -> CoreToHost {
+/// The core's answer to a `Hello` from a host speaking `host`, from a core that runs `model`
+/// as configured by `session` (0 with no configuration).
+pub fn answer_hello(
+    host: Version,
+    model: Option<ModelKind>,
+    session: u32,
+    capacities: Capacities,
+) -> CoreToHost {
     if PROTOCOL_VERSION.compatible_with(host) {
         CoreToHost::HelloAck(HelloAck {
             version: PROTOCOL_VERSION,
             model,
             capacities,
+            session,
         })
     } else {
         CoreToHost::error(ErrorCode::VersionMismatch {
@@ -96,7 +103,7 @@ mod tests {
             major: PROTOCOL_VERSION.major,
             minor: 7,
         };
-        let ack = check_answer(&answer_hello(host, None, CAPS)).unwrap();
+        let ack = check_answer(&answer_hello(host, None, 0, CAPS)).unwrap();
         assert_eq!(ack.version, PROTOCOL_VERSION);
         assert_eq!(ack.capacities, CAPS);
     }
@@ -107,7 +114,7 @@ mod tests {
             major: PROTOCOL_VERSION.major + 1,
             minor: 0,
         };
-        let answer = answer_hello(host, Some(ModelKind::Acc), CAPS);
+        let answer = answer_hello(host, Some(ModelKind::Acc), 7, CAPS);
         assert_eq!(
             answer,
             CoreToHost::error(ErrorCode::VersionMismatch {
@@ -131,6 +138,7 @@ mod tests {
             version: Version { major: 0, minor: 9 },
             model: None,
             capacities: CAPS,
+            session: 0,
         });
         assert!(matches!(
             check_answer(&ack),

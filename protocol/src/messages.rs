@@ -54,6 +54,54 @@ pub enum HostToCore {
     /// Advances the vision-only model's time, in place of an IMU sample (since 2.1). Sent to
     /// an inertial model it is refused with [`ErrorCode::TickInInertialModel`].
     Tick(Tick),
+    /// Asks for the core's state (since 3.0): it answers [`CoreToHost::Status`] with
+    /// [`StatusReason::Queried`], the time stamp of its last sample and its mode, then, if
+    /// its filter runs, a [`CoreToHost::State`]. A host that attaches to a running core
+    /// learns from it where to go on (protocol/PROTOCOL.md §8).
+    Query,
+    /// Starts a configured core from a state it reported before it was reset (since 3.0): the
+    /// filter runs at once, from that state at its time, with the initial covariance (the
+    /// tilt σ about the vertical too). A device that moves has no still window to level it
+    /// from gravity; the state it was tracked in is the better start (protocol/PROTOCOL.md §8).
+    Resume(Resume),
+}
+
+/// The state a reset core resumes from: what it last reported in a [`CoreToHost::State`]
+/// while tracking, given back by the host (since 3.0). States a model lacks are ignored.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct Resume {
+    /// Time of the state [µs]: the first sample after it is propagated from here.
+    pub t_us: u64,
+    /// IMU origin [m].
+    pub s_w: [f32; 3],
+    /// Orientation `q_sw` (unit).
+    pub q_sw: [f32; 4],
+    /// Velocity [m/s].
+    pub v_w: [f32; 3],
+    /// Free acceleration [m/s²] (acc model).
+    pub a_w: [f32; 3],
+    /// Angular velocity [rad/s].
+    pub omega_s: [f32; 3],
+    /// Gyroscope bias [rad/s].
+    pub gyro_bias: [f32; 3],
+    /// Accelerometer bias [m/s²].
+    pub accel_bias: [f32; 3],
+}
+
+impl Resume {
+    /// The resumable part of a state report.
+    pub fn of(s: &StateReport) -> Self {
+        Resume {
+            t_us: s.t_us,
+            s_w: s.s_w,
+            q_sw: s.q_sw,
+            v_w: s.v_w,
+            a_w: s.a_w,
+            omega_s: s.omega_s,
+            gyro_bias: s.gyro_bias,
+            accel_bias: s.accel_bias,
+        }
+    }
 }
 
 /// Session opening.
@@ -208,6 +256,10 @@ pub struct Config {
     pub still_samples: u16,
     /// Send a [`CoreToHost::State`] after every `state_every`-th IMU sample (0: never).
     pub state_every: u16,
+    /// The host's name for this configuration (non-zero; since 3.0). The core reports it in
+    /// every [`HelloAck`], so that a host coming back to a core tells a core that kept its
+    /// state (the same session) from one that was reset (0) or re-configured by another host.
+    pub session: u32,
 }
 
 /// Orientation given at initialisation.
@@ -420,6 +472,9 @@ pub struct HelloAck {
     pub model: Option<ModelKind>,
     /// The core's capacities.
     pub capacities: Capacities,
+    /// The [`Config::session`] of the configuration the core runs; 0 when it has none since
+    /// it booted (since 3.0).
+    pub session: u32,
 }
 
 /// A refusal, with its reason.
@@ -487,6 +542,8 @@ pub enum StatusReason {
     NonFiniteState,
     /// The IMU clock jumped; the filter restarts from the last good position.
     TimeJump,
+    /// The answer to [`HostToCore::Query`]: nothing changed (since 3.0).
+    Queried,
 }
 
 /// Filter health figures.
@@ -590,6 +647,8 @@ impl HostToCore {
             HostToCore::Correspondences(_) => "Correspondences",
             HostToCore::Reset => "Reset",
             HostToCore::Tick(_) => "Tick",
+            HostToCore::Query => "Query",
+            HostToCore::Resume(_) => "Resume",
         }
     }
 }

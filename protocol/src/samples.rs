@@ -47,6 +47,7 @@ pub const fn config() -> Config {
         camera_rate_hz: 25.0,
         still_samples: 50,
         state_every: 1,
+        session: 0x5E55_1011,
     }
 }
 
@@ -61,7 +62,7 @@ pub const fn correspondence(m_n: [f32; 2], m_w: [f32; 3]) -> Correspondence {
 }
 
 /// Named host messages, one per kind (two for `Init`).
-pub fn host_messages() -> [(&'static str, HostToCore); 8] {
+pub fn host_messages() -> [(&'static str, HostToCore); 10] {
     let mut items = Vec::new();
     let _ = items.push(correspondence([0.125, -0.25], [0.5, 0.25, 0.0]));
     let _ = items.push(correspondence([-0.0625, 0.5], [0.0, 0.1, 0.2]));
@@ -114,6 +115,20 @@ pub fn host_messages() -> [(&'static str, HostToCore); 8] {
                 trigger: true,
             }),
         ),
+        ("Query", HostToCore::Query),
+        (
+            "Resume",
+            HostToCore::Resume(Resume {
+                t_us: 6_000_000,
+                s_w: [0.5, -0.25, 1.0],
+                q_sw: [0.0, 1.0, 0.0, 0.0],
+                v_w: [0.25, 0.0, -0.125],
+                a_w: [0.0; 3],
+                omega_s: [0.0, 0.0, 0.5],
+                gyro_bias: [0.0; 3],
+                accel_bias: [0.0; 3],
+            }),
+        ),
     ]
 }
 
@@ -141,6 +156,7 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 10] {
                     max_pending_frames: 4,
                     scalar_bits: 32,
                 },
+                session: 0x5E55_1011,
             }),
         ),
         (

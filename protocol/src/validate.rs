@@ -41,7 +41,9 @@ impl HostToCore {
 fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
     match msg {
         // A tick's only field is its time stamp, which the core checks against its clock.
-        HostToCore::Hello(_) | HostToCore::Reset | HostToCore::Tick(_) => Ok(()),
+        HostToCore::Hello(_) | HostToCore::Reset | HostToCore::Tick(_) | HostToCore::Query => {
+            Ok(())
+        }
         HostToCore::Configure(c) => config(c),
         HostToCore::Init(i) => init(i),
         HostToCore::Imu(s) => {
@@ -56,6 +58,14 @@ fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
             }
         }
         HostToCore::Correspondences(c) => correspondences(c),
+        HostToCore::Resume(r) => {
+            let vectors = [r.s_w, r.v_w, r.a_w, r.omega_s, r.gyro_bias, r.accel_bias];
+            if vectors.iter().all(|v| all_finite(v)) && is_unit_quaternion(&r.q_sw) {
+                Ok(())
+            } else {
+                Err(InvalidField::Resume)
+            }
+        }
     }
 }
 
@@ -165,6 +175,9 @@ fn config(c: &Config) -> Result<(), InvalidField> {
     }
     if !positive(c.imu_rate_hz) || !positive(c.camera_rate_hz) {
         return Err(InvalidField::Rate);
+    }
+    if c.session == 0 {
+        return Err(InvalidField::Session);
     }
     if c.still_samples == 0 {
         return Err(InvalidField::StillSamples);

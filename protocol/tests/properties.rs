@@ -42,9 +42,10 @@ fn config() -> impl Strategy<Value = Config> {
         a::<5>(),
         a::<2>(),
         any::<[u16; 2]>(),
+        any::<u32>(),
     )
         .prop_map(
-            |(model, n, s, q_cs, c_s, d, r, [still_samples, state_every])| Config {
+            |(model, n, s, q_cs, c_s, d, r, [still_samples, state_every], session)| Config {
                 model,
                 noise: NoiseParams {
                     motion: n[0],
@@ -76,6 +77,7 @@ fn config() -> impl Strategy<Value = Config> {
                 camera_rate_hz: r[1],
                 still_samples,
                 state_every,
+                session,
             },
         )
 }
@@ -129,6 +131,31 @@ fn host_message() -> impl Strategy<Value = HostToCore> {
                 })
             }),
         Just(HostToCore::Reset),
+        Just(HostToCore::Query),
+        (
+            any::<u64>(),
+            a::<3>(),
+            a::<4>(),
+            a::<3>(),
+            a::<3>(),
+            a::<3>(),
+            a::<3>(),
+            a::<3>()
+        )
+            .prop_map(
+                |(t_us, s_w, q_sw, v_w, a_w, omega_s, gyro_bias, accel_bias)| {
+                    HostToCore::Resume(Resume {
+                        t_us,
+                        s_w,
+                        q_sw,
+                        v_w,
+                        a_w,
+                        omega_s,
+                        gyro_bias,
+                        accel_bias,
+                    })
+                }
+            ),
         (any::<u64>(), any::<bool>())
             .prop_map(|(t_us, trigger)| HostToCore::Tick(Tick { t_us, trigger })),
     ]
@@ -223,9 +250,10 @@ fn core_message() -> impl Strategy<Value = CoreToHost> {
             version(),
             proptest::option::of(model()),
             any::<[u16; 5]>(),
-            any::<u8>()
+            any::<u8>(),
+            any::<u32>()
         )
-            .prop_map(|(version, model, c, scalar_bits)| {
+            .prop_map(|(version, model, c, scalar_bits, session)| {
                 CoreToHost::HelloAck(HelloAck {
                     version,
                     model,
@@ -237,6 +265,7 @@ fn core_message() -> impl Strategy<Value = CoreToHost> {
                         max_pending_frames: c[4],
                         scalar_bits,
                     },
+                    session,
                 })
             }),
         error_code().prop_map(CoreToHost::error),

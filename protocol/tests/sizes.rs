@@ -21,6 +21,7 @@ fn worst_host() -> Vec<(&'static str, HostToCore)> {
     let mut cfg = samples::config();
     cfg.still_samples = u16::MAX;
     cfg.state_every = u16::MAX;
+    cfg.session = u32::MAX;
     vec![
         ("Hello", HostToCore::Hello(Hello { version: v })),
         ("Configure", HostToCore::Configure(cfg)),
@@ -53,6 +54,20 @@ fn worst_host() -> Vec<(&'static str, HostToCore)> {
             }),
         ),
         ("Reset", HostToCore::Reset),
+        ("Query", HostToCore::Query),
+        (
+            "Resume",
+            HostToCore::Resume(Resume {
+                t_us: u64::MAX,
+                s_w: [1.0; 3],
+                q_sw: [1.0; 4],
+                v_w: [1.0; 3],
+                a_w: [1.0; 3],
+                omega_s: [1.0; 3],
+                gyro_bias: [1.0; 3],
+                accel_bias: [1.0; 3],
+            }),
+        ),
     ]
 }
 
@@ -93,6 +108,7 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                     max_pending_frames: u16::MAX,
                     scalar_bits: u8::MAX,
                 },
+                session: u32::MAX,
             }),
         ),
         ("Error", worst_error),
@@ -195,7 +211,9 @@ fn every_message_kind_has_a_worst_case() {
             "Init",
             "Imu",
             "Correspondences",
-            "Reset"
+            "Reset",
+            "Query",
+            "Resume"
         ]
     );
     let core: Vec<&str> = worst_core().iter().map(|(_, m)| m.kind()).collect();

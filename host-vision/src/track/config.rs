@@ -42,8 +42,14 @@ impl Default for CoreTuning {
     }
 }
 
-/// The `Configure` message for `model` on `dataset`.
-pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> Config {
+/// The `Configure` message for `model` on `dataset`, named `session` (non-zero: the host's id
+/// of this run, which the core reports back in every `HelloAck`).
+pub fn core_config(
+    dataset: &Dataset,
+    model: ModelKind,
+    tuning: &CoreTuning,
+    session: u32,
+) -> Config {
     let rate = dataset.imu_rate_hz;
     let noise = dataset.imu_noise;
     let (gyro_density, accel_density, gyro_walk, accel_walk) = match noise {
@@ -125,6 +131,7 @@ pub fn core_config(dataset: &Dataset, model: ModelKind, tuning: &CoreTuning) -> 
         camera_rate_hz: camera_rate as f32,
         still_samples: ((rate * tuning.still_seconds).round() as u16).max(2),
         state_every: 1,
+        session,
     }
 }
 
@@ -143,8 +150,13 @@ pub const OBJECT_IN_HAND_ANGULAR_NOISE: f64 = 6.0;
 /// `1.5 ×` the expected peak acceleration, white angular acceleration as tuned), no mount (the
 /// camera is the sensor), and the clock of its ticks: one at each frame and one just after it,
 /// so twice the frame rate.
-pub fn vision_config(dataset: &Dataset, camera_rate_hz: f64, tuning: &CoreTuning) -> Config {
-    let mut c = core_config(dataset, ModelKind::Vision, tuning);
+pub fn vision_config(
+    dataset: &Dataset,
+    camera_rate_hz: f64,
+    tuning: &CoreTuning,
+    session: u32,
+) -> Config {
+    let mut c = core_config(dataset, ModelKind::Vision, tuning, session);
     c.noise.gyro_meas = 0.0;
     c.noise.accel_meas = 0.0;
     c.noise.gyro_bias_walk = 0.0;

@@ -8,11 +8,11 @@ use std::path::PathBuf;
 use std::str::FromStr;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError, channel};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use firmware_sim::board::{self, BoardReport, Precision};
+use firmware_sim::board::{self, BoardReport, Precision, ResetPin};
 use firmware_sim::qemu::QemuBoard;
 use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
@@ -141,19 +141,49 @@ pub enum Incoming {
     Rejected(DecodeError),
 }
 
-/// An open connection to a core.
+/// The host's end of the link to a core, across reconnections: the current connection (if
+/// the link is up), and what it takes to make a new one (the spec, the in-process board,
+/// QEMU).
 pub struct CoreLink {
+    spec: LinkSpec,
     name: String,
-    writer: Option<FrameWriter<Box<dyn Write + Send>>>,
+    conn: Option<Connection>,
+    board: Option<SimBoard>,
+    qemu: Option<QemuBoard>,
+    /// `(byte error rate, seed)` of the injected line noise.
+    noise: Option<(f64, u64)>,
+    /// Messages sent.
+    pub messages_out: u64,
+    /// Connections made: the first, then one per reconnection.
+    pub connections: u32,
+    /// With bit errors injected on the line: what they did, to the core and to the host.
+    pub damage: Option<LineNoise>,
+}
+
+/// One connection: the framed writer, and the reader thread with its channel. Dropping it
+/// closes the host's end (the core sees the line hang up) and joins the reader.
+struct Connection {
+    writer: FrameWriter<Box<dyn Write + Send>>,
     rx: Receiver<Result<Incoming, String>>,
     stop: Arc<AtomicBool>,
     reader: Option<JoinHandle<()>>,
-    board: Option<JoinHandle<io::Result<BoardReport>>>,
-    qemu: Option<QemuBoard>,
-    /// Messages sent.
-    pub messages_out: u64,
-    /// With bit errors injected on the line: what they did, to the core and to the host.
-    pub damage: Option<LineNoise>,
+}
+
+impl Drop for Connection {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        if let Some(r) = self.reader.take() {
+            let _ = r.join();
+        }
+    }
+}
+
+/// The simulated board of a `sim` link, on its own thread in this process: it takes each new
+/// connection from `connect`, keeping its core between them, and is reset through `pin`.
+struct SimBoard {
+    connect: Option<Sender<Duplex>>,
+    pin: ResetPin,
+    handle: Option<JoinHandle<io::Result<BoardReport>>>,
 }
 
 /// Bit errors injected on the line to the simulated board (a long cable, a noisy ground).
@@ -171,6 +201,7 @@ impl std::fmt::Debug for CoreLink {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CoreLink")
             .field("name", &self.name)
+            .field("connected", &self.conn.is_some())
             .finish()
     }
 }
@@ -184,68 +215,241 @@ impl CoreLink {
     /// Opens the link with bit errors `(byte error rate, seed)` injected in both directions
     /// (the simulated board's link only).
     pub fn open_noisy(spec: &LinkSpec, noise: Option<(f64, u64)>) -> Result<Self, TrackError> {
-        if let Some((rate, seed)) = noise {
-            let LinkSpec::Sim(precision) = spec else {
+        if let Some((rate, _)) = noise {
+            if !matches!(spec, LinkSpec::Sim(_)) {
                 return Err(TrackError::Option(format!(
                     "--line-errors garbles the simulated board's line: use --link sim, not {spec:?}"
                 )));
-            };
+            }
             if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
                 return Err(TrackError::Option(format!(
                     "--line-errors is a probability per byte in [0, 1], got {rate}"
                 )));
             }
-            let (mut host, mut board_end) = transport::pty_pair()?;
-            let noise = LineNoise {
+        }
+        let spec = match spec {
+            LinkSpec::QemuDefault => {
+                LinkSpec::Qemu(find_firmware_image().map_err(TrackError::Core)?)
+            }
+            other => other.clone(),
+        };
+        let board = match &spec {
+            LinkSpec::Sim(precision) => {
+                let (connect, connections) = channel();
+                let pin = ResetPin::default();
+                let handle = board::spawn_serving(connections, *precision, pin.clone())
+                    .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
+                Some(SimBoard {
+                    connect: Some(connect),
+                    pin,
+                    handle: Some(handle),
+                })
+            }
+            _ => None,
+        };
+        let mut link = CoreLink {
+            name: spec.to_string(),
+            spec,
+            conn: None,
+            board,
+            qemu: None,
+            noise,
+            messages_out: 0,
+            connections: 0,
+            damage: noise.map(|(rate, _)| LineNoise {
                 byte_error_rate: rate,
                 to_core: Arc::default(),
                 to_host: Arc::default(),
-            };
-            host.writer = transport::noisy_writer(host.writer, rate, seed, noise.to_core.clone());
-            board_end.writer = transport::noisy_writer(
-                board_end.writer,
-                rate,
-                seed ^ 0x5EED,
-                noise.to_host.clone(),
-            );
-            let handle = board::spawn(board_end, *precision)
-                .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
-            let mut link = Self::with_duplex(host, Some(handle), None);
-            link.damage = Some(noise);
-            return Ok(link);
-        }
-        let (duplex, board, qemu) = match spec {
-            LinkSpec::Sim(precision) => {
-                let (host, board_end) = transport::pty_pair()?;
-                let handle = board::spawn(board_end, *precision)
-                    .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
-                (host, Some(handle), None)
-            }
-            LinkSpec::Serial { path, baud } => (transport::serial(path, *baud)?, None, None),
-            LinkSpec::Tcp(addr) => (transport::tcp_connect(addr.as_str())?, None, None),
-            LinkSpec::Qemu(image) => {
-                let (q, duplex) = QemuBoard::start(image, Duration::from_secs(20))
-                    .map_err(|e| TrackError::Core(e.to_string()))?;
-                (duplex, None, Some(q))
-            }
-            LinkSpec::QemuDefault => {
-                let image = find_firmware_image().map_err(TrackError::Core)?;
-                return Self::open(&LinkSpec::Qemu(image));
-            }
+            }),
         };
-        Ok(Self::with_duplex(duplex, board, qemu))
+        link.connect()?;
+        Ok(link)
     }
 
-    fn with_duplex(
-        duplex: Duplex,
-        board: Option<JoinHandle<io::Result<BoardReport>>>,
-        qemu: Option<QemuBoard>,
-    ) -> Self {
-        let Duplex {
-            reader,
-            writer,
-            name,
-        } = duplex;
+    /// Makes a new connection of the link's kind (after the current one, if any, is closed).
+    fn connect(&mut self) -> Result<(), TrackError> {
+        self.conn = None;
+        let duplex = match &self.spec {
+            LinkSpec::Sim(_) => {
+                let (mut host, mut board_end) = transport::pty_pair()?;
+                if let (Some((rate, seed)), Some(d)) = (self.noise, &self.damage) {
+                    // Each connection's line garbles differently, and repeatably.
+                    let seed = seed.wrapping_add(u64::from(self.connections));
+                    host.writer =
+                        transport::noisy_writer(host.writer, rate, seed, d.to_core.clone());
+                    board_end.writer = transport::noisy_writer(
+                        board_end.writer,
+                        rate,
+                        seed ^ 0x5EED,
+                        d.to_host.clone(),
+                    );
+                }
+                let sent = self
+                    .board
+                    .as_ref()
+                    .and_then(|b| b.connect.as_ref())
+                    .is_some_and(|c| c.send(board_end).is_ok());
+                if !sent {
+                    return Err(TrackError::Core("the simulated board has stopped".into()));
+                }
+                host
+            }
+            LinkSpec::Serial { path, baud } => transport::serial(path, *baud)?,
+            LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str())?,
+            LinkSpec::Qemu(image) => {
+                // A new connection to QEMU's UART is a new QEMU: the board boots again.
+                self.qemu = None;
+                let (q, duplex) = QemuBoard::start(image, Duration::from_secs(20))
+                    .map_err(|e| TrackError::Core(e.to_string()))?;
+                self.qemu = Some(q);
+                duplex
+            }
+            LinkSpec::QemuDefault => unreachable!("resolved when the link was opened"),
+        };
+        self.name = duplex.name.clone();
+        self.conn = Some(Connection::start(duplex));
+        self.connections += 1;
+        Ok(())
+    }
+
+    /// Opens the link again after it was lost: a new pty to the simulated board, the serial
+    /// device opened again, a new TCP connection, or QEMU started again (which boots the
+    /// firmware: a reset).
+    /// Every failure is a [`TrackError::Link`]: the caller tries again later.
+    pub fn reconnect(&mut self) -> Result<(), TrackError> {
+        self.connect().map_err(|e| match e {
+            TrackError::Link(e) => TrackError::Link(e),
+            other => TrackError::Link(format!("reconnecting to {}: {other}", self.spec)),
+        })
+    }
+
+    /// Whether a connection is open.
+    pub fn is_connected(&self) -> bool {
+        self.conn.is_some()
+    }
+
+    /// Fault injection: closes the host's end of the line, as a pulled cable does. The core
+    /// is not told; the simulated board waits for the next connection with its state.
+    pub fn cut(&mut self) {
+        self.conn = None;
+    }
+
+    /// Fault injection: resets the core (the simulated board's reset line, or QEMU killed:
+    /// the next connection boots the firmware again).
+    pub fn reset_core(&mut self) -> Result<(), TrackError> {
+        if let Some(b) = &self.board {
+            b.pin.pulse();
+            return Ok(());
+        }
+        if self.qemu.take().is_some() {
+            return Ok(());
+        }
+        Err(TrackError::Option(format!(
+            "the host cannot reset the core on {}: only sim and qemu links have a reset line",
+            self.spec
+        )))
+    }
+
+    /// The transport's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn conn(&self) -> Result<&Connection, TrackError> {
+        self.conn
+            .as_ref()
+            .ok_or_else(|| TrackError::Link(format!("link {} is down", self.name)))
+    }
+
+    /// Sends one message.
+    pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackError> {
+        let name = &self.name;
+        let conn = self
+            .conn
+            .as_mut()
+            .ok_or_else(|| TrackError::Link(format!("link {name} is down")))?;
+        conn.writer
+            .send(msg)
+            .map_err(|e| TrackError::Link(format!("link {name}: write failed: {e}")))?;
+        self.messages_out += 1;
+        Ok(())
+    }
+
+    /// Waits up to `timeout` for the next item.
+    pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackError> {
+        self.recv_within(timeout)?.ok_or_else(|| {
+            TrackError::Link(format!(
+                "link {}: no answer from the core within {timeout:?}",
+                self.name
+            ))
+        })
+    }
+
+    /// Waits up to `timeout` for the next item; `None` if none came.
+    pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackError> {
+        match self.conn()?.rx.recv_timeout(timeout) {
+            Ok(Ok(m)) => Ok(Some(m)),
+            Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
+            Err(RecvTimeoutError::Timeout) => Ok(None),
+            Err(RecvTimeoutError::Disconnected) => Err(TrackError::Link(format!(
+                "link {}: reader stopped",
+                self.name
+            ))),
+        }
+    }
+
+    /// The next item if one is waiting.
+    pub fn try_recv(&self) -> Result<Option<Incoming>, TrackError> {
+        match self.conn()?.rx.try_recv() {
+            Ok(Ok(m)) => Ok(Some(m)),
+            Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
+            Err(TryRecvError::Empty) => Ok(None),
+            Err(TryRecvError::Disconnected) => Err(TrackError::Link(format!(
+                "link {}: reader stopped",
+                self.name
+            ))),
+        }
+    }
+
+    /// Closes the link and waits for the simulated board (whose report is returned) or
+    /// stops QEMU.
+    pub fn close(mut self) -> Result<Option<BoardReport>, TrackError> {
+        self.shutdown()
+    }
+
+    fn shutdown(&mut self) -> Result<Option<BoardReport>, TrackError> {
+        // Dropping our last descriptors of the line ends the board's session; dropping the
+        // board's connection channel ends the board.
+        self.conn = None;
+        self.qemu = None;
+        let Some(board) = self.board.as_mut() else {
+            return Ok(None);
+        };
+        board.connect = None;
+        let Some(handle) = board.handle.take() else {
+            return Ok(None);
+        };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !handle.is_finished() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if !handle.is_finished() {
+            return Err(TrackError::Core(
+                "the simulated board did not end its session".into(),
+            ));
+        }
+        match handle.join() {
+            Ok(Ok(report)) => Ok(Some(report)),
+            Ok(Err(e)) => Err(TrackError::Core(format!("simulated board: {e}"))),
+            Err(_) => Err(TrackError::Core("simulated board panicked".into())),
+        }
+    }
+}
+
+impl Connection {
+    /// Starts the reader thread of `duplex`, which decodes the core's frames as they arrive.
+    fn start(duplex: Duplex) -> Self {
+        let Duplex { reader, writer, .. } = duplex;
         let (tx, rx) = channel();
         let stop = Arc::new(AtomicBool::new(false));
         let stop_reader = stop.clone();
@@ -275,104 +479,11 @@ impl CoreLink {
                 }
             })
             .ok();
-        CoreLink {
-            name,
-            writer: Some(FrameWriter::new(writer)),
+        Connection {
+            writer: FrameWriter::new(writer),
             rx,
             stop,
             reader,
-            board,
-            qemu,
-            messages_out: 0,
-            damage: None,
-        }
-    }
-
-    /// The transport's name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// Sends one message.
-    pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackError> {
-        let w = self
-            .writer
-            .as_mut()
-            .ok_or_else(|| TrackError::Core("link already closed".into()))?;
-        w.send(msg)
-            .map_err(|e| TrackError::Core(format!("link {}: write failed: {e}", self.name)))?;
-        self.messages_out += 1;
-        Ok(())
-    }
-
-    /// Waits up to `timeout` for the next item.
-    pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackError> {
-        self.recv_within(timeout)?.ok_or_else(|| {
-            TrackError::Core(format!(
-                "link {}: no answer from the core within {timeout:?}",
-                self.name
-            ))
-        })
-    }
-
-    /// Waits up to `timeout` for the next item; `None` if none came.
-    pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackError> {
-        match self.rx.recv_timeout(timeout) {
-            Ok(Ok(m)) => Ok(Some(m)),
-            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
-            Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(TrackError::Core(format!(
-                "link {}: reader stopped",
-                self.name
-            ))),
-        }
-    }
-
-    /// The next item if one is waiting.
-    pub fn try_recv(&self) -> Result<Option<Incoming>, TrackError> {
-        match self.rx.try_recv() {
-            Ok(Ok(m)) => Ok(Some(m)),
-            Ok(Err(e)) => Err(TrackError::Core(format!("link {}: {e}", self.name))),
-            Err(TryRecvError::Empty) => Ok(None),
-            Err(TryRecvError::Disconnected) => Err(TrackError::Core(format!(
-                "link {}: reader stopped",
-                self.name
-            ))),
-        }
-    }
-
-    /// Closes the link and waits for the simulated board (whose report is returned) or
-    /// stops QEMU.
-    pub fn close(mut self) -> Result<Option<BoardReport>, TrackError> {
-        self.shutdown()
-    }
-
-    fn shutdown(&mut self) -> Result<Option<BoardReport>, TrackError> {
-        self.stop.store(true, Ordering::Relaxed);
-        if let Some(r) = self.reader.take() {
-            let _ = r.join();
-        }
-        // Dropping our last descriptors of the line ends the board's session.
-        self.writer = None;
-        self.qemu = None;
-        let deadline = Instant::now() + Duration::from_secs(10);
-        match self.board.take() {
-            Some(handle) => {
-                while !handle.is_finished() && Instant::now() < deadline {
-                    std::thread::sleep(Duration::from_millis(5));
-                }
-                if !handle.is_finished() {
-                    return Err(TrackError::Core(
-                        "the simulated board did not end its session".into(),
-                    ));
-                }
-                match handle.join() {
-                    Ok(Ok(report)) => Ok(Some(report)),
-                    Ok(Err(e)) => Err(TrackError::Core(format!("simulated board: {e}"))),
-                    Err(_) => Err(TrackError::Core("simulated board panicked".into())),
-                }
-            }
-            None => Ok(None),
         }
     }
 }

@@ -17,6 +17,7 @@ mod cold_start;
 pub mod config;
 pub mod core;
 mod frame_row;
+mod outage;
 pub mod output;
 pub mod overlay;
 pub mod plot;
@@ -42,6 +43,7 @@ pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
 pub use self::frame_row::FrameRow;
+pub use self::outage::{Outage, OutageKind};
 pub use self::output::Summary;
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 
@@ -95,9 +97,13 @@ pub enum TrackError {
     /// The transport could not be opened.
     #[error(transparent)]
     Transport(#[from] firmware_sim::transport::TransportError),
-    /// The core refused something or the link failed.
+    /// The core refused something.
     #[error("core: {0}")]
     Core(String),
+    /// The link to the core failed: closed, a transport error, or no answer in time. A run
+    /// that recovers from faults (protocol/PROTOCOL.md §8) reconnects; others stop with it.
+    #[error("core: {0}")]
+    Link(String),
     /// An output file could not be written.
     #[error("{path}: {source}")]
     Output {
@@ -169,6 +175,14 @@ pub struct Faults {
     /// Bit errors on the line to the simulated board: the probability that a byte has a bit
     /// flipped, in both directions. Damaged frames must be detected and dropped at both ends.
     pub line_errors: Option<f64>,
+    /// At this time [s] the core is reset (the simulated board's reset line, or QEMU killed):
+    /// the host must notice, configure and initialise it again, and resume.
+    pub reset_core_at: Option<f64>,
+    /// At this time [s] the cable is pulled: the host's end of the line is closed, and
+    /// reconnecting fails for `cut_seconds`.
+    pub cut_link_at: Option<f64>,
+    /// How long the cable stays out [s].
+    pub cut_seconds: f64,
     /// Seed of the injected faults.
     pub seed: u64,
 }
@@ -248,6 +262,10 @@ pub struct TrackOptions {
     pub timeout: Duration,
     /// Replace the outputs of an earlier run in `out` (otherwise they are refused).
     pub overwrite: bool,
+    /// Attach to a core that is already running (protocol/PROTOCOL.md §8): ask for its state
+    /// and go on from its last sample, without configuring or initialising it again if it is
+    /// still tracking.
+    pub attach: bool,
     /// Frames from a video, camera or image folder instead of the dataset's (vision-only;
     /// `dataset` is then that input, for reports).
     pub frames: Option<crate::frames::FrameInput>,
@@ -280,6 +298,7 @@ impl TrackOptions {
             faults: Faults::default(),
             timeout: Duration::from_secs(10),
             overwrite: false,
+            attach: false,
             frames: None,
             camera: None,
             max_frames: None,
@@ -489,6 +508,11 @@ pub struct CoreLog {
     pub rejected_frames: usize,
     /// `HelloAck`s received (handshake and barriers).
     pub acks: usize,
+    /// Added to the core's frame ids: a core that was reset numbers its frames from 0 again,
+    /// and the log keeps one id per frame across cores (`new_core`).
+    frame_offset: u32,
+    /// One past the largest frame id logged.
+    next_frame: u32,
 }
 
 impl CoreLog {
@@ -498,14 +522,38 @@ impl CoreLog {
             Incoming::Message(m) => match m {
                 CoreToHost::HelloAck(_) => self.acks += 1,
                 CoreToHost::Error(e) => self.errors.push(e),
-                CoreToHost::PosePrediction(p) => {
+                CoreToHost::PosePrediction(mut p) => {
+                    p.frame_id = self.frame_id(p.frame_id);
                     self.predictions.insert(p.t_us, p);
                 }
+                // The answer to a `Query` repeats the last state: kept once.
+                CoreToHost::State(s) if self.states.last().is_some_and(|l| l.t_us == s.t_us) => {}
                 CoreToHost::State(s) => self.states.push(s),
-                CoreToHost::UpdateReport(r) => self.updates.entry(r.frame_id).or_default().push(r),
+                CoreToHost::UpdateReport(mut r) => {
+                    r.frame_id = self.frame_id(r.frame_id);
+                    self.updates.entry(r.frame_id).or_default().push(r)
+                }
                 CoreToHost::Status(s) => self.statuses.push(s),
             },
         }
+    }
+
+    /// The log's id of the current core's frame `core_id`.
+    fn frame_id(&mut self, core_id: u32) -> u32 {
+        let id = core_id.wrapping_add(self.frame_offset);
+        self.next_frame = self.next_frame.max(id.wrapping_add(1));
+        id
+    }
+
+    /// The current core's id of the log's frame `id`.
+    fn core_frame_id(&self, id: u32) -> u32 {
+        id.wrapping_sub(self.frame_offset)
+    }
+
+    /// A new core (reset, and configured again) numbers its frames from 0: they follow the
+    /// old core's in the log.
+    fn new_core(&mut self) {
+        self.frame_offset = self.next_frame;
     }
 
     /// The current mode (last status).
@@ -620,6 +668,10 @@ pub fn run(
         database: None,
         tilt_checks: 0,
         tilt_flips: Vec::new(),
+        session_id: new_session_id(),
+        outages: Vec::new(),
+        attached_at: None,
+        attach_note: None,
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(
@@ -696,6 +748,16 @@ pub fn run(
         summary,
         written,
     })
+}
+
+/// A session id for this run: non-zero, and different from run to run (the clock's
+/// nanoseconds and the process id), so that a host coming back to a core tells its own
+/// configuration from another's.
+fn new_session_id() -> u32 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
+    (nanos ^ std::process::id().rotate_left(16)).max(1)
 }
 
 /// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
@@ -1036,6 +1098,15 @@ pub struct Session<'a> {
     /// Where a tilt check put tracking on the other tilt of a face: the frame checked and
     /// when the flip was applied [s].
     pub tilt_flips: Vec<(usize, f64)>,
+    /// This run's name for its configuration of the core (`Config::session`): a core that
+    /// reports it in its `HelloAck` kept the state this run gave it.
+    pub session_id: u32,
+    /// Outages of the link or the core, and how each ended (protocol/PROTOCOL.md §8).
+    pub outages: Vec<Outage>,
+    /// With `--attach`: the first sample sent, the one after the core's last.
+    pub attached_at: Option<usize>,
+    /// With `--attach`: what the host found, and what it did.
+    pub attach_note: Option<String>,
 }
 
 /// A loss of a vision-only run and its search.
@@ -1134,8 +1205,15 @@ impl Session<'_> {
         link.send(&hello)?;
         let deadline = Instant::now() + self.options.timeout;
         loop {
+            // Refusals of messages sent before this `Hello` (to a core that was reset, say)
+            // may come first: only the version's verdict answers it.
             match self.next_or_resend(link, &hello, deadline)? {
-                Incoming::Message(m @ (CoreToHost::HelloAck(_) | CoreToHost::Error(_))) => {
+                Incoming::Message(
+                    m @ (CoreToHost::HelloAck(_)
+                    | CoreToHost::Error(protocol::ErrorReport {
+                        code: protocol::ErrorCode::VersionMismatch { .. },
+                    })),
+                ) => {
                     let ack = protocol::handshake::check_answer(&m)
                         .map_err(|e| TrackError::Core(format!("handshake: {e}")))?;
                     self.log.acks += 1;
@@ -1260,23 +1338,32 @@ impl Session<'_> {
         progress: Progress,
     ) -> Result<bool, TrackError> {
         let ack = self.handshake(link)?;
-        let config = core_config(self.dataset, self.options.filter, &self.options.tuning);
+        let config = core_config(
+            self.dataset,
+            self.options.filter,
+            &self.options.tuning,
+            self.session_id,
+        );
         check_latency(self.options.latency, &ack.capacities, &config)?;
-        self.send_confirmed(
-            link,
-            &HostToCore::Configure(config),
-            protocol::StatusReason::Configured,
-        )?;
+        let attached = if self.options.attach {
+            self.attach(link, &ack)?
+        } else {
+            None
+        };
         // A cold start initialises the core once the model is found (and then searches again
         // after a loss).
-        let mut searcher = self
-            .options
-            .start
-            .is_cold(self.dataset)
+        let mut searcher = (attached.is_none() && self.options.start.is_cold(self.dataset))
             .then(cold_start::Searcher::default);
-        if searcher.is_none() {
-            let init = HostToCore::Init(self.init_message()?);
-            self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
+        if attached.is_none() {
+            self.send_confirmed(
+                link,
+                &HostToCore::Configure(config),
+                protocol::StatusReason::Configured,
+            )?;
+            if searcher.is_none() {
+                let init = HostToCore::Init(self.init_message()?);
+                self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
+            }
         }
         if let Some(e) = self.log.errors.first() {
             return Err(TrackError::Core(format!(
@@ -1293,136 +1380,278 @@ impl Session<'_> {
         let mut pending: VecDeque<Pending> = VecDeque::new();
         let start = Instant::now();
         let mut frames_done = 0usize;
-        for k in 0..end {
+        let mut injected = outage::Injected::default();
+        let mut open: Option<outage::Open> = None;
+        for k in attached.unwrap_or(0)..end {
             if interrupt.load(Ordering::Relaxed) {
-                self.finish(link, &mut pending, worker, None, true)?;
+                if open.is_none() {
+                    self.finish(link, &mut pending, worker, None, true)?;
+                }
                 return Ok(false);
             }
             let lock_step = self.options.pacing == Pacing::LockStep;
-            if lock_step {
-                while pending.front().is_some_and(|p| p.due <= k) {
-                    let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                    let r = worker.recv()?;
-                    self.deliver(link, p, r)?;
-                    frames_done += 1;
-                }
-            } else {
+            if !lock_step {
                 let due = start + Duration::from_nanos(ds.imu[k].stamp - stamp0);
                 if let Some(wait) = due.checked_duration_since(Instant::now()) {
                     std::thread::sleep(wait);
                 }
-                while !pending.is_empty() {
-                    match worker.try_recv() {
-                        Some(r) => {
-                            let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                            self.deliver(link, p, r)?;
-                            frames_done += 1;
-                        }
-                        None => break,
-                    }
-                }
             }
-            if let (Some(s), Some(w)) = (searcher.as_mut(), search) {
-                self.poll_search(link, s, w, Some(k).filter(|_| lock_step), self.t_us(k))?;
-            }
-            let row = &ds.imu[k];
             let t_us = self.t_us(k);
-            let frame = triggers.get(&k).copied();
-            link.send(&HostToCore::Imu(protocol::ImuSample {
-                t_us,
-                gyro: [row.gyro.x as f32, row.gyro.y as f32, row.gyro.z as f32],
-                accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
-                trigger: frame.is_some(),
-            }))?;
-            self.clock.push(row.stamp);
-            if let Some(f) = frame {
-                if lock_step {
-                    self.barrier(link)?;
-                } else {
-                    // Real time: the prediction is usually back within a millisecond.
-                    let deadline = Instant::now() + Duration::from_millis(20);
-                    while !self.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
-                        if let Ok(item) = link.recv(Duration::from_millis(2)) {
-                            self.log.take(item);
-                        }
+            let refusals = self.log.errors.len();
+            let step = match open.as_mut() {
+                None => self
+                    .inject_faults(link, &mut injected, t_us)
+                    .and_then(|()| {
+                        self.sample_step(
+                            link,
+                            worker,
+                            search,
+                            searcher.as_mut(),
+                            &mut pending,
+                            &mut frames_done,
+                            (k, lock_step, triggers.get(&k).copied()),
+                            latency_samples,
+                        )
+                    }),
+                Some(o) => match self.attempt_resume(link, o, &injected, k, &triggers)? {
+                    outage::Attempt::Waiting => Ok(()),
+                    outage::Attempt::Resumed => {
+                        open = None;
+                        self.sample_step(
+                            link,
+                            worker,
+                            search,
+                            searcher.as_mut(),
+                            &mut pending,
+                            &mut frames_done,
+                            (k, lock_step, triggers.get(&k).copied()),
+                            latency_samples,
+                        )
                     }
-                }
-                let blind = self.options.faults.blind_at(output::seconds(t_us));
-                let cam = &ds.camera.camera;
-                let noise = || self.options.faults.noise_frame(cam.width, cam.height, f);
-                let step = searcher.as_mut().map_or(cold_start::AtTrigger::Wait, |s| {
-                    s.at_trigger(&self.log.statuses, t_us)
-                });
-                if step == cold_start::AtTrigger::Tracking {
-                    self.end_recovery(t_us);
-                }
-                if let (Some(s), Some(w)) = (searcher.as_mut(), search)
-                    && let cold_start::AtTrigger::Attempt(lost_at) = step
-                {
-                    let path = &ds.frames[f].path;
-                    let image = if blind {
-                        Ok(noise())
-                    } else {
-                        image::open(path).map(|i| i.into_luma8())
-                    };
-                    match image {
-                        Ok(image) => {
-                            w.send_locate(image, self.options.cache.clone())?;
-                            s.sent(cold_start::LocateJob {
-                                index: f,
-                                t_us,
-                                due: k + latency_samples.max(1),
-                                lost_at,
-                            });
-                        }
-                        // An unreadable frame is no attempt, as it is no analysis: reported,
-                        // and the next frame is tried.
-                        Err(e) => self.frame_errors.push((
-                            self.results.len(),
-                            format!("{}: {e} (no search on it)", path.display()),
-                        )),
-                    }
-                }
-                if let Some(p) = self.log.predictions.get(&t_us).copied() {
-                    let every = self.options.overlay_every;
-                    let omega_c = self.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
-                        let w = Vector3::new(
-                            s.omega_s[0] as f64,
-                            s.omega_s[1] as f64,
-                            s.omega_s[2] as f64,
-                        );
-                        ds.hand_eye.q_cs * w
-                    });
-                    let job = FrameJob {
-                        index: f,
-                        stamp: ds.frames[f].stamp,
-                        image: if blind {
-                            FrameImage::Decoded(noise())
-                        } else {
-                            FrameImage::File(ds.frames[f].path.clone())
-                        },
-                        prediction: p,
-                        keep_image: every > 0 && f % every == 0,
-                        omega_c,
-                    };
-                    worker.send(job)?;
-                    pending.push_back(Pending {
-                        frame_id: p.frame_id,
-                        trigger_us: t_us,
-                        due: k + latency_samples.max(1),
-                    });
-                }
-            } else {
-                self.drain(link)?;
+                },
+            };
+            // A link that failed, or a core that forgot us, is an outage: the frames in
+            // flight are dropped, and the host tries to reach the core again.
+            let cause = match step {
+                Ok(()) if open.is_none() && self.core_forgot(refusals) => Some(
+                    "the core answered as one not configured since it started: it was reset"
+                        .to_string(),
+                ),
+                Ok(()) => None,
+                Err(TrackError::Link(e)) if open.is_none() => Some(e),
+                Err(e) => return Err(e),
+            };
+            if let Some(cause) = cause {
+                open = Some(self.begin_outage(cause, t_us, &mut injected, &mut pending, worker)?);
             }
             if k % 50 == 0 || k + 1 == end {
                 progress(k + 1, end, frames_done, self.log.mode());
             }
         }
+        if open.is_some() {
+            // The core was not reached again before the end: nothing is left to collect.
+            self.close_outages();
+            progress(end, end, self.results.len(), self.log.mode());
+            return Ok(true);
+        }
         let searching = searcher.as_mut().zip(search);
         self.finish(link, &mut pending, worker, searching, false)?;
+        self.close_outages();
         progress(end, end, self.results.len(), self.log.mode());
         Ok(true)
+    }
+
+    /// Sends the IMU sample `k`, with the camera's trigger if it fired there.
+    fn send_sample(
+        &mut self,
+        link: &mut CoreLink,
+        k: usize,
+        trigger: bool,
+    ) -> Result<(), TrackError> {
+        let row = &self.dataset.imu[k];
+        link.send(&HostToCore::Imu(protocol::ImuSample {
+            t_us: self.t_us(k),
+            gyro: [row.gyro.x as f32, row.gyro.y as f32, row.gyro.z as f32],
+            accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
+            trigger,
+        }))?;
+        self.clock.push(row.stamp);
+        Ok(())
+    }
+
+    /// One IMU sample of [`Self::drive`]: the frames due, the search, the sample, and at a
+    /// trigger the frame's prediction and its analysis. `at` is the sample's index, whether
+    /// the run is in lock-step, and the frame triggered at it.
+    #[allow(clippy::too_many_arguments)]
+    fn sample_step(
+        &mut self,
+        link: &mut CoreLink,
+        worker: &VisionWorker,
+        search: Option<&VisionWorker>,
+        mut searcher: Option<&mut cold_start::Searcher>,
+        pending: &mut VecDeque<Pending>,
+        frames_done: &mut usize,
+        at: (usize, bool, Option<usize>),
+        latency_samples: usize,
+    ) -> Result<(), TrackError> {
+        let (k, lock_step, frame) = at;
+        let ds = self.dataset;
+        if lock_step {
+            while pending.front().is_some_and(|p| p.due <= k) {
+                let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                let r = worker.recv()?;
+                self.deliver(link, p, r)?;
+                *frames_done += 1;
+            }
+        } else {
+            while !pending.is_empty() {
+                match worker.try_recv() {
+                    Some(r) => {
+                        let p = pending.pop_front().unwrap_or_else(|| unreachable!());
+                        self.deliver(link, p, r)?;
+                        *frames_done += 1;
+                    }
+                    None => break,
+                }
+            }
+        }
+        if let (Some(s), Some(w)) = (searcher.as_deref_mut(), search) {
+            self.poll_search(link, s, w, Some(k).filter(|_| lock_step), self.t_us(k))?;
+        }
+        let t_us = self.t_us(k);
+        self.send_sample(link, k, frame.is_some())?;
+        let Some(f) = frame else {
+            return self.drain(link);
+        };
+        if lock_step {
+            self.barrier(link)?;
+        } else {
+            // Real time: the prediction is usually back within a millisecond.
+            let deadline = Instant::now() + Duration::from_millis(20);
+            while !self.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
+                if let Ok(item) = link.recv(Duration::from_millis(2)) {
+                    self.log.take(item);
+                }
+            }
+        }
+        let blind = self.options.faults.blind_at(output::seconds(t_us));
+        let cam = &ds.camera.camera;
+        let noise = || self.options.faults.noise_frame(cam.width, cam.height, f);
+        let step = searcher
+            .as_deref_mut()
+            .map_or(cold_start::AtTrigger::Wait, |s| {
+                s.at_trigger(&self.log.statuses, t_us)
+            });
+        if step == cold_start::AtTrigger::Tracking {
+            self.end_recovery(t_us);
+        }
+        if let (Some(s), Some(w)) = (searcher, search)
+            && let cold_start::AtTrigger::Attempt(lost_at) = step
+        {
+            let path = &ds.frames[f].path;
+            let image = if blind {
+                Ok(noise())
+            } else {
+                image::open(path).map(|i| i.into_luma8())
+            };
+            match image {
+                Ok(image) => {
+                    w.send_locate(image, self.options.cache.clone())?;
+                    s.sent(cold_start::LocateJob {
+                        index: f,
+                        t_us,
+                        due: k + latency_samples.max(1),
+                        lost_at,
+                    });
+                }
+                // An unreadable frame is no attempt, as it is no analysis: reported, and the
+                // next frame is tried.
+                Err(e) => self.frame_errors.push((
+                    self.results.len(),
+                    format!("{}: {e} (no search on it)", path.display()),
+                )),
+            }
+        }
+        if let Some(p) = self.log.predictions.get(&t_us).copied() {
+            let every = self.options.overlay_every;
+            let omega_c = self.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
+                let w = Vector3::new(
+                    s.omega_s[0] as f64,
+                    s.omega_s[1] as f64,
+                    s.omega_s[2] as f64,
+                );
+                ds.hand_eye.q_cs * w
+            });
+            let job = FrameJob {
+                index: f,
+                stamp: ds.frames[f].stamp,
+                image: if blind {
+                    FrameImage::Decoded(noise())
+                } else {
+                    FrameImage::File(ds.frames[f].path.clone())
+                },
+                prediction: p,
+                keep_image: every > 0 && f % every == 0,
+                omega_c,
+            };
+            worker.send(job)?;
+            pending.push_back(Pending {
+                frame_id: p.frame_id,
+                trigger_us: t_us,
+                due: k + latency_samples.max(1),
+            });
+        }
+        Ok(())
+    }
+
+    /// With `--attach`: a core that runs our model under a session, and is still tracking,
+    /// is taken over as it is. Returns the first sample to send (the one after the core's
+    /// last), or `None` when there is nothing to take over and the core is configured anew.
+    fn attach(
+        &mut self,
+        link: &mut CoreLink,
+        ack: &protocol::HelloAck,
+    ) -> Result<Option<usize>, TrackError> {
+        if ack.session == 0 || ack.model != Some(self.options.filter) {
+            self.attach_note = Some(format!(
+                "the core ran no {:?} session (model {:?}, session {}): configured anew",
+                self.options.filter, ack.model, ack.session
+            ));
+            return Ok(None);
+        }
+        let Some((mode, last_us)) = self.query(link)? else {
+            return Err(TrackError::Core(
+                "--attach: the core did not answer the query for its state".into(),
+            ));
+        };
+        if !matches!(
+            mode,
+            protocol::Mode::Tracking | protocol::Mode::DeadReckoning
+        ) {
+            self.attach_note = Some(format!(
+                "the core was {mode:?}, not tracking: configured and initialised anew"
+            ));
+            return Ok(None);
+        }
+        let ds = self.dataset;
+        let next = (0..ds.imu.len()).find(|&k| self.t_us(k) > last_us);
+        match next {
+            Some(k) if self.t_us(k) - last_us <= outage::MAX_BACKLOG_US => {
+                self.session_id = ack.session;
+                self.attached_at = Some(k);
+                self.attach_note = Some(format!(
+                    "attached to session {:#010x}, {mode:?} at t = {:.3} s: went on from there",
+                    ack.session,
+                    last_us as f64 * 1e-6
+                ));
+                Ok(Some(k))
+            }
+            _ => Err(TrackError::Core(format!(
+                "--attach: the core's last sample is at t = {:.3} s, which is not in this dataset's {:.3} s: is it the dataset the core was tracking?",
+                last_us as f64 * 1e-6,
+                self.t_us(ds.imu.len() - 1) as f64 * 1e-6
+            ))),
+        }
     }
 
     /// Delivers the frames still in flight, applies a search still running, and collects
@@ -1485,7 +1714,8 @@ impl Session<'_> {
             }
         }
         if !items.is_empty() {
-            let parts = protocol::Correspondences::split(p.frame_id, p.trigger_us, &items)
+            let core_id = self.log.core_frame_id(p.frame_id);
+            let parts = protocol::Correspondences::split(core_id, p.trigger_us, &items)
                 .map_err(|e| TrackError::Core(format!("frame {}: {e:?}", p.frame_id)))?;
             for part in parts {
                 link.send(&HostToCore::Correspondences(part))?;

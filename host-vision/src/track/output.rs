@@ -350,6 +350,10 @@ pub struct Summary {
     /// Tilt checks of tracked poses (vision-only runs), and where one put tracking on the
     /// other tilt of a face.
     pub tilt_checks: TiltChecks,
+    /// Outages of the link or the core (protocol/PROTOCOL.md §8), and how each ended.
+    pub outages: Vec<super::Outage>,
+    /// With `--attach`: what the host found on the core, and what it did.
+    pub attach: Option<String>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
     pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
@@ -522,6 +526,26 @@ impl fmt::Display for Summary {
                 flips.join(", ")
             )?;
         }
+        for o in &self.outages {
+            writeln!(
+                f,
+                "outage       {:.3} s: {:?} ({}); noticed at {:.3} s{}, back at {}, {} attempts, {} samples caught up, tracking again at {}",
+                o.injected_s.unwrap_or(o.noticed_s),
+                o.kind,
+                o.cause,
+                o.noticed_s,
+                o.notice_wall_ms
+                    .map(|ms| format!(" ({ms:.1} ms after the fault)"))
+                    .unwrap_or_default(),
+                opt(o.resumed_s, "s"),
+                o.attempts,
+                o.backlog,
+                opt(o.tracking_s, "s"),
+            )?;
+        }
+        if let Some(a) = &self.attach {
+            writeln!(f, "attach       {a}")?;
+        }
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
             writeln!(f, "  {:8.2} s  {} ({})", e.t, e.mode, e.reason)?;
@@ -605,16 +629,23 @@ fn io(path: &Path) -> impl Fn(std::io::Error) -> TrackError + '_ {
     }
 }
 
-/// Writes `(stamp ns, position, q_wc)` rows as a TUM trajectory.
+/// Writes `(stamp ns, position, q_wc)` rows as a TUM trajectory. Each of `gaps`, `(stamp ns
+/// of its start, what)`, is marked by a comment line where it falls (a TUM reader such as
+/// `evo` skips comments).
 pub fn write_tum(
     path: &Path,
     rows: impl Iterator<Item = (u64, Vector3<f64>, UnitQuaternion<f64>)>,
+    gaps: &[(u64, String)],
 ) -> Result<usize, TrackError> {
     let mut w = create(path)?;
     let e = io(path);
     writeln!(w, "# timestamp tx ty tz qx qy qz qw").map_err(&e)?;
     let mut n = 0;
+    let mut gaps = gaps.iter().peekable();
     for (stamp, p, q) in rows {
+        while let Some((_, what)) = gaps.next_if(|(at, _)| *at < stamp) {
+            writeln!(w, "# gap: {what}").map_err(&e)?;
+        }
         let q = q.quaternion();
         writeln!(
             w,
@@ -712,7 +743,11 @@ pub(super) fn write_all(
     let board = link.board;
     let out = &options.out;
     let log = &session.log;
-    let stamp0 = session.clock.first().copied().unwrap_or(0);
+    // Times count from the input's first sample, also where an attached run began later.
+    let stamp0 = match session.attached_at {
+        Some(_) => dataset.imu.first().map_or(0, |r| r.stamp),
+        None => session.clock.first().copied().unwrap_or(0),
+    };
     let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
     let mut written = Vec::new();
 
@@ -721,12 +756,32 @@ pub(super) fn write_all(
     let core_he = session.core_hand_eye;
     let he = dataset.hand_eye;
     let path = out.join("trajectory.tum");
+    // Outages: the poses around them come from a core that had its state (protocol/PROTOCOL.md
+    // §8); the hole between is marked.
+    let gaps: Vec<(u64, String)> = session
+        .outages
+        .iter()
+        .map(|o| {
+            let from = o.injected_s.unwrap_or(o.noticed_s);
+            (
+                stamp0 + (from * 1e9) as u64,
+                format!(
+                    "{:?} from {from:.3} s ({}), the core back at {}",
+                    o.kind,
+                    o.cause,
+                    o.resumed_s
+                        .map_or("the end: never".into(), |t| format!("{t:.3} s"))
+                ),
+            )
+        })
+        .collect();
     write_tum(
         &path,
         log.states.iter().map(|s| {
             let (c, q) = camera_of_state(s, &core_he);
             (stamp_of(s.t_us), c, q)
         }),
+        &gaps,
     )?;
     written.push(path);
     let path = out.join("trajectory_frames.tum");
@@ -736,6 +791,7 @@ pub(super) fn write_all(
             let (c, q) = super::vision::camera_in_world(p)?;
             Some((stamp_of(p.t_us), c, q))
         }),
+        &gaps,
     )?;
     written.push(path);
     if dataset.groundtruth.is_some() {
@@ -748,6 +804,7 @@ pub(super) fn write_all(
                 let (c, q_cw) = he.camera_pose(&p, &q);
                 Some((stamp, c, q_cw.inverse()))
             }),
+            &[],
         )?;
         written.push(path);
     }
@@ -836,7 +893,11 @@ pub(super) fn write_all(
     let snapped_on_at = log
         .statuses
         .iter()
-        .find(|s| s.reason == StatusReason::VisionAccepted)
+        .find(|s| {
+            // An attached core may have been tracking already when the host asked.
+            s.reason == StatusReason::VisionAccepted
+                || (s.reason == StatusReason::Queried && s.mode == Mode::Tracking)
+        })
         .map(|s| seconds(s.t_us));
     let divergences: Vec<Event> = log
         .statuses
@@ -972,6 +1033,8 @@ pub(super) fn write_all(
                 .map(|&(frame, at_s)| TiltFlip { frame, at_s })
                 .collect(),
         },
+        outages: session.outages.clone(),
+        attach: session.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0

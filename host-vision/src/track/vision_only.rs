@@ -141,7 +141,7 @@ impl Session<'_> {
             .or(self.dataset.camera.rate_hz)
             .filter(|r| r.is_finite() && *r > 0.0)
             .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
-        let config = vision_config(self.dataset, rate, &self.options.tuning);
+        let config = vision_config(self.dataset, rate, &self.options.tuning, self.session_id);
         // The first frame fixes the clock (and, with a ground truth, the start pose).
         let Some(first) = source.next() else {
             return Err(TrackError::Option(format!(

@@ -304,6 +304,24 @@ pub struct TrackArgs {
     /// both ends.
     #[arg(long)]
     pub line_errors: Option<f64>,
+    /// Reset the core at this time [s] (as --corrupt-at): the simulated board's reset line,
+    /// or QEMU killed and booted again (--link sim or qemu). The host must notice, configure
+    /// and initialise it again from its last good pose, and resume.
+    #[arg(long)]
+    pub reset_core_at: Option<f64>,
+    /// Pull the cable at this time [s] (as --corrupt-at): the host's end of the line is
+    /// closed, and reconnecting fails for --cut-seconds. The core keeps its state; the host
+    /// reconnects with back-off and brings the core up to date.
+    #[arg(long)]
+    pub cut_link_at: Option<f64>,
+    /// How long the cable of --cut-link-at stays out [s].
+    #[arg(long, default_value_t = 0.5)]
+    pub cut_seconds: f64,
+    /// Attach to a core that is already running (a host restarted while the core went on):
+    /// ask for its state and go on from where it is, without configuring or initialising it
+    /// again if it is still tracking.
+    #[arg(long)]
+    pub attach: bool,
 }
 
 /// Filter model on the command line.

@@ -315,8 +315,12 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         blind_from: a.blind_at,
         blind_seconds: 2.0,
         line_errors: a.line_errors,
+        reset_core_at: a.reset_core_at,
+        cut_link_at: a.cut_link_at,
+        cut_seconds: a.cut_seconds,
         seed: 1,
     };
+    o.attach = a.attach;
     let interrupt = interrupt_flag();
     let mut bar = Bar::new(TRACK_BAR);
     let name = format!("track {:?}", o.filter).to_lowercase();
