@@ -459,12 +459,9 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     }
 }
 
-/// The same tracking run with the core as the firmware image under QEMU and as the simulated
-/// board: lock-step replay makes both sessions the same byte stream, so the states agree.
-/// Skips without `qemu-system-arm` or the image (`cargo xtask firmware`) unless
-/// `REQUIRE_FIRMWARE` is set.
-#[test]
-fn tracking_over_the_firmware_under_qemu_matches_the_simulated_board() {
+/// The firmware image, if it and `qemu-system-arm` are there; `None` (the test skips, with a
+/// message) if not, unless `REQUIRE_FIRMWARE` is set, which makes that a failure.
+fn firmware_image() -> Option<PathBuf> {
     let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let image = firmware_sim::qemu::default_image(&workspace, "device");
     let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
@@ -482,8 +479,20 @@ fn tracking_over_the_firmware_under_qemu_matches_the_simulated_board() {
             "SKIPPED: qemu-system-arm or {} absent (set REQUIRE_FIRMWARE to make this a failure)",
             image.display()
         );
-        return;
+        return None;
     }
+    Some(image)
+}
+
+/// The same tracking run with the core as the firmware image under QEMU and as the simulated
+/// board: lock-step replay makes both sessions the same byte stream, so the states agree.
+/// Skips without `qemu-system-arm` or the image (`cargo xtask firmware`) unless
+/// `REQUIRE_FIRMWARE` is set.
+#[test]
+fn tracking_over_the_firmware_under_qemu_matches_the_simulated_board() {
+    let Some(image) = firmware_image() else {
+        return;
+    };
     let ds = dataset(ScenarioName::DesktopFast, 12.0);
     let mut runs = Vec::new();
     for (name, link) in [
@@ -903,4 +912,40 @@ fn a_restarted_host_attaches_to_the_running_core_over_tcp() {
         mean * 1e3
     );
     assert!(errors.len() > 300 && mean < 0.01, "{mean}");
+}
+
+/// Issue 17, the MCU resets while tracking, on the firmware under QEMU: QEMU is killed at 2 s
+/// and, when the host reconnects, booted again. The host notices the line's end, reaches the
+/// new core (its `HelloAck` has no session), configures it, resumes it from the last tracked
+/// state, and tracking is back within 1 s of the input's time.
+#[test]
+fn a_firmware_reset_under_qemu_is_noticed_and_tracking_resumes() {
+    let Some(image) = firmware_image() else {
+        return;
+    };
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut o = options(&ds, "desktop-fast-qemu-reset", ModelKind::Acc);
+    o.link = track::LinkSpec::Qemu(image);
+    o.duration = Some(4.0);
+    o.faults.reset_core_at = Some(2.0);
+    let run = track(&o);
+    let s = &run.summary;
+    assert_eq!(s.outages.len(), 1, "{:#?}", s.outages);
+    let out = &s.outages[0];
+    assert_eq!(out.kind, track::OutageKind::CoreReset, "{out:#?}");
+    let at = out.injected_s.expect("an injected fault");
+    let back = out.tracking_s.expect("tracking again");
+    println!(
+        "QEMU killed at {at:.3} s: noticed at {:.3} s ({:.1} ms wall), {} attempts, back at {:?}, tracking at {back:.3} s",
+        out.noticed_s,
+        out.notice_wall_ms.unwrap_or(f64::NAN),
+        out.attempts,
+        out.resumed_s
+    );
+    assert!(out.noticed_s - at <= 0.1, "{out:#?}");
+    assert!(back - at <= 1.0, "{out:#?}");
+    let errors = position_errors_from(&Dataset::open(&ds).unwrap(), &run, back + 0.5);
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    println!("position error from {:.2} s: mean {:.2} mm", back + 0.5, mean * 1e3);
+    assert!(errors.len() > 50 && mean < 0.01, "{mean} m");
 }
