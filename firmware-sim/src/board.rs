@@ -247,4 +247,47 @@ mod tests {
         assert_eq!(report.counters.decode_errors, 1);
         assert!(report.bytes_in > 0 && report.bytes_out > 0);
     }
+
+    /// A board keeps its core from one connection to the next (the second host finds the
+    /// session), and its reset line leaves it with none.
+    #[test]
+    fn keeps_its_core_across_connections_until_reset() {
+        let (connect, connections) = std::sync::mpsc::channel();
+        let pin = ResetPin::default();
+        let handle = spawn_serving(connections, Precision::F32, pin.clone()).unwrap();
+        let session_of = |configure: bool| {
+            let (host, board) = pty_pair().unwrap();
+            connect.send(board).unwrap();
+            let mut w = FrameWriter::new(host.writer);
+            let mut r = FrameReader::new(host.reader);
+            let mut recv = || loop {
+                match r.recv::<CoreToHost>() {
+                    Ok(m) => return m,
+                    Err(protocol::io::RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
+                    Err(e) => panic!("{e:?}"),
+                }
+            };
+            let hello = HostToCore::Hello(Hello {
+                version: PROTOCOL_VERSION,
+            });
+            w.send(&hello).unwrap();
+            let CoreToHost::HelloAck(ack) = recv() else {
+                panic!("no HelloAck")
+            };
+            if configure {
+                w.send(&HostToCore::Configure(protocol::samples::config()))
+                    .unwrap();
+                assert!(matches!(recv(), CoreToHost::Status(_)));
+            }
+            ack.session
+        };
+        assert_eq!(session_of(true), 0);
+        let configured = protocol::samples::config().session;
+        assert_eq!(session_of(false), configured);
+        pin.pulse();
+        assert_eq!(session_of(false), 0);
+        drop(connect);
+        let report = handle.join().unwrap().unwrap();
+        assert_eq!((report.sessions, report.resets), (3, 1));
+    }
 }

@@ -1027,6 +1027,84 @@ mod tests {
     /// and answers its triggers, with no panic (overflow checks are on in this profile), and a
     /// sample at the limit again is refused by name: nothing can come after it.
     #[test]
+    fn query_reports_the_mode_and_state_and_resume_restarts_a_reset_core_where_it_was() {
+        use std::vec::Vec;
+        let send = |d: &mut Device<f32>, m: HostToCore| {
+            let mut got = Vec::new();
+            d.handle(&m, &mut |a| got.push(a));
+            got
+        };
+        let hello = HostToCore::Hello(protocol::Hello {
+            version: protocol::PROTOCOL_VERSION,
+        });
+        let config = protocol::samples::config();
+        let imu = |t_us| {
+            HostToCore::Imu(protocol::ImuSample {
+                t_us,
+                gyro: [0.0; 3],
+                accel: [0.0, 0.0, 9.81],
+                trigger: false,
+            })
+        };
+        let mut d = Device::<f32>::new();
+        // A core that booted has no session.
+        let ack = send(&mut d, hello.clone());
+        assert!(matches!(&ack[..], [CoreToHost::HelloAck(a)] if a.session == 0));
+        send(&mut d, HostToCore::Configure(config));
+        send(
+            &mut d,
+            HostToCore::Init(Init {
+                position: [0.5, 0.0, 1.0],
+                attitude: InitAttitude::GravityAndYaw(0.3),
+            }),
+        );
+        let dt = (1e6 / f64::from(config.imu_rate_hz)) as u64;
+        let n = u64::from(config.still_samples) + 20;
+        for k in 1..=n {
+            send(&mut d, imu(k * dt));
+        }
+        let ack = send(&mut d, hello.clone());
+        assert!(matches!(&ack[..], [CoreToHost::HelloAck(a)] if a.session == config.session));
+        // Query: the mode and the last sample's time, then the state, changing nothing.
+        let got = send(&mut d, HostToCore::Query);
+        let state = match &got[..] {
+            [CoreToHost::Status(st), CoreToHost::State(s)] => {
+                assert_eq!(st.reason, StatusReason::Queried);
+                assert_eq!(st.mode, Mode::DeadReckoning);
+                assert_eq!((st.t_us, s.t_us), (n * dt, n * dt));
+                *s
+            }
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(d.mode(), Mode::DeadReckoning);
+        // A reset core refuses to resume before it is configured, then resumes at once.
+        let mut fresh = Device::<f32>::new();
+        send(&mut fresh, hello);
+        let resume = HostToCore::Resume(protocol::Resume::of(&state));
+        let got = send(&mut fresh, resume.clone());
+        assert!(
+            matches!(&got[..], [CoreToHost::Error(e)] if e.code == ErrorCode::NotConfigured),
+            "{got:?}"
+        );
+        send(&mut fresh, HostToCore::Configure(config));
+        let got = send(&mut fresh, resume);
+        assert_eq!(fresh.mode(), Mode::DeadReckoning, "{got:?}");
+        send(&mut fresh, imu((n + 1) * dt));
+        send(&mut d, imu((n + 1) * dt));
+        let after = |d: &mut Device<f32>| match &send(d, HostToCore::Query)[..] {
+            [_, CoreToHost::State(s)] => *s,
+            other => panic!("{other:?}"),
+        };
+        let (a, b) = (after(&mut d), after(&mut fresh));
+        for i in 0..3 {
+            assert!((a.s_w[i] - b.s_w[i]).abs() < 1e-5, "{a:?} {b:?}");
+        }
+        for i in 0..4 {
+            assert!((a.q_sw[i] - b.q_sw[i]).abs() < 1e-5, "{a:?} {b:?}");
+        }
+    }
+
+    #[test]
     fn time_stamps_run_up_to_the_u64_limit_without_a_panic() {
         use std::vec::Vec;
         let mut d = Device::<f32>::new();

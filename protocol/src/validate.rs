@@ -319,6 +319,23 @@ mod tests {
             configure(|c| c.noise.motion = -1.0),
             Err(InvalidField::NoiseParams)
         );
+        assert_eq!(configure(|c| c.session = 0), Err(InvalidField::Session));
+        let resume = |edit: fn(&mut crate::Resume)| {
+            let Some((_, HostToCore::Resume(mut r))) = samples::host_messages()
+                .into_iter()
+                .find(|(_, m)| matches!(m, HostToCore::Resume(_)))
+            else {
+                panic!("a Resume sample")
+            };
+            edit(&mut r);
+            HostToCore::Resume(r).validate()
+        };
+        assert_eq!(resume(|_| {}), Ok(()));
+        assert_eq!(resume(|r| r.v_w[1] = f32::NAN), Err(InvalidField::Resume));
+        assert_eq!(
+            resume(|r| r.q_sw = [0.9, 0.0, 0.0, 0.0]),
+            Err(InvalidField::Resume)
+        );
         assert_eq!(
             configure(|c| c.noise.gyro_meas = 0.0),
             Err(InvalidField::NoiseParams)

@@ -946,6 +946,10 @@ fn a_firmware_reset_under_qemu_is_noticed_and_tracking_resumes() {
     assert!(back - at <= 1.0, "{out:#?}");
     let errors = position_errors_from(&Dataset::open(&ds).unwrap(), &run, back + 0.5);
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
-    println!("position error from {:.2} s: mean {:.2} mm", back + 0.5, mean * 1e3);
+    println!(
+        "position error from {:.2} s: mean {:.2} mm",
+        back + 0.5,
+        mean * 1e3
+    );
     assert!(errors.len() > 50 && mean < 0.01, "{mean} m");
 }
