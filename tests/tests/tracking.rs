@@ -953,3 +953,55 @@ fn a_firmware_reset_under_qemu_is_noticed_and_tracking_resumes() {
     );
     assert!(errors.len() > 50 && mean < 0.01, "{mean} m");
 }
+
+/// Issue 17, a serial device that disappears and comes back under another name: the board is
+/// a pty whose device is published as `tty-0` in a folder, and the host's link is
+/// `serial:FOLDER/tty-*`. When the host's end closes (the cable pulled for 0.3 s), the board
+/// makes a new pty, published as `tty-1`; the host's reconnection finds it by the pattern, the
+/// core has kept its state, and tracking goes on.
+#[test]
+fn a_serial_device_that_comes_back_under_another_name_is_found_again() {
+    use firmware_sim::board::{Board, Precision, ResetPin};
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("serial-devices");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let published = dir.clone();
+    std::thread::spawn(move || {
+        let mut board = Board::new(Precision::F32, ResetPin::default());
+        for n in 0.. {
+            let Ok((link, device)) = firmware_sim::transport::pty_for_peer() else {
+                return;
+            };
+            let name = published.join(format!("tty-{n}"));
+            std::os::unix::fs::symlink(&device, &name).unwrap();
+            let _ = board.serve(link);
+            let _ = std::fs::remove_file(&name);
+        }
+    });
+    let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    let mut o = options(&ds, "desktop-fast-serial-renamed", ModelKind::Acc);
+    o.link = track::LinkSpec::Serial {
+        path: format!("{}/tty-*", dir.display()),
+        baud: track::core::DEFAULT_BAUD,
+    };
+    o.duration = Some(8.0);
+    o.faults.cut_link_at = Some(5.0);
+    o.faults.cut_seconds = 0.3;
+    let run = track(&o);
+    let s = &run.summary;
+    assert_eq!(s.outages.len(), 1, "{:#?}", s.outages);
+    let out = &s.outages[0];
+    assert_eq!(out.kind, track::OutageKind::LinkLost, "{out:#?}");
+    let back = out.tracking_s.expect("tracking again");
+    println!(
+        "device renamed: {} attempts (the last failure: {:?}), back at {:?}, tracking at {back:.3} s",
+        out.attempts, out.last_failure, out.resumed_s
+    );
+    assert!(back <= 6.5, "{out:#?}");
+    // The device it came back to is the new one.
+    let on = out.resumed_on.clone().unwrap_or_default();
+    assert!(on.ends_with("tty-1"), "back on {on}");
+    let errors = position_errors_from(&Dataset::open(&ds).unwrap(), &run, back + 0.5);
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    assert!(errors.len() > 100 && mean < 0.01, "{mean} m");
+}

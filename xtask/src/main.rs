@@ -47,13 +47,16 @@ fn main() -> ExitCode {
         Some("firmware") => setup(TEST_PACKAGES, true).and_then(|_| firmware_report()),
         Some("setup") => setup(TEST_PACKAGES, true),
         Some("layers") => layering(),
+        Some("references") => references::check(&workspace_root())
+            .map(|n| println!("xtask: {n} section and equation references in comments resolve")),
         _ => {
             eprintln!(
-                "usage: cargo xtask <demo|test|firmware|layers|setup>\n\n  \
+                "usage: cargo xtask <demo|test|firmware|layers|references|setup>\n\n  \
                  demo   run the main job on the built-in default scenario\n  \
                  test   run every check CI runs (fmt, clippy, tests, thumbv7em builds)\n  \
                  firmware  build the Cortex-M4F image, run its benchmark under QEMU, print the footprint\n  \
                  layers  check that the modules import each other without cycles; print their layers\n  \
+                 references  check that every section and equation a comment cites exists\n  \
                  setup  install what the two commands need (Debian, as root)"
             );
             return ExitCode::from(2);

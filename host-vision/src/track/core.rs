@@ -27,7 +27,9 @@ pub enum LinkSpec {
     Sim(Precision),
     /// A serial device (hardware board, or a simulated board in another process).
     Serial {
-        /// Device path.
+        /// Device path, or a pattern (`/dev/ttyUSB*`): each connection opens the first
+        /// device it matches that opens, so an adaptor that comes back under another name is
+        /// found again.
         path: String,
         /// Baud rate.
         baud: u32,
@@ -294,7 +296,7 @@ impl CoreLink {
                 }
                 host
             }
-            LinkSpec::Serial { path, baud } => transport::serial(path, *baud)?,
+            LinkSpec::Serial { path, baud } => open_serial(path, *baud)?,
             LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str())?,
             LinkSpec::Qemu(image) => {
                 // A new connection to QEMU's UART is a new QEMU: the board boots again.
@@ -444,6 +446,30 @@ impl CoreLink {
             Err(_) => Err(TrackError::Core("simulated board panicked".into())),
         }
     }
+}
+
+/// Opens the serial device `path`, or, if it is a pattern (`/dev/ttyUSB*`, as a USB adaptor
+/// plugged in again may come back under another name), the first device it matches that
+/// opens.
+fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackError> {
+    if !path.contains(['*', '?', '[']) {
+        return Ok(transport::serial(path, baud)?);
+    }
+    let matches = glob::glob(path)
+        .map_err(|e| TrackError::Option(format!("--link serial:{path}: bad pattern: {e}")))?;
+    let mut failures = Vec::new();
+    for m in matches.flatten() {
+        let device = m.to_string_lossy().into_owned();
+        match transport::serial(&device, baud) {
+            Ok(d) => return Ok(d),
+            Err(e) => failures.push(e.to_string()),
+        }
+    }
+    Err(TrackError::Link(if failures.is_empty() {
+        format!("no serial device matches {path}")
+    } else {
+        format!("no device matching {path} opens: {}", failures.join("; "))
+    }))
 }
 
 impl Connection {

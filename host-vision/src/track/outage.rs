@@ -61,6 +61,8 @@ pub struct Outage {
     pub last_failure: Option<String>,
     /// When the host reached the core again [s].
     pub resumed_s: Option<f64>,
+    /// The device or address it reached it on (a serial pattern's match, say).
+    pub resumed_on: Option<String>,
     /// Samples the core missed and was sent on its return (it dead-reckoned through them).
     pub backlog: usize,
     /// When the core reported `Tracking` again after the return [s].
@@ -163,6 +165,7 @@ impl Session<'_> {
             attempts: 0,
             last_failure: None,
             resumed_s: None,
+            resumed_on: None,
             backlog: 0,
             tracking_s: None,
         });
@@ -210,6 +213,7 @@ impl Session<'_> {
         match reached {
             Ok(()) => {
                 self.outages[open.index].resumed_s = Some(super::output::seconds(t_us));
+                self.outages[open.index].resumed_on = Some(link.name().to_string());
                 Ok(Attempt::Resumed)
             }
             // Not there, or lost again on the way: the next attempt starts over.
@@ -217,6 +221,11 @@ impl Session<'_> {
                 self.outages[open.index].last_failure = Some(e);
                 link.cut();
                 open.next_attempt_us = t_us + open.backoff_us;
+                if self.options.pacing == super::Pacing::LockStep {
+                    // A device comes back in real time: in lock-step the wait passes on the
+                    // wall clock too, so that the outage is as long on both.
+                    std::thread::sleep(std::time::Duration::from_micros(open.backoff_us));
+                }
                 open.backoff_us = (open.backoff_us * 2).min(MAX_BACKOFF_US);
                 Ok(Attempt::Waiting)
             }
