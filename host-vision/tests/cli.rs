@@ -314,6 +314,14 @@ fn p06_out_of_range_values_are_refused() {
             vec!["--outliers", "1.5"],
             "--outliers must be a fraction in [0, 1], got 1.5",
         ),
+        (
+            vec!["--reset-core-at", "1", "--link", "tcp:127.0.0.1:9"],
+            "--reset-core-at needs a core the host can reset: --link sim or qemu, not tcp 127.0.0.1:9",
+        ),
+        (
+            vec!["--cut-link-at", "-1"],
+            "--cut-link-at counts seconds from the start and must be at least 0, got -1",
+        ),
     ] {
         let (so, err) = expect(&track_args(&ds, &out, &args), 2);
         assert_eq!(err, format!("Error: {message}\n"), "{args:?}");

@@ -702,6 +702,27 @@ fn tum_stamps(path: &std::path::Path) -> Vec<f64> {
         .collect()
 }
 
+/// The one outage of a run whose core was reset once, checked: noticed within 0.1 s, and
+/// tracking again within 1 s of the reset. Returns it, with the reset's and that time [s].
+fn reset_recovered(run: &TrackRun) -> (&track::Outage, f64, f64) {
+    let outages = &run.summary.outages;
+    assert_eq!(outages.len(), 1, "{outages:#?}");
+    let out = &outages[0];
+    assert_eq!(out.kind, track::OutageKind::CoreReset, "{out:#?}");
+    let at = out.injected_s.expect("an injected fault");
+    let back = out.tracking_s.expect("tracking again");
+    println!(
+        "reset at {at:.3} s: noticed at {:.3} s ({:.2} ms wall), {} attempts, back at {:?}, tracking at {back:.3} s",
+        out.noticed_s,
+        out.notice_wall_ms.unwrap_or(f64::NAN),
+        out.attempts,
+        out.resumed_s
+    );
+    assert!(out.noticed_s - at <= 0.1, "{out:#?}");
+    assert!(back - at <= 1.0, "{out:#?}");
+    (out, at, back)
+}
+
 /// Issue 17, the MCU resets while tracking (the simulated board's reset line, at 6 s of the
 /// fast figure eight): the host notices within 0.1 s (the reset core refuses the next sample
 /// as unannounced), shakes hands again, finds no session in the `HelloAck`, configures the
@@ -715,19 +736,7 @@ fn a_core_reset_while_tracking_is_noticed_and_tracking_resumes_within_a_second()
     o.faults.reset_core_at = Some(6.0);
     let run = track(&o);
     let s = &run.summary;
-    assert_eq!(s.outages.len(), 1, "{:#?}", s.outages);
-    let out = &s.outages[0];
-    assert_eq!(out.kind, track::OutageKind::CoreReset, "{out:#?}");
-    let at = out.injected_s.expect("an injected fault");
-    let back = out.tracking_s.expect("tracking again");
-    println!(
-        "reset at {at:.3} s: noticed at {:.3} s ({:.2} ms wall), back at {:?}, tracking at {back:.3} s",
-        out.noticed_s,
-        out.notice_wall_ms.unwrap_or(f64::NAN),
-        out.resumed_s
-    );
-    assert!(out.noticed_s - at <= 0.1, "{out:#?}");
-    assert!(back - at <= 1.0, "{out:#?}");
+    let (out, at, back) = reset_recovered(&run);
     // The gap: nothing from the reset until the host reached the new core and started it
     // again from the last state it had tracked.
     let restarted = out.resumed_s.expect("reached again");
@@ -929,21 +938,7 @@ fn a_firmware_reset_under_qemu_is_noticed_and_tracking_resumes() {
     o.duration = Some(4.0);
     o.faults.reset_core_at = Some(2.0);
     let run = track(&o);
-    let s = &run.summary;
-    assert_eq!(s.outages.len(), 1, "{:#?}", s.outages);
-    let out = &s.outages[0];
-    assert_eq!(out.kind, track::OutageKind::CoreReset, "{out:#?}");
-    let at = out.injected_s.expect("an injected fault");
-    let back = out.tracking_s.expect("tracking again");
-    println!(
-        "QEMU killed at {at:.3} s: noticed at {:.3} s ({:.1} ms wall), {} attempts, back at {:?}, tracking at {back:.3} s",
-        out.noticed_s,
-        out.notice_wall_ms.unwrap_or(f64::NAN),
-        out.attempts,
-        out.resumed_s
-    );
-    assert!(out.noticed_s - at <= 0.1, "{out:#?}");
-    assert!(back - at <= 1.0, "{out:#?}");
+    let (_, _, back) = reset_recovered(&run);
     let errors = position_errors_from(&Dataset::open(&ds).unwrap(), &run, back + 0.5);
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
     println!(

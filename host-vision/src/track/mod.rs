@@ -450,6 +450,44 @@ impl TrackOptions {
         };
         positive("--expected-accel", self.tuning.expected_accel, "m/s²")?;
         positive("--angular-noise", self.tuning.angular_noise, "rad/s²/√Hz")?;
+        for (flag, at) in [
+            ("--reset-core-at", f.reset_core_at),
+            ("--cut-link-at", f.cut_link_at),
+        ] {
+            if let Some(t) = at
+                && !(t.is_finite() && t >= 0.0)
+            {
+                return bad(format!(
+                    "{flag} counts seconds from the start and must be at least 0, got {t}"
+                ));
+            }
+        }
+        if f.cut_link_at.is_some() && !(f.cut_seconds.is_finite() && f.cut_seconds >= 0.0) {
+            return bad(format!(
+                "--cut-seconds must be a duration of at least 0 [s], got {}",
+                f.cut_seconds
+            ));
+        }
+        if f.reset_core_at.is_some()
+            && !matches!(
+                self.link,
+                LinkSpec::Sim(_) | LinkSpec::Qemu(_) | LinkSpec::QemuDefault
+            )
+        {
+            return bad(format!(
+                "--reset-core-at needs a core the host can reset: --link sim or qemu, not {}",
+                self.link
+            ));
+        }
+        // Outages are handled in runs with an IMU (docs/notes/issue17-faults.md §6).
+        if self.vision_only()
+            && (f.reset_core_at.is_some() || f.cut_link_at.is_some() || self.attach)
+        {
+            return bad(
+                "--reset-core-at, --cut-link-at and --attach are for runs with an IMU: a vision-only run does not recover from a lost core yet"
+                    .into(),
+            );
+        }
         if let Some(a) = self.tuning.accel_noise {
             positive("--accel-meas-noise", a, "m/s²")?;
         }
@@ -1398,38 +1436,33 @@ impl Session<'_> {
             }
             let t_us = self.t_us(k);
             let refusals = self.log.errors.len();
-            let step = match open.as_mut() {
-                None => self
-                    .inject_faults(link, &mut injected, t_us)
-                    .and_then(|()| {
-                        self.sample_step(
-                            link,
-                            worker,
-                            search,
-                            searcher.as_mut(),
-                            &mut pending,
-                            &mut frames_done,
-                            (k, lock_step, triggers.get(&k).copied()),
-                            latency_samples,
-                        )
-                    }),
+            // Faults are injected while the core is there; while it is not, the sample waits
+            // for an attempt to reach it.
+            let ready = match open.as_mut() {
+                None => self.inject_faults(link, &mut injected, t_us).map(|()| true),
                 Some(o) => match self.attempt_resume(link, o, &injected, k, &triggers)? {
-                    outage::Attempt::Waiting => Ok(()),
+                    outage::Attempt::Waiting => Ok(false),
                     outage::Attempt::Resumed => {
                         open = None;
-                        self.sample_step(
-                            link,
-                            worker,
-                            search,
-                            searcher.as_mut(),
-                            &mut pending,
-                            &mut frames_done,
-                            (k, lock_step, triggers.get(&k).copied()),
-                            latency_samples,
-                        )
+                        Ok(true)
                     }
                 },
             };
+            let step = ready.and_then(|ready| {
+                if !ready {
+                    return Ok(());
+                }
+                self.sample_step(
+                    link,
+                    worker,
+                    search,
+                    searcher.as_mut(),
+                    &mut pending,
+                    &mut frames_done,
+                    (k, lock_step, triggers.get(&k).copied()),
+                    latency_samples,
+                )
+            });
             // A link that failed, or a core that forgot us, is an outage: the frames in
             // flight are dropped, and the host tries to reach the core again.
             let cause = match step {
