@@ -43,8 +43,7 @@ pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, Incoming, LinkSpec};
 pub use self::frame_row::FrameRow;
-pub use self::outage::{Outage, OutageKind};
-pub use self::output::Summary;
+pub use self::output::{Outage, OutageKind, Summary};
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 
 use crate::camera::{CalibError, CameraError};

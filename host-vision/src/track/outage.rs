@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use protocol::{ErrorCode, HostToCore, Init, InitAttitude, Mode, Resume, StatusReason};
 
+use super::output::{Outage, OutageKind, seconds};
 use super::{CoreLink, Pending, Session, TrackError, VisionWorker};
 
 /// The first wait before reconnecting [µs of the input's clock]; it doubles after each failed
@@ -27,47 +28,6 @@ pub const MAX_BACKLOG_US: u64 = 5_000_000;
 /// estimate (`fusion_core::device::SOFT_RESET_WINDOW_US`), for the same reason: a hand-held
 /// device turns by more within a fraction of a second.
 const RESUME_WITHIN_US: u64 = 500_000;
-
-/// What an outage turned out to be once the host reached the core again.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutageKind {
-    /// The core had lost its configuration (reset, or never configured by us): configured and
-    /// initialised again from the last good pose.
-    CoreReset,
-    /// The core kept its state: it was sent the samples it missed and went on.
-    LinkLost,
-    /// Not resolved by the end of the run.
-    Unresolved,
-}
-
-/// One outage of the link or the core, from its notice to the core's return.
-#[derive(Debug, Clone, serde::Serialize)]
-pub struct Outage {
-    /// What it was.
-    pub kind: OutageKind,
-    /// What revealed it.
-    pub cause: String,
-    /// The input's time of the sample being sent when it was noticed [s].
-    pub noticed_s: f64,
-    /// For an injected fault: when it was injected [s], and the wall-clock time until the
-    /// host noticed it [ms].
-    pub injected_s: Option<f64>,
-    /// Wall-clock time from the injection to the notice [ms] (injected faults).
-    pub notice_wall_ms: Option<f64>,
-    /// Reconnection attempts (the last one succeeded, if it did).
-    pub attempts: u32,
-    /// Why the last failed attempt failed.
-    pub last_failure: Option<String>,
-    /// When the host reached the core again [s].
-    pub resumed_s: Option<f64>,
-    /// The device or address it reached it on (a serial pattern's match, say).
-    pub resumed_on: Option<String>,
-    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
-    pub backlog: usize,
-    /// When the core reported `Tracking` again after the return [s].
-    pub tracking_s: Option<f64>,
-}
 
 /// An outage in progress: the record, and when to try again.
 #[derive(Debug)]
@@ -106,7 +66,7 @@ impl Session<'_> {
         injected: &mut Injected,
         t_us: u64,
     ) -> Result<(), TrackError> {
-        let t = super::output::seconds(t_us);
+        let t = seconds(t_us);
         let f = self.options.faults;
         if let Some(at) = f
             .reset_core_at
@@ -159,7 +119,7 @@ impl Session<'_> {
         self.outages.push(Outage {
             kind: OutageKind::Unresolved,
             cause,
-            noticed_s: super::output::seconds(t_us),
+            noticed_s: seconds(t_us),
             injected_s,
             notice_wall_ms,
             attempts: 0,
@@ -212,7 +172,7 @@ impl Session<'_> {
         };
         match reached {
             Ok(()) => {
-                self.outages[open.index].resumed_s = Some(super::output::seconds(t_us));
+                self.outages[open.index].resumed_s = Some(seconds(t_us));
                 self.outages[open.index].resumed_on = Some(link.name().to_string());
                 Ok(Attempt::Resumed)
             }
@@ -359,7 +319,7 @@ impl Session<'_> {
                 .log
                 .statuses
                 .iter()
-                .map(|s| (super::output::seconds(s.t_us), s.mode))
+                .map(|s| (seconds(s.t_us), s.mode))
                 .find(|&(t, m)| t >= resumed && m == Mode::Tracking)
                 .map(|(t, _)| t);
         }

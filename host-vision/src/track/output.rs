@@ -292,6 +292,48 @@ pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
     out
 }
 
+/// What an outage of the link or the core turned out to be once the host reached the core
+/// again (host-vision/src/track/outage.rs; protocol/PROTOCOL.md §8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutageKind {
+    /// The core had lost its configuration (reset, or never configured by us): configured and
+    /// initialised again from the last good pose.
+    CoreReset,
+    /// The core kept its state: it was sent the samples it missed and went on.
+    LinkLost,
+    /// Not resolved by the end of the run.
+    Unresolved,
+}
+
+/// One outage of the link or the core, from its notice to the core's return.
+#[derive(Debug, Clone, Serialize)]
+pub struct Outage {
+    /// What it was.
+    pub kind: OutageKind,
+    /// What revealed it.
+    pub cause: String,
+    /// The input's time of the sample being sent when it was noticed [s].
+    pub noticed_s: f64,
+    /// For an injected fault: when it was injected [s], and the wall-clock time until the
+    /// host noticed it [ms].
+    pub injected_s: Option<f64>,
+    /// Wall-clock time from the injection to the notice [ms] (injected faults).
+    pub notice_wall_ms: Option<f64>,
+    /// Reconnection attempts (the last one succeeded, if it did).
+    pub attempts: u32,
+    /// Why the last failed attempt failed.
+    pub last_failure: Option<String>,
+    /// When the host reached the core again [s].
+    pub resumed_s: Option<f64>,
+    /// The device or address it reached it on (a serial pattern's match, say).
+    pub resumed_on: Option<String>,
+    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
+    pub backlog: usize,
+    /// When the core reported `Tracking` again after the return [s].
+    pub tracking_s: Option<f64>,
+}
+
 /// Summary of a run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -351,7 +393,7 @@ pub struct Summary {
     /// other tilt of a face.
     pub tilt_checks: TiltChecks,
     /// Outages of the link or the core (protocol/PROTOCOL.md §8), and how each ended.
-    pub outages: Vec<super::Outage>,
+    pub outages: Vec<Outage>,
     /// With `--attach`: what the host found on the core, and what it did.
     pub attach: Option<String>,
     /// Where the prediction lost the model, as the host saw it (see [`track_losses`]).
