@@ -579,7 +579,10 @@ impl fmt::Display for Summary {
                 o.notice_wall_ms
                     .map(|ms| format!(" ({ms:.1} ms after the fault)"))
                     .unwrap_or_default(),
-                opt(o.resumed_s, "s"),
+                o.resumed_s.map_or("never".into(), |t| format!(
+                    "{t:.3} s (a gap of {:.3} s)",
+                    t - o.injected_s.unwrap_or(o.noticed_s)
+                )),
                 o.attempts,
                 o.backlog,
                 opt(o.tracking_s, "s"),
