@@ -10,6 +10,10 @@
 //! - Non-maximum suppression: a corner survives if its score is strictly greater than the
 //!   score of each of its 8 neighbours (0 where there is no corner).
 //! - Candidates: pixels at least 3 from every border.
+//!
+//! The implementation works a row at a time on 16 pixels at once in saturating `u8`
+//! arithmetic (docs/VISION.md §4 gives the formulation and why it equals the definition);
+//! [`reference`] is the plain per-pixel version it is tested against.
 
 use image::GrayImage;
 use wide::u8x16;
@@ -134,8 +138,8 @@ fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16
 
 /// The strength of one pixel: 0 if it fails the segment test at `t`, otherwise the largest
 /// `m` such that 9 contiguous circle pixels all differ from it by at least `m` on the same
-/// side (so `m > t`, and the score is `m − 1`). The scalar twin of [`strength_chunk`], for the
-/// pixels a whole chunk does not cover.
+/// side (so `m > t`, and the score is `m − 1`). The scalar twin of [`strength_chunk`], for rows
+/// with fewer than 16 candidate pixels.
 fn strength_scalar(rows: &Rows<'_>, x: usize, t: u8) -> u8 {
     let v = rows[RADIUS][x];
     let circle: [u8; 16] = std::array::from_fn(|k| {
@@ -160,9 +164,9 @@ fn strength_row(rows: &Rows<'_>, t: u8, out: &mut [u8], corners: &mut Vec<u32>) 
     out.fill(0);
     let end = w - RADIUS;
     if end - RADIUS < LANES {
-        for x in RADIUS..end {
-            out[x] = strength_scalar(rows, x, t);
-            if out[x] != 0 {
+        for (x, s) in out.iter_mut().enumerate().take(end).skip(RADIUS) {
+            *s = strength_scalar(rows, x, t);
+            if *s != 0 {
                 corners.push(x as u32);
             }
         }
