@@ -120,17 +120,26 @@ fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16
     if pair.simd_eq(zero).all() {
         return None;
     }
-    // Per polarity: the minimum difference over each of the 16 arcs of 9 (windows of 2, 4,
-    // 8, then 8 + 1 by doubling), and its maximum over the arcs.
-    let best = |diff: &[u8x16; 16]| {
-        let m2: [u8x16; 16] = std::array::from_fn(|k| diff[k].min(diff[(k + 1) & 15]));
-        let m4: [u8x16; 16] = std::array::from_fn(|k| m2[k].min(m2[(k + 2) & 15]));
-        let m8: [u8x16; 16] = std::array::from_fn(|k| m4[k].min(m4[(k + 4) & 15]));
-        (0..16).fold(zero, |acc, k| acc.max(m8[k].min(diff[(k + 8) & 15])))
-    };
-    let circle: [u8x16; 16] = std::array::from_fn(|k| circle_at(win, k));
-    let bright = best(&std::array::from_fn(|k| circle[k].saturating_sub(v)));
-    let dark = best(&std::array::from_fn(|k| v.saturating_sub(circle[k])));
+    // Per polarity, the best arc's weakest pixel: `c ↦ c ⊖ v` rises and `c ↦ v ⊖ c` falls with
+    // `c`, so they commute with min and max, and
+    // max over arcs of min over the arc of (c ⊖ v) = (max over arcs of min over the arc of c) ⊖ v,
+    // max over arcs of min over the arc of (v ⊖ c) = v ⊖ (min over arcs of max over the arc of c):
+    // sliding minima and maxima of the raw circle (windows of 2, 4, 8, then 8 + 1 by doubling,
+    // with wrap-around), and two subtractions instead of 32.
+    let c: [u8x16; 16] = std::array::from_fn(|k| circle_at(win, k));
+    let lo2: [u8x16; 16] = std::array::from_fn(|k| c[k].min(c[(k + 1) & 15]));
+    let hi2: [u8x16; 16] = std::array::from_fn(|k| c[k].max(c[(k + 1) & 15]));
+    let lo4: [u8x16; 16] = std::array::from_fn(|k| lo2[k].min(lo2[(k + 2) & 15]));
+    let hi4: [u8x16; 16] = std::array::from_fn(|k| hi2[k].max(hi2[(k + 2) & 15]));
+    let lo8: [u8x16; 16] = std::array::from_fn(|k| lo4[k].min(lo4[(k + 4) & 15]));
+    let hi8: [u8x16; 16] = std::array::from_fn(|k| hi4[k].max(hi4[(k + 4) & 15]));
+    let (mut max_of_min, mut min_of_max) = (zero, u8x16::MAX);
+    for k in 0..16 {
+        max_of_min = max_of_min.max(lo8[k].min(c[(k + 8) & 15]));
+        min_of_max = min_of_max.min(hi8[k].max(c[(k + 8) & 15]));
+    }
+    let bright = max_of_min.saturating_sub(v);
+    let dark = v.saturating_sub(min_of_max);
     let s = bright.max(dark);
     // A corner at t has an arc whose every difference exceeds t: s > t. Others get 0.
     Some(s & !s.saturating_sub(t).simd_eq(zero))
