@@ -1,11 +1,13 @@
 //! Feature costs on a 752×480 EuRoC frame (`../shared/data`; a synthetic texture when the
-//! folder is absent): FAST-9 + non-maximum suppression, pyramid build, rendering preparation
+//! folder is absent): FAST-9 + non-maximum suppression (also per frame over all the real
+//! frames, the figure OpenCV's reference script gives, and the scalar reference), pyramid build, rendering preparation
 //! (anti-aliasing blur + image and mask pyramids), and one photometric KLT registration with
 //! the default window (15×15) and levels (4), starting 7 px off with a contrast and
 //! brightness change.
 
 use std::hint::black_box;
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use host_vision::features::fast;
@@ -33,6 +35,59 @@ fn frame() -> GrayImage {
             })
         }
     }
+}
+
+/// All the real frames of the micro sequence, sorted by name, or none when the folder is absent.
+fn all_frames() -> Vec<GrayImage> {
+    let dir = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../shared/data/euroc-v101-micro/mav0/cam0/data"
+    ));
+    let mut paths: Vec<_> = std::fs::read_dir(dir)
+        .map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    paths.retain(|p| p.extension().is_some_and(|e| e == "png"));
+    paths.sort();
+    paths
+        .iter()
+        .map(|p| image::open(p).expect("a PNG frame").to_luma8())
+        .collect()
+}
+
+fn fast_on_all_frames(c: &mut Criterion) {
+    let frames = all_frames();
+    if frames.is_empty() {
+        eprintln!(
+            "SKIPPED: fast9_nms_per_real_frame: no frames under ../shared/data/euroc-v101-micro"
+        );
+        return;
+    }
+    let corners: usize = frames.iter().map(|f| fast::detect(f, 20, true).len()).sum();
+    println!(
+        "{} real frames, {:.1} FAST corners per frame (threshold 20, NMS)",
+        frames.len(),
+        corners as f64 / frames.len() as f64
+    );
+    c.bench_function("fast9_nms_per_real_frame", |b| {
+        b.iter_custom(|iters| time_frames(&frames, iters, fast::detect))
+    });
+    c.bench_function("fast9_nms_per_real_frame_scalar_reference", |b| {
+        b.iter_custom(|iters| time_frames(&frames, iters, fast::reference::detect))
+    });
+}
+
+/// `iters` FAST + NMS runs, one frame each, cycling through all of them: the time per frame
+/// over the whole sequence, as OpenCV's reference script reports it.
+fn time_frames(
+    frames: &[GrayImage],
+    iters: u64,
+    detect: fn(&GrayImage, u8, bool) -> Vec<fast::Corner>,
+) -> Duration {
+    let start = Instant::now();
+    for f in frames.iter().cycle().take(iters as usize) {
+        black_box(detect(black_box(f), 20, true));
+    }
+    start.elapsed()
 }
 
 fn features(c: &mut Criterion) {
@@ -118,5 +173,5 @@ fn features(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, features);
+criterion_group!(benches, fast_on_all_frames, features);
 criterion_main!(benches);

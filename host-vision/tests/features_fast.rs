@@ -9,6 +9,7 @@ use host_vision::features::fast::{self, CIRCLE, Corner};
 use host_vision::features::gray::Mask;
 use host_vision::features::grid::{self, GridConfig};
 use image::GrayImage;
+use proptest::prelude::*;
 
 fn data_root() -> Option<PathBuf> {
     let root = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"));
@@ -248,4 +249,103 @@ fn grid_extraction_skips_occupied_and_masked_cells() {
     // Size mismatch is an error, not a panic.
     let small = Mask::full(10, 10).unwrap();
     assert!(grid::extract(&img, Some(&small), &[], &cfg).is_err());
+}
+
+/// The vectorised path against the scalar reference (`fast::reference`): the same corners,
+/// scores and score map, for one image, threshold and suppression setting.
+fn assert_same_as_reference(img: &GrayImage, t: u8, nms: bool) {
+    let (w, h) = img.dimensions();
+    assert_eq!(
+        fast::detect(img, t, nms),
+        fast::reference::detect(img, t, nms),
+        "{w}x{h}, threshold {t}, nms {nms}"
+    );
+    assert_eq!(
+        fast::score_map(img, t),
+        fast::reference::score_map(img, t),
+        "score map {w}x{h}, threshold {t}"
+    );
+}
+
+/// A pseudo-random image with pixel values in `0..levels` spread over 0..=255 (few levels:
+/// many equal scores, which is what strict suppression must get right).
+fn lcg_image(w: u32, h: u32, seed: u64, levels: u32) -> GrayImage {
+    let mut s = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
+    GrayImage::from_fn(w, h, |_, _| {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        let level = ((s >> 33) as u32) % levels;
+        image::Luma([(level * 255 / (levels - 1).max(1)) as u8])
+    })
+}
+
+#[test]
+fn equals_reference_on_every_small_size() {
+    // Every width up to 48 (below 7: no candidates; 7 to 21: fewer than 16 candidates a row,
+    // the scalar row path; from 22: vector chunks with an overlapping last chunk) and heights
+    // around 7.
+    let mut corners = 0;
+    for w in 1..=48 {
+        for h in [1, 2, 6, 7, 8, 9, 13] {
+            for (seed, levels) in [(1, 256), (2, 3), (3, 2)] {
+                let img = lcg_image(w, h, seed + u64::from(w * 100 + h), levels);
+                for t in [0, 1, 20, 255] {
+                    for nms in [false, true] {
+                        assert_same_as_reference(&img, t, nms);
+                    }
+                }
+                corners += fast::reference::detect(&img, 20, false).len();
+            }
+        }
+    }
+    // Not vacuous: the images do have corners.
+    assert!(corners > 1000, "{corners} corners");
+}
+
+#[test]
+fn equals_reference_on_real_images() {
+    let Some(root) = data_root() else { return };
+    for path in test_images(&root) {
+        let img = load(&path);
+        for t in [0, 1, 5, 20, 40, 100, 255] {
+            for nms in [false, true] {
+                assert_same_as_reference(&img, t, nms);
+            }
+        }
+    }
+}
+
+fn image_strategy() -> impl Strategy<Value = GrayImage> {
+    (
+        1u32..=70,
+        1u32..=24,
+        prop_oneof![Just(2u32), Just(3), Just(8), Just(256)],
+    )
+        .prop_flat_map(|(w, h, levels)| {
+            proptest::collection::vec(0..levels, (w * h) as usize).prop_map(move |v| {
+                let px = v
+                    .into_iter()
+                    .map(|l| (l * 255 / (levels - 1)) as u8)
+                    .collect();
+                GrayImage::from_raw(w, h, px).expect("w × h pixels")
+            })
+        })
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(400))]
+
+    #[test]
+    fn equals_reference_on_random_images(
+        img in image_strategy(),
+        t in prop_oneof![Just(0u8), Just(1), Just(20), Just(255), any::<u8>()],
+        nms in any::<bool>(),
+    ) {
+        let (w, h) = img.dimensions();
+        prop_assert_eq!(fast::detect(&img, t, nms), fast::reference::detect(&img, t, nms), "{}x{} t={} nms={}", w, h, t, nms);
+        prop_assert_eq!(fast::score_map(&img, t), fast::reference::score_map(&img, t));
+    }
 }

@@ -10,8 +10,15 @@
 //! - Non-maximum suppression: a corner survives if its score is strictly greater than the
 //!   score of each of its 8 neighbours (0 where there is no corner).
 //! - Candidates: pixels at least 3 from every border.
+//!
+//! The implementation works a row at a time on 16 pixels at once in saturating `u8`
+//! arithmetic (docs/VISION.md §4 gives the formulation and why it equals the definition);
+//! [`reference`] is the plain per-pixel version it is tested against.
 
 use image::GrayImage;
+use wide::u8x16;
+
+pub mod reference;
 
 /// The circle, `(dx, dy)`, in OpenCV's order (starting below the centre, counter-clockwise in
 /// image coordinates), so arcs and scores are those of the reference implementation.
@@ -51,58 +58,159 @@ pub struct Corner {
     pub score: u16,
 }
 
-/// Bit `k` set where circle pixel `k` is brighter than `v + t` (`bright`) or darker than
-/// `v − t` (`dark`).
-#[inline]
-fn classify(circle: &[i16; 16], v: i16, t: i16) -> (u32, u32) {
-    let mut bright = 0u32;
-    let mut dark = 0u32;
-    for (k, &c) in circle.iter().enumerate() {
-        bright |= ((c > v + t) as u32) << k;
-        dark |= ((c < v - t) as u32) << k;
+/// Lanes per vector: the row kernel classifies and scores 16 consecutive pixels at once.
+const LANES: usize = 16;
+
+/// Bytes of one row a 16-pixel chunk reads: the chunk and `RADIUS` on either side.
+const SPAN: usize = LANES + 2 * RADIUS;
+
+/// The 7 image rows `y − 3 ..= y + 3` around row `y`.
+type Rows<'a> = [&'a [u8]; 2 * RADIUS + 1];
+
+/// Circle pixel `k` of the 16 pixels of a chunk, from the chunk's 7 row windows.
+#[inline(always)]
+fn circle_at(win: &[&[u8; SPAN]; 2 * RADIUS + 1], k: usize) -> u8x16 {
+    let (dx, dy) = CIRCLE[k];
+    let row = win[(dy + RADIUS as i32) as usize];
+    let x = (dx + RADIUS as i32) as usize;
+    let lanes: [u8; LANES] = row[x..x + LANES].try_into().expect("16 bytes");
+    u8x16::new(lanes)
+}
+
+/// The strength of 16 pixels at once (see [`strength_scalar`]), or `None` when the compass
+/// test rejects all 16 (the common case, and the reason this path is fast).
+///
+/// Every difference is a saturating `u8` subtraction: `c ⊖ v` is `c − v` where `c` is brighter
+/// and 0 otherwise, so a minimum over an arc is positive only if the whole arc is brighter,
+/// exactly the reference's signed arithmetic clamped at 0 (where it starts its maximum).
+#[inline(always)]
+fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16> {
+    let zero = u8x16::ZERO;
+    let v = {
+        let lanes: [u8; LANES] = win[RADIUS][RADIUS..RADIUS + LANES]
+            .try_into()
+            .expect("16 bytes");
+        u8x16::new(lanes)
+    };
+    // Compass points 0, 4, 8, 12: an arc of 9 contains two of them that are neighbours in
+    // that order, so a pixel where no such pair is on one side (beyond t) is no corner. As in
+    // OpenCV's vector path, this rejects most chunks after a handful of operations.
+    let hi = v.saturating_add(t);
+    let lo = v.saturating_sub(t);
+    let (c0, c4, c8, c12) = (
+        circle_at(win, 0),
+        circle_at(win, 4),
+        circle_at(win, 8),
+        circle_at(win, 12),
+    );
+    let (b0, b4, b8, b12) = (
+        c0.saturating_sub(hi),
+        c4.saturating_sub(hi),
+        c8.saturating_sub(hi),
+        c12.saturating_sub(hi),
+    );
+    let (d0, d4, d8, d12) = (
+        lo.saturating_sub(c0),
+        lo.saturating_sub(c4),
+        lo.saturating_sub(c8),
+        lo.saturating_sub(c12),
+    );
+    let pair = b0.min(b4).max(b4.min(b8)).max(b8.min(b12)).max(b12.min(b0))
+        | d0.min(d4).max(d4.min(d8)).max(d8.min(d12)).max(d12.min(d0));
+    if pair.simd_eq(zero).all() {
+        return None;
     }
-    (bright, dark)
+    // Per polarity, the best arc's weakest pixel: `c ↦ c ⊖ v` rises and `c ↦ v ⊖ c` falls with
+    // `c`, so they commute with min and max, and
+    // max over arcs of min over the arc of (c ⊖ v) = (max over arcs of min over the arc of c) ⊖ v,
+    // max over arcs of min over the arc of (v ⊖ c) = v ⊖ (min over arcs of max over the arc of c):
+    // sliding minima and maxima of the raw circle (windows of 2, 4, 8, then 8 + 1 by doubling,
+    // with wrap-around), and two subtractions instead of 32.
+    let c: [u8x16; 16] = std::array::from_fn(|k| circle_at(win, k));
+    let lo2: [u8x16; 16] = std::array::from_fn(|k| c[k].min(c[(k + 1) & 15]));
+    let hi2: [u8x16; 16] = std::array::from_fn(|k| c[k].max(c[(k + 1) & 15]));
+    let lo4: [u8x16; 16] = std::array::from_fn(|k| lo2[k].min(lo2[(k + 2) & 15]));
+    let hi4: [u8x16; 16] = std::array::from_fn(|k| hi2[k].max(hi2[(k + 2) & 15]));
+    let lo8: [u8x16; 16] = std::array::from_fn(|k| lo4[k].min(lo4[(k + 4) & 15]));
+    let hi8: [u8x16; 16] = std::array::from_fn(|k| hi4[k].max(hi4[(k + 4) & 15]));
+    let (mut max_of_min, mut min_of_max) = (zero, u8x16::MAX);
+    for k in 0..16 {
+        max_of_min = max_of_min.max(lo8[k].min(c[(k + 8) & 15]));
+        min_of_max = min_of_max.min(hi8[k].max(c[(k + 8) & 15]));
+    }
+    let bright = max_of_min.saturating_sub(v);
+    let dark = v.saturating_sub(min_of_max);
+    let s = bright.max(dark);
+    // A corner at t has an arc whose every difference exceeds t: s > t. Others get 0.
+    Some(s & !s.saturating_sub(t).simd_eq(zero))
 }
 
-/// Whether a 16-bit circular set has `ARC` contiguous members.
-#[inline]
-fn has_arc(bits: u32) -> bool {
-    // Unroll the circle twice so that arcs crossing bit 15 → 0 are plain runs, then AND the
-    // shifted copies: runs of 2, 4, 8, then 8 + 1 = 9.
-    let m = bits | (bits << 16);
-    let r2 = m & (m >> 1);
-    let r4 = r2 & (r2 >> 2);
-    let r8 = r4 & (r4 >> 4);
-    (r8 & (m >> 8)) != 0
+/// The strength of one pixel: 0 if it fails the segment test at `t`, otherwise the largest
+/// `m` such that 9 contiguous circle pixels all differ from it by at least `m` on the same
+/// side (so `m > t`, and the score is `m − 1`). The scalar twin of [`strength_chunk`], for rows
+/// with fewer than 16 candidate pixels.
+fn strength_scalar(rows: &Rows<'_>, x: usize, t: u8) -> u8 {
+    let v = rows[RADIUS][x];
+    let circle: [u8; 16] = std::array::from_fn(|k| {
+        let (dx, dy) = CIRCLE[k];
+        rows[(dy + RADIUS as i32) as usize][(x as i32 + dx) as usize]
+    });
+    let best = |diff: [u8; 16]| {
+        (0..16)
+            .map(|s| (0..ARC).map(|k| diff[(s + k) & 15]).min().unwrap_or(0))
+            .max()
+            .unwrap_or(0)
+    };
+    let s =
+        best(circle.map(|c| c.saturating_sub(v))).max(best(circle.map(|c| v.saturating_sub(c))));
+    if s > t { s } else { 0 }
 }
 
-/// Score of a pixel that passed the segment test: the largest `t` for which it still passes.
-#[inline]
-fn score(circle: &[i16; 16], v: i16) -> u16 {
-    let mut best = 0i16;
-    for start in 0..16 {
-        let mut min_bright = i16::MAX;
-        let mut min_dark = i16::MAX;
-        for k in 0..ARC {
-            let c = circle[(start + k) & 15];
-            min_bright = min_bright.min(c - v);
-            min_dark = min_dark.min(v - c);
+/// Strengths of one row (`out`, the image's width; 0 on the 3-pixel borders), and the columns
+/// where they are non-zero, ascending, appended to `corners`.
+fn strength_row(rows: &Rows<'_>, t: u8, out: &mut [u8], corners: &mut Vec<u32>) {
+    let w = out.len();
+    out.fill(0);
+    let end = w - RADIUS;
+    if end - RADIUS < LANES {
+        for (x, s) in out.iter_mut().enumerate().take(end).skip(RADIUS) {
+            *s = strength_scalar(rows, x, t);
+            if *s != 0 {
+                corners.push(x as u32);
+            }
         }
-        best = best.max(min_bright).max(min_dark);
+        return;
     }
-    // Strict test: passing at t needs every difference > t, so the largest such t is one less.
-    (best - 1).max(0) as u16
+    let tv = u8x16::splat(t);
+    // Chunks of 16 from x = 3; the last one is moved left to end at the border (overlapping
+    // its predecessor, whose lanes it recomputes identically) so no pixel needs a scalar tail.
+    let mut x0 = RADIUS;
+    let mut done = RADIUS;
+    while done < end {
+        x0 = x0.min(end - LANES);
+        let win: [&[u8; SPAN]; 2 * RADIUS + 1] = std::array::from_fn(|j| {
+            rows[j][x0 - RADIUS..x0 - RADIUS + SPAN]
+                .try_into()
+                .expect("a chunk's window")
+        });
+        if let Some(s) = strength_chunk(&win, tv) {
+            out[x0..x0 + LANES].copy_from_slice(&s.to_array());
+            // Non-zero lanes, less those the previous, overlapping chunk already reported.
+            let mut bits =
+                !s.simd_eq(u8x16::ZERO).to_bitmask() & 0xffff & (u32::MAX << (done - x0));
+            while bits != 0 {
+                corners.push((x0 + bits.trailing_zeros() as usize) as u32);
+                bits &= bits - 1;
+            }
+        }
+        done = x0 + LANES;
+        x0 += LANES;
+    }
 }
 
-#[inline]
-fn load_circle(raw: &[u8], width: usize, x: usize, y: usize) -> [i16; 16] {
-    let mut circle = [0i16; 16];
-    for (c, &(dx, dy)) in circle.iter_mut().zip(CIRCLE.iter()) {
-        let xx = (x as i32 + dx) as usize;
-        let yy = (y as i32 + dy) as usize;
-        *c = raw[yy * width + xx] as i16;
-    }
-    circle
+/// The 7 rows around row `y` of a `w`-wide image.
+fn rows_around(raw: &[u8], w: usize, y: usize) -> Rows<'_> {
+    std::array::from_fn(|j| &raw[(y + j - RADIUS) * w..(y + j - RADIUS + 1) * w])
 }
 
 /// Dense score map: the FAST score where the segment test passes with `threshold`, 0 elsewhere
@@ -114,83 +222,85 @@ pub fn score_map(img: &GrayImage, threshold: u8) -> Vec<u16> {
         return scores;
     }
     let raw = img.as_raw();
-    let t = threshold as i16;
-    let stride = w as isize;
-    // Compass points 0, 4, 8, 12 of the circle: any arc of 9 covers at least two of them, so a
-    // pixel with fewer than two of them on one side cannot be a corner (cheap rejection).
-    let compass = [3 * stride, 3, -3 * stride, -3];
+    let mut row = vec![0u8; w];
+    let mut columns = Vec::new();
     for y in RADIUS..h - RADIUS {
-        for x in RADIUS..w - RADIUS {
-            let i = (y * w + x) as isize;
-            let v = raw[i as usize] as i16;
-            let (mut nb, mut nd) = (0, 0);
-            for off in compass {
-                let c = raw[(i + off) as usize] as i16;
-                nb += (c > v + t) as u32;
-                nd += (c < v - t) as u32;
-            }
-            if nb < 2 && nd < 2 {
-                continue;
-            }
-            let circle = load_circle(raw, w, x, y);
-            let (bright, dark) = classify(&circle, v, t);
-            if has_arc(bright) || has_arc(dark) {
-                // A corner scores ≥ threshold; 0 is reserved for "no corner" (threshold 0
-                // corners of score 0 then behave as in OpenCV: they never beat a neighbour).
-                scores[y * w + x] = score(&circle, v);
-            }
+        columns.clear();
+        strength_row(&rows_around(raw, w, y), threshold, &mut row, &mut columns);
+        for &x in &columns {
+            scores[y * w + x as usize] = u16::from(row[x as usize] - 1);
         }
     }
     scores
 }
 
-/// Whether pixel `(x, y)` of a score map is a strict 3×3 maximum.
-#[inline]
-fn is_local_max(scores: &[u16], w: usize, x: usize, y: usize) -> bool {
-    let s = scores[y * w + x];
-    for yy in y - 1..=y + 1 {
-        for xx in x - 1..=x + 1 {
-            if (xx, yy) != (x, y) && scores[yy * w + xx] >= s {
-                return false;
-            }
-        }
-    }
-    true
-}
-
 /// FAST-9 corners with `threshold`, optionally non-maximum suppressed, in row-major order.
+///
+/// One pass over the rows: each row's strengths go into a ring of three rows, and a row's
+/// corners are suppressed (or not) as soon as the row below it is known, so there is no
+/// full-image score map.
 pub fn detect(img: &GrayImage, threshold: u8, nonmax_suppression: bool) -> Vec<Corner> {
     let (w, h) = (img.width() as usize, img.height() as usize);
-    let scores = score_map(img, threshold);
     let mut out = Vec::new();
     if w < 2 * RADIUS + 1 || h < 2 * RADIUS + 1 {
         return out;
     }
     let raw = img.as_raw();
-    let t = threshold as i16;
-    for y in RADIUS..h - RADIUS {
-        for x in RADIUS..w - RADIUS {
-            let s = scores[y * w + x];
-            // A zero score is no corner, or a threshold-0 corner of score 0 (never a strict
-            // maximum, so only kept without suppression): tell those apart only then.
-            if s == 0 {
-                if nonmax_suppression || t > 0 {
-                    continue;
-                }
-                let circle = load_circle(raw, w, x, y);
-                let (bright, dark) = classify(&circle, raw[y * w + x] as i16, t);
-                if !(has_arc(bright) || has_arc(dark)) {
-                    continue;
-                }
-            }
-            if !nonmax_suppression || is_local_max(&scores, w, x, y) {
-                out.push(Corner {
-                    x: x as u32,
-                    y: y as u32,
-                    score: s,
-                });
+    let corner = |x: u32, y: usize, strength: u8| Corner {
+        x,
+        y: y as u32,
+        score: u16::from(strength - 1),
+    };
+    if !nonmax_suppression {
+        let mut row = vec![0u8; w];
+        let mut columns = Vec::new();
+        for y in RADIUS..h - RADIUS {
+            columns.clear();
+            strength_row(&rows_around(raw, w, y), threshold, &mut row, &mut columns);
+            out.extend(columns.iter().map(|&x| corner(x, y, row[x as usize])));
+        }
+        return out;
+    }
+    // Ring of three strength rows (above, current, below) with their corner columns; the row
+    // above the first candidate row is the border, all zero.
+    let mut ring: [(Vec<u8>, Vec<u32>); 3] = std::array::from_fn(|_| (vec![0u8; w], Vec::new()));
+    let suppress = |above: &[u8],
+                    (here, columns): &(Vec<u8>, Vec<u32>),
+                    below: &[u8],
+                    y: usize,
+                    out: &mut Vec<Corner>| {
+        for &x in columns {
+            let x = x as usize;
+            let s = here[x];
+            // Strict maximum of the scores s − 1 (0 for non-corners): a score-0 corner (s = 1)
+            // never is one, and otherwise comparing strengths is comparing scores.
+            if s >= 2
+                && above[x - 1..=x + 1].iter().all(|&n| n < s)
+                && below[x - 1..=x + 1].iter().all(|&n| n < s)
+                && here[x - 1] < s
+                && here[x + 1] < s
+            {
+                out.push(corner(x as u32, y, s));
             }
         }
+    };
+    for y in RADIUS..h - RADIUS {
+        let (row, columns) = &mut ring[y % 3];
+        columns.clear();
+        strength_row(&rows_around(raw, w, y), threshold, row, columns);
+        if y > RADIUS {
+            let [a, b, c] = [(y - 2) % 3, (y - 1) % 3, y % 3];
+            suppress(&ring[a].0, &ring[b], &ring[c].0, y - 1, &mut out);
+        }
     }
+    let last = h - RADIUS - 1;
+    let zero = vec![0u8; w];
+    suppress(
+        &ring[(last + 2) % 3].0,
+        &ring[last % 3],
+        &zero,
+        last,
+        &mut out,
+    );
     out
 }
