@@ -235,8 +235,9 @@ fn barrier(
 /// The bounds are tight enough for a real leak or slowdown: 2 MiB over minutes 6-60 is
 /// 3 bytes per IMU sample or 64 per frame, less than one allocation each (the smallest heap
 /// block is 32 bytes); leaking each `State` in the reader thread took the resident set from
-/// 12 MiB after minute 5 to 103 MiB. The latency bound compares medians, which a growing queue
-/// or a slowing step moves, while the tail on this shared two-core machine moves with its
+/// 12 MiB after minute 5 to 103 MiB. The latency bound compares per-minute medians (the
+/// quietest minute of each window), which a growing queue or a slowing step moves in every
+/// minute, while the tail and single minutes on this shared two-core machine move with its
 /// neighbours' builds; a board made to spin up to 150 µs more per read by the end of the hour
 /// took the median from 164 µs (minutes 6-15) to 474 µs (minutes 51-60).
 ///
@@ -515,18 +516,22 @@ fn an_hour_at_full_rate_keeps_memory_and_latency_flat() {
         mb(rss5),
         mb(rss60)
     );
-    // Latency is flat: the typical minute of the last ten is no slower than twice the typical
-    // minute of minutes 6-15 (medians of the per-minute medians: this machine is shared, and
-    // its maxima say more about its neighbours than about the link).
-    let typical = |rows: &[Minute]| {
-        let mut v: Vec<f64> = rows.iter().map(|m| m.median_us).collect();
-        quantile(&mut v, 0.5)
+    // Latency is flat: the quietest minute of the last ten is no slower than twice the
+    // quietest of minutes 6-15. This machine is shared: a neighbour's burst slows some
+    // minutes, never all ten, while a latency that grows with the run slows every late one
+    // (a board 150 µs slower per read by the end fails this). Per minute, the median.
+    let quietest = |rows: &[Minute]| {
+        rows.iter()
+            .map(|m| m.median_us)
+            .fold(f64::INFINITY, f64::min)
     };
-    let early = typical(&minutes[5..15]);
-    let late = typical(&minutes[MINUTES - 10..]);
-    println!("typical median latency: minutes 6-15 {early:.0} µs, minutes 51-60 {late:.0} µs");
+    let early = quietest(&minutes[5..15]);
+    let late = quietest(&minutes[MINUTES - 10..]);
+    println!(
+        "quietest minute's median latency: minutes 6-15 {early:.0} µs, minutes 51-60 {late:.0} µs"
+    );
     assert!(
         late <= 2.0 * early,
-        "latency grew: median {early:.0} µs in minutes 6-15, {late:.0} µs in minutes 51-60"
+        "latency grew: the quietest minute's median {early:.0} µs in minutes 6-15, {late:.0} µs in minutes 51-60"
     );
 }
