@@ -214,19 +214,24 @@ mod tests {
     use protocol::io::{FrameReader, FrameWriter};
     use protocol::{CoreToHost, Hello, HostToCore, Mode, PROTOCOL_VERSION};
 
+    /// The core's next message, waiting through read timeouts.
+    fn next_answer(r: &mut FrameReader<Box<dyn io::Read + Send>>) -> CoreToHost {
+        loop {
+            match r.recv::<CoreToHost>() {
+                Ok(m) => return m,
+                Err(protocol::io::RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
+                Err(e) => panic!("{e:?}"),
+            }
+        }
+    }
+
     #[test]
     fn answers_over_a_pty_and_ends_with_the_session() {
         let (host, board) = pty_pair().unwrap();
         let handle = spawn(board, Precision::F32).unwrap();
         let mut w = FrameWriter::new(host.writer);
         let mut r = FrameReader::new(host.reader);
-        let mut recv = || loop {
-            match r.recv::<CoreToHost>() {
-                Ok(m) => return m,
-                Err(protocol::io::RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
-                Err(e) => panic!("{e:?}"),
-            }
-        };
+        let mut recv = || next_answer(&mut r);
         w.send(&HostToCore::Hello(Hello {
             version: PROTOCOL_VERSION,
         }))
@@ -260,13 +265,7 @@ mod tests {
             connect.send(board).unwrap();
             let mut w = FrameWriter::new(host.writer);
             let mut r = FrameReader::new(host.reader);
-            let mut recv = || loop {
-                match r.recv::<CoreToHost>() {
-                    Ok(m) => return m,
-                    Err(protocol::io::RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
-                    Err(e) => panic!("{e:?}"),
-                }
-            };
+            let mut recv = || next_answer(&mut r);
             let hello = HostToCore::Hello(Hello {
                 version: PROTOCOL_VERSION,
             });

@@ -519,7 +519,9 @@ fn an_hour_at_full_rate_keeps_memory_and_latency_flat() {
     // Latency is flat: the quietest minute of the last ten is no slower than twice the
     // quietest of minutes 6-15. This machine is shared: a neighbour's burst slows some
     // minutes, never all ten, while a latency that grows with the run slows every late one
-    // (a board 150 µs slower per read by the end fails this). Per minute, the median.
+    // (a board made 150 µs slower per read by the end raised the typical late minute's
+    // median from 164 to 474 µs; that ramp raises every late minute). Per minute, the
+    // median.
     let quietest = |rows: &[Minute]| {
         rows.iter()
             .map(|m| m.median_us)

@@ -1480,14 +1480,11 @@ impl Session<'_> {
                 progress(k + 1, end, frames_done, self.log.mode());
             }
         }
-        if open.is_some() {
-            // The core was not reached again before the end: nothing is left to collect.
-            self.close_outages();
-            progress(end, end, self.results.len(), self.log.mode());
-            return Ok(true);
+        // A core not reached again before the end has nothing left to collect.
+        if open.is_none() {
+            let searching = searcher.as_mut().zip(search);
+            self.finish(link, &mut pending, worker, searching, false)?;
         }
-        let searching = searcher.as_mut().zip(search);
-        self.finish(link, &mut pending, worker, searching, false)?;
         self.close_outages();
         progress(end, end, self.results.len(), self.log.mode());
         Ok(true)

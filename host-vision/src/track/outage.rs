@@ -285,15 +285,11 @@ impl Session<'_> {
                 HostToCore::Resume(Resume::of(s))
             }
             Some(s) => {
-                let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                    f64::from(s.q_sw[0]),
-                    f64::from(s.q_sw[1]),
-                    f64::from(s.q_sw[2]),
-                    f64::from(s.q_sw[3]),
-                ));
+                // The yaw of the sensor in the world, as `Init` takes it (`q_ws`, not `q_sw`).
+                let (_, q_ws) = super::state_pose(s);
                 HostToCore::Init(Init {
                     position: s.s_w,
-                    attitude: InitAttitude::GravityAndYaw(q.euler_angles().2 as f32),
+                    attitude: InitAttitude::GravityAndYaw(q_ws.euler_angles().2 as f32),
                 })
             }
             None => HostToCore::Init(self.init_message()?),
