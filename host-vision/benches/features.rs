@@ -14,8 +14,11 @@ use host_vision::features::fast;
 use host_vision::features::gray::{GrayF32, Mask};
 use host_vision::features::grid::{self, GridConfig};
 use host_vision::features::klt::{self, KltConfig};
-use host_vision::features::pyramid::TemplatePyramid;
+use host_vision::features::pyramid::{Pyramid, TemplatePyramid};
 use image::GrayImage;
+
+#[path = "../tests/klt_cases/mod.rs"]
+mod klt_cases;
 
 fn frame() -> GrayImage {
     let path = Path::new(concat!(
@@ -173,5 +176,73 @@ fn features(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, fast_on_all_frames, features);
+/// The photometric KLT (default window and levels) on the first of OpenCV's cases
+/// (`tests/klt_cases`: the frame, its shift by (7.3, −4.6) px, its 200 strongest corners, a
+/// zero guess), per feature as the reference script's marginal LK figure; also the reference
+/// implementation, and the failures under every illumination change.
+fn klt_on_opencv_cases(c: &mut Criterion) {
+    let Some(cases) = klt_cases::load() else {
+        eprintln!("SKIPPED: klt_opencv_case: no frames");
+        return;
+    };
+    let cfg = KltConfig::default();
+    let case = &cases[0];
+    let tmpl = Pyramid::build_smoothed(
+        GrayF32::from_gray8(&case.template).unwrap(),
+        cfg.levels,
+        cfg.template_sigma(0.0),
+    );
+    let targets: Vec<Pyramid> = case
+        .targets
+        .iter()
+        .map(|t| cfg.target_pyramid(GrayF32::from_gray8(t).unwrap()))
+        .collect();
+    for ((name, _, _), target) in klt_cases::VARIANTS.iter().zip(&targets) {
+        let found: Vec<_> = case
+            .points
+            .iter()
+            .map(|&p| {
+                klt::register(&tmpl, None, target, p, [0.0; 2], &cfg)
+                    .ok()
+                    .map(|r| r.position)
+            })
+            .collect();
+        let (failed, _) = klt_cases::score(&case.points, &found);
+        println!(
+            "{}: {name}: {failed}/{} failures",
+            case.name,
+            case.points.len()
+        );
+    }
+    let points = &case.points;
+    let mut k = 0;
+    c.bench_function("klt_photometric_per_feature_opencv_case", |b| {
+        b.iter(|| {
+            k = (k + 1) % points.len();
+            klt::register(
+                &tmpl,
+                None,
+                &targets[0],
+                black_box(points[k]),
+                [0.0; 2],
+                &cfg,
+            )
+        })
+    });
+    c.bench_function("klt_photometric_per_feature_opencv_case_reference", |b| {
+        b.iter(|| {
+            k = (k + 1) % points.len();
+            klt::reference::register(
+                &tmpl,
+                None,
+                &targets[0],
+                black_box(points[k]),
+                [0.0; 2],
+                &cfg,
+            )
+        })
+    });
+}
+
+criterion_group!(benches, fast_on_all_frames, features, klt_on_opencv_cases);
 criterion_main!(benches);

@@ -31,14 +31,25 @@
 //! [`KltModel::Translation`] is the plain 2-parameter KLT (`λ = 1, δ = 0` fixed), kept for
 //! comparisons.
 
-use nalgebra::{Matrix2, Matrix4, Vector4};
+use nalgebra::Matrix2;
 
-use super::gray::{GrayF32, Mask};
+use super::gray::GrayF32;
 use super::pyramid::{MaskPyramid, Pyramid};
+
+mod noise;
+pub mod reference;
+mod solve;
+mod window;
+
+use solve::Factor;
+use window::{Normal, Window};
 
 /// Position step (px of the level) below which the photometric parameters join the
 /// estimation.
-const LOCK_STEP: f64 = 0.5;
+pub(crate) const LOCK_STEP: f64 = 0.5;
+
+/// Position step (px of the level) that ends a level above 0 (see `register`).
+const COARSE_MIN_UPDATE: f64 = 0.1;
 
 /// Which parameters are estimated.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -187,45 +198,6 @@ pub struct KltResult {
     pub covariance: Matrix2<f64>,
 }
 
-/// The template window at one level: values and validity, row-major `(2r + 1)²`.
-struct Template {
-    values: Vec<f32>,
-    valid: Vec<bool>,
-    count: usize,
-}
-
-fn template_window(
-    img: &GrayF32,
-    mask: Option<&Mask>,
-    cx: f64,
-    cy: f64,
-    r: usize,
-    t: &mut Template,
-) {
-    let side = 2 * r + 1;
-    t.values.clear();
-    t.valid.clear();
-    t.count = 0;
-    for j in 0..side {
-        for i in 0..side {
-            let x = cx + i as f64 - r as f64;
-            let y = cy + j as f64 - r as f64;
-            let ok_mask = mask.is_none_or(|m| m.valid_bilinear(x, y));
-            match (ok_mask, img.sample(x, y)) {
-                (true, Some(v)) => {
-                    t.values.push(v);
-                    t.valid.push(true);
-                    t.count += 1;
-                }
-                _ => {
-                    t.values.push(0.0);
-                    t.valid.push(false);
-                }
-            }
-        }
-    }
-}
-
 /// Where to put the template's sampling grid for feature coordinate `c` and displacement `d`
 /// (one axis), given the integer anchor `k` of `d`: near `c`, with the sub-pixel fraction
 /// `−f/2` where `f = d − k`, so the live samples at `grid + d` have the fraction `+f/2`.
@@ -233,7 +205,7 @@ fn template_window(
 /// fractional positions lowers its contrast against the template's and biases `λ` (by ~1.5 %
 /// at half-pixel shifts on camera images) and the position.
 #[inline]
-fn symmetric_grid(c: f64, d: f64, k: f64) -> f64 {
+pub(crate) fn symmetric_grid(c: f64, d: f64, k: f64) -> f64 {
     c.round() - 0.5 * (d - k)
 }
 
@@ -241,34 +213,8 @@ fn symmetric_grid(c: f64, d: f64, k: f64) -> f64 {
 /// then continuous in `d` except at rare re-anchoring, so iterations near half-pixel
 /// fractions do not flip between two grids.
 #[inline]
-fn anchor(d: f64, k: f64) -> f64 {
+pub(crate) fn anchor(d: f64, k: f64) -> f64 {
     if (d - k).abs() > 0.75 { d.round() } else { k }
-}
-
-/// Live-image samples on the window grid shifted by `(cx, cy)`, with a one-pixel rim for the
-/// central-difference gradient: `(2r + 3)²` values, NaN outside the image.
-fn sample_target(img: &GrayF32, cx: f64, cy: f64, r: usize, out: &mut Vec<f32>) {
-    let side = 2 * r + 3;
-    out.clear();
-    for j in 0..side {
-        let y = cy + j as f64 - (r + 1) as f64;
-        for i in 0..side {
-            let x = cx + i as f64 - (r + 1) as f64;
-            out.push(img.sample(x, y).unwrap_or(f32::NAN));
-        }
-    }
-}
-
-/// One pass over the window at the current parameters.
-struct Normal {
-    h: Matrix4<f64>,
-    b: Vector4<f64>,
-    ssd: f64,
-    count: usize,
-    outside: usize,
-    /// `Σ I`, `Σ I²` over the pixels used (for the normalisation of the SSD).
-    sum_i: f64,
-    sum_i2: f64,
 }
 
 impl Normal {
@@ -284,88 +230,6 @@ impl Normal {
             }
         }
     }
-}
-
-/// Accumulates the normal equations for `α = [d₁, d₂, a, b]` with `a = 1/λ`, `b = −δ/λ`,
-/// i.e. the residual `ρ = J(m + d) − a I(m) − b = −(I − λJ − δ)/λ` (see the module
-/// documentation for why the residual is measured in live-image units).
-fn accumulate(t: &Template, ext: &[f32], r: usize, a: f64, b: f64) -> Normal {
-    let side = 2 * r + 1;
-    let es = side + 2;
-    let mut h = [[0f64; 4]; 4];
-    let mut rhs = [0f64; 4];
-    let (mut ssd, mut count, mut outside, mut sum_i, mut sum_i2) = (0.0, 0, 0, 0.0, 0.0);
-    for j in 0..side {
-        for i in 0..side {
-            let k = j * side + i;
-            if !t.valid[k] {
-                continue;
-            }
-            let e = (j + 1) * es + i + 1;
-            let (jc, jl, jr, ju, jd) = (ext[e], ext[e - 1], ext[e + 1], ext[e - es], ext[e + es]);
-            if jc.is_nan() || jl.is_nan() || jr.is_nan() || ju.is_nan() || jd.is_nan() {
-                outside += 1;
-                continue;
-            }
-            let iv = t.values[k] as f64;
-            // ∂ρ/∂α: the live image's gradient (central differences of the bilinear samples),
-            // −I and −1.
-            let g = [0.5 * (jr - jl) as f64, 0.5 * (jd - ju) as f64, -iv, -1.0];
-            let res = jc as f64 - a * iv - b;
-            for p in 0..4 {
-                rhs[p] -= g[p] * res;
-                for q in p..4 {
-                    h[p][q] += g[p] * g[q];
-                }
-            }
-            ssd += res * res;
-            sum_i += iv;
-            sum_i2 += iv * iv;
-            count += 1;
-        }
-    }
-    let mut hm = Matrix4::zeros();
-    for a in 0..4 {
-        for c in a..4 {
-            hm[(a, c)] = h[a][c];
-            hm[(c, a)] = h[a][c];
-        }
-    }
-    Normal {
-        h: hm,
-        b: Vector4::from(rhs),
-        ssd,
-        count,
-        outside,
-        sum_i,
-        sum_i2,
-    }
-}
-
-/// The normal matrix restricted to the estimated parameters, inverted; `None` if singular or
-/// the position block (after eliminating `λ, δ`) is too weak.
-fn invert(n: &Normal, model: KltModel, min_eigenvalue: f64) -> Option<Matrix4<f64>> {
-    let mut h = n.h;
-    if model == KltModel::Translation {
-        // Fixed λ, δ: decouple them with unit rows so the same 4×4 solve applies.
-        for a in 0..4 {
-            for c in 0..4 {
-                if a >= 2 || c >= 2 {
-                    h[(a, c)] = if a == c { 1.0 } else { 0.0 };
-                }
-            }
-        }
-    }
-    let inv = h.cholesky()?.inverse();
-    // (H⁻¹)_dd is the inverse of the Schur complement of the position block.
-    let cov_dd = inv.fixed_view::<2, 2>(0, 0).into_owned();
-    let schur = cov_dd.try_inverse()?;
-    let eig = schur.symmetric_eigenvalues();
-    let min_eig = eig.x.min(eig.y);
-    if !min_eig.is_finite() || min_eig < min_eigenvalue * n.count as f64 {
-        return None;
-    }
-    Some(inv)
 }
 
 /// Registers the template feature at `position` (level-0 px of the template pyramid) in the
@@ -426,27 +290,22 @@ pub fn register(
     let photometric = cfg.model == KltModel::Photometric;
     // a = 1/λ has the same admissible range as λ.
     let a_range = (1.0 / cfg.max_contrast.max(1.0), cfg.max_contrast.max(1.0));
-
+    let coarse_stop = cfg.min_update.max(COARSE_MIN_UPDATE);
     let mut d = guess;
     let mut a = 1.0;
     let mut b = 0.0;
     // Whether λ, δ are estimated jointly with `d` yet (see the iteration loop).
     let mut locked = !photometric;
     let mut iterations = 0;
-    let mut ext = Vec::with_capacity((side + 2) * (side + 2));
+    let mut win = Window::new(r);
 
     let mut final_anchor = None;
-    let mut t = Template {
-        values: Vec::with_capacity(side * side),
-        valid: Vec::with_capacity(side * side),
-        count: 0,
-    };
     for level in (0..levels).rev() {
         let scale = (1u32 << level) as f64;
         let (Some(ti), Some(ji)) = (template.level(level), target.level(level)) else {
             continue;
         };
-        let mi = mask.and_then(|m| m.level(level));
+        let tmask = mask.and_then(|m| m.level(level));
         let (cx, cy) = (position[0] / scale, position[1] / scale);
         let mut dl = [d[0] / scale, d[1] / scale];
         // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
@@ -459,11 +318,11 @@ pub fn register(
             ]
         };
         let mut g = grid(dl, k);
-        template_window(ti, mi, g[0], g[1], r, &mut t);
-        if t.count < needed {
+        win.sample_template(ti, tmask, g[0], g[1]);
+        if win.tcount < needed {
             if level == 0 {
                 return Err(KltFailure::TooFewValidPixels {
-                    valid: t.count,
+                    valid: win.tcount,
                     needed,
                 });
             }
@@ -476,20 +335,20 @@ pub fn register(
             let g_new = grid(dl, k);
             if g_new != g {
                 g = g_new;
-                template_window(ti, mi, g[0], g[1], r, &mut t);
+                win.sample_template(ti, tmask, g[0], g[1]);
             }
-            sample_target(ji, g[0] + dl[0], g[1] + dl[1], r, &mut ext);
+            win.sample_live(ji, g[0] + dl[0], g[1] + dl[1]);
             if !locked {
                 // The paper's initialisation of λ, δ from the windows' means and standard
                 // deviations, repeated while the position is far off: there the windows hardly
                 // correlate and a joint step drives λ towards 0 (and the position step, ∝ 1/λ,
                 // off). Once the position settles, λ, δ join the Gauss-Newton estimation.
-                if let Some((l, dd)) = init_photometric(&t, &ext, r) {
+                if let Some((l, dd)) = win.init_photometric() {
                     a = (1.0 / l).clamp(a_range.0, a_range.1);
                     b = -dd / l;
                 }
             }
-            let n = accumulate(&t, &ext, r, a, b);
+            let n = win.accumulate(a, b);
             if n.count < needed {
                 if level == 0 {
                     return Err(n.shortfall(needed));
@@ -502,14 +361,14 @@ pub fn register(
             } else {
                 KltModel::Translation
             };
-            let Some(inv) = invert(&n, model, cfg.min_eigenvalue) else {
+            let Some(factor) = Factor::new(&n, model, cfg.min_eigenvalue) else {
                 if level == 0 {
                     return Err(KltFailure::Singular);
                 }
                 (dl, a, b, locked) = start;
                 break;
             };
-            let mut step = inv * n.b;
+            let mut step = factor.solve(n.b);
             if model == KltModel::Translation {
                 step[2] = 0.0;
                 step[3] = 0.0;
@@ -538,7 +397,13 @@ pub fn register(
                 locked = step_norm < LOCK_STEP;
                 continue;
             }
-            if step_norm < cfg.min_update {
+            if step_norm
+                < if level == 0 {
+                    cfg.min_update
+                } else {
+                    coarse_stop
+                }
+            {
                 break;
             }
         }
@@ -559,13 +424,15 @@ pub fn register(
         symmetric_grid(position[0], d[0], k[0]),
         symmetric_grid(position[1], d[1], k[1]),
     ];
-    template_window(t0, mask.and_then(|m| m.level(0)), g[0], g[1], r, &mut t);
-    sample_target(j0, g[0] + d[0], g[1] + d[1], r, &mut ext);
-    let n = accumulate(&t, &ext, r, a, b);
+    let tmask = mask.and_then(|m| m.level(0));
+    win.sample_template(t0, tmask, g[0], g[1]);
+    win.sample_live(j0, g[0] + d[0], g[1] + d[1]);
+    let n = win.accumulate(a, b);
     if n.count < needed {
         return Err(n.shortfall(needed));
     }
-    let inv = invert(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
+    let factor = Factor::new(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
+    let inv = factor.inverse();
     let count = n.count as f64;
     let var_sum = n.sum_i2 - n.sum_i * n.sum_i / count;
     if var_sum <= 1e-9 * count {
@@ -575,11 +442,9 @@ pub fn register(
     let ssd = n.ssd / (a * a);
     let normalised_ssd = ssd / var_sum;
     let params = if photometric { 4.0 } else { 2.0 };
-    let (c, m) = interpolated_noise(
-        &t,
-        &ext,
-        r,
-        [g[0] + d[0], g[1] + d[1]],
+    let (c, m) = noise::interpolated(
+        &win,
+        [g[0] + d[0] - r as f64 - 1.0, g[1] + d[1] - r as f64 - 1.0],
         cfg.model,
         target.smoothing(),
     );
@@ -603,151 +468,4 @@ pub fn register(
         valid_pixels: n.count,
         covariance,
     })
-}
-
-/// How white noise of variance `σ²` in the live image's pixels reaches the estimate through
-/// the bilinear samples (all at the same sub-pixel fraction `t`, from the live grid origin
-/// `origin`): each sample `m` is `Σ_p w_mp J_p` over 4 pixels, so
-///
-/// * a residual has variance `c σ²` with `c = Π_axes ((1 − t)² + t²)` (down to ¼ at `t = ½`):
-///   `Σ ρ²` estimates `c σ²`, not `σ²`;
-/// * neighbouring samples share pixels, so their noise is correlated and
-///   `Cov(Σ_m g_m ρ_m) = σ² M` with `M = Σ_p u_p u_pᵀ`, `u_p = Σ_m w_mp g_m`; for gradients
-///   that vary slowly over a pixel `M ≈ H`, not `c H`.
-///
-/// Returns `(c, M)`; `M = H` and `c = 1` at integer fractions. `g` as in [`accumulate`],
-/// without the λ, δ components for [`KltModel::Translation`] (not estimated there).
-///
-/// When the live image was smoothed with a Gaussian `G` (`smoothing` = its σ, see
-/// [`KltConfig::smoothing`]) before sampling, the white noise is that of the raw pixels `q`:
-/// a sample's weights become `v_m = w_m ⊛ G` and `u'_q = Σ_p u_p G(p − q)` (`u ⊛ G`, the
-/// kernel being symmetric), so `c = Σ_q v_mq²` and `M = Σ_q u'_q u'_qᵀ`.
-fn interpolated_noise(
-    t: &Template,
-    ext: &[f32],
-    r: usize,
-    origin: [f64; 2],
-    model: KltModel,
-    smoothing: f32,
-) -> (f64, Matrix4<f64>) {
-    let side = 2 * r + 1;
-    let es = side + 2;
-    let (tx, ty) = (origin[0] - origin[0].floor(), origin[1] - origin[1].floor());
-    let wx = [1.0 - tx, tx];
-    let wy = [1.0 - ty, ty];
-    let kernel: Vec<f64> = super::pyramid::gaussian_kernel(smoothing)
-        .map(|half| {
-            // The full symmetric kernel, index k ↔ offset k − R.
-            let rr = half.len() - 1;
-            (0..=2 * rr).map(|k| half[k.abs_diff(rr)] as f64).collect()
-        })
-        .unwrap_or_else(|| vec![1.0]);
-    // Σ of the squared weights of one bilinear axis convolved with the kernel.
-    let axis_c = |w: [f64; 2]| -> f64 {
-        let mut v = vec![0.0; kernel.len() + 1];
-        for (p, wp) in w.iter().enumerate() {
-            for (k, gk) in kernel.iter().enumerate() {
-                v[p + k] += wp * gk;
-            }
-        }
-        v.iter().map(|x| x * x).sum()
-    };
-    let c = axis_c(wx) * axis_c(wy);
-    // u over the (side + 1)² pixels the samples touch.
-    let us = side + 1;
-    let mut u = vec![Vector4::<f64>::zeros(); us * us];
-    for j in 0..side {
-        for i in 0..side {
-            if !t.valid[j * side + i] {
-                continue;
-            }
-            let e = (j + 1) * es + i + 1;
-            let (jc, jl, jr, ju, jd) = (ext[e], ext[e - 1], ext[e + 1], ext[e - es], ext[e + es]);
-            if jc.is_nan() || jl.is_nan() || jr.is_nan() || ju.is_nan() || jd.is_nan() {
-                continue;
-            }
-            let mut g = Vector4::new(
-                0.5 * (jr - jl) as f64,
-                0.5 * (jd - ju) as f64,
-                -(t.values[j * side + i] as f64),
-                -1.0,
-            );
-            if model == KltModel::Translation {
-                g[2] = 0.0;
-                g[3] = 0.0;
-            }
-            for (oy, wyv) in wy.iter().enumerate() {
-                for (ox, wxv) in wx.iter().enumerate() {
-                    u[(j + oy) * us + i + ox] += g * (wxv * wyv);
-                }
-            }
-        }
-    }
-    if kernel.len() > 1 {
-        // u ⊛ G, separably: rows, then (transposed) columns; M does not depend on the order.
-        let columns = convolve_lines_transposed(&u, us, &kernel);
-        u = convolve_lines_transposed(&columns, us + kernel.len() - 1, &kernel);
-    }
-    let m = u
-        .iter()
-        .fold(Matrix4::zeros(), |acc, v| acc + v * v.transpose());
-    (c, m)
-}
-
-/// Convolves each of the `lines` equal lines of `src` with the full 1-D `kernel` and returns
-/// the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes convolve
-/// a field along both axes and restore its orientation.
-fn convolve_lines_transposed(
-    src: &[Vector4<f64>],
-    lines: usize,
-    kernel: &[f64],
-) -> Vec<Vector4<f64>> {
-    let len = src.len() / lines.max(1);
-    let mut out = vec![Vector4::<f64>::zeros(); (len + kernel.len() - 1) * lines];
-    for (l, line) in src.chunks_exact(len.max(1)).enumerate() {
-        for (i, v) in line.iter().enumerate() {
-            if *v == Vector4::zeros() {
-                continue;
-            }
-            for (k, gk) in kernel.iter().enumerate() {
-                out[(i + k) * lines + l] += v * *gk;
-            }
-        }
-    }
-    out
-}
-
-/// `λ = σ_I / σ_J`, `δ = Ī − λ J̄` over the pixels valid in both windows (the paper's
-/// initialisation from the windows' means and standard deviations).
-fn init_photometric(t: &Template, ext: &[f32], r: usize) -> Option<(f64, f64)> {
-    let side = 2 * r + 1;
-    let es = side + 2;
-    let (mut n, mut si, mut si2, mut sj, mut sj2) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for j in 0..side {
-        for i in 0..side {
-            let k = j * side + i;
-            let jv = ext[(j + 1) * es + i + 1];
-            if !t.valid[k] || jv.is_nan() {
-                continue;
-            }
-            let (iv, jv) = (t.values[k] as f64, jv as f64);
-            n += 1.0;
-            si += iv;
-            si2 += iv * iv;
-            sj += jv;
-            sj2 += jv * jv;
-        }
-    }
-    if n < 2.0 {
-        return None;
-    }
-    let (mi, mj) = (si / n, sj / n);
-    let (vi, vj) = ((si2 / n - mi * mi).max(0.0), (sj2 / n - mj * mj).max(0.0));
-    // A flat live window says nothing about contrast: keep λ = 1 and match the means.
-    let lambda = if vj > 1e-6 && vi > 1e-6 {
-        (vi / vj).sqrt()
-    } else {
-        1.0
-    };
-    Some((lambda, mi - lambda * mj))
 }

@@ -1,0 +1,369 @@
+//! The registration window's samples and the normal equations over them, the hot loop of the
+//! KLT (docs/VISION.md §5).
+//!
+//! The model is a pure translation, so every sample of a window has the same sub-pixel
+//! fraction: a window inside the image is a bilinear blend of four shifted row slices with
+//! four weights, with no per-sample bounds test or `Option`. The rows are padded to a
+//! multiple of four samples and the normal equations are accumulated four pixels at a time
+//! (`wide::f32x4`), each pixel weighted 1 (used) or 0 (masked, clipped, outside, padding), so
+//! the loop has no branch. Per-lane `f32` sums (≤ ¼ of the window each) are added in `f64`.
+//! Windows that cross the image border take the per-sample path.
+
+use wide::f32x4;
+
+use super::super::gray::{GrayF32, Mask};
+
+/// Lanes per accumulation step.
+const LANES: usize = 4;
+
+/// One pass over the window at the current parameters (see `accumulate`).
+pub(super) struct Normal {
+    /// `Σ g gᵀ`, `g = [∂ₓJ, ∂ᵧJ, −I, −1]`.
+    pub h: [[f64; 4]; 4],
+    /// `−Σ g ρ`.
+    pub b: [f64; 4],
+    /// `Σ ρ²`.
+    pub ssd: f64,
+    /// Pixels used.
+    pub count: usize,
+    /// Template pixels whose live samples left the image.
+    pub outside: usize,
+    /// `Σ I`, `Σ I²` over the pixels used.
+    pub sum_i: f64,
+    pub sum_i2: f64,
+}
+
+/// The window's buffers, reused across the iterations and levels of one registration.
+pub(super) struct Window {
+    r: usize,
+    side: usize,
+    /// Padded row length of the template-sized arrays (a multiple of [`LANES`]).
+    pw: usize,
+    /// Row length of the live samples: `pw + 2` (a one-sample rim for the gradient).
+    es: usize,
+    /// Template values, `side × pw`, 0 where not valid.
+    pub t: Vec<f32>,
+    /// Template validity as weights 1 / 0.
+    tw: Vec<f32>,
+    /// Valid template pixels.
+    pub tcount: usize,
+    /// Live samples on the window grid and its rim, `(side + 2) × es`, finite (0 outside).
+    pub ext: Vec<f32>,
+    /// Pixels used: template valid, the five live samples inside the image and unclipped.
+    pub w: Vec<f32>,
+    /// Whether `tw` holds the all-valid weights.
+    tw_full: bool,
+    pub count: usize,
+    pub outside: usize,
+}
+
+impl Window {
+    pub fn new(r: usize) -> Self {
+        let side = 2 * r + 1;
+        let pw = side.div_ceil(LANES) * LANES;
+        let es = pw + 2;
+        Self {
+            r,
+            side,
+            pw,
+            es,
+            t: vec![0.0; side * pw],
+            tw: vec![0.0; side * pw],
+            tcount: 0,
+            ext: vec![0.0; (side + 2) * es],
+            w: vec![0.0; side * pw],
+            tw_full: false,
+            count: 0,
+            outside: 0,
+        }
+    }
+
+    pub fn side(&self) -> usize {
+        self.side
+    }
+
+    /// Index of pixel `(i, j)` in the template-sized arrays.
+    #[inline]
+    pub fn at(&self, i: usize, j: usize) -> usize {
+        j * self.pw + i
+    }
+
+    /// Index of pixel `(i, j)`'s live sample in [`Window::ext`].
+    #[inline]
+    pub fn ext_at(&self, i: usize, j: usize) -> usize {
+        (j + 1) * self.es + i + 1
+    }
+
+    /// Row stride of [`Window::ext`].
+    pub fn ext_stride(&self) -> usize {
+        self.es
+    }
+
+    /// The template window centred on the grid point `(gx, gy)`: valid where the image has
+    /// it and `mask` is valid for the bilinear sample.
+    pub fn sample_template(&mut self, img: &GrayF32, mask: Option<&Mask>, gx: f64, gy: f64) {
+        let (ox, oy) = (gx - self.r as f64, gy - self.r as f64);
+        let (side, pw) = (self.side, self.pw);
+        let inside = fill_bilinear(img, ox, oy, side, side, pw, &mut self.t);
+        if inside && mask.is_none_or(|m| mask_all_valid(m, ox, oy, side, side)) {
+            // The common case: all valid, no per-pixel test (the weights are refilled only
+            // after a window that was not).
+            if !self.tw_full {
+                for row in self.tw.chunks_exact_mut(pw) {
+                    row[..side].fill(1.0);
+                    row[side..].fill(0.0);
+                }
+                self.tw_full = true;
+            }
+            self.tcount = side * side;
+            return;
+        }
+        self.tw_full = false;
+        self.tcount = 0;
+        for j in 0..side {
+            for i in 0..pw {
+                let k = j * pw + i;
+                let (x, y) = (ox + i as f64, oy + j as f64);
+                let mut valid = i < side && mask.is_none_or(|m| m.valid_bilinear(x, y));
+                if valid && !inside {
+                    match img.sample(x, y) {
+                        Some(v) => self.t[k] = v,
+                        None => valid = false,
+                    }
+                }
+                if valid {
+                    self.tw[k] = 1.0;
+                    self.tcount += 1;
+                } else {
+                    self.tw[k] = 0.0;
+                    self.t[k] = 0.0;
+                }
+            }
+        }
+    }
+
+    /// The live samples for the window centred on `(cx, cy)` (the template grid plus the
+    /// displacement), and which pixels they leave usable: those valid in the template whose
+    /// five samples are inside the image.
+    pub fn sample_live(&mut self, img: &GrayF32, cx: f64, cy: f64) {
+        let (r, side, pw, es) = (self.r as f64, self.side, self.pw, self.es);
+        let (ox, oy) = (cx - r - 1.0, cy - r - 1.0);
+        if fill_bilinear(img, ox, oy, side + 2, side + 2, es, &mut self.ext) {
+            self.w.copy_from_slice(&self.tw);
+            self.count = self.tcount;
+            self.outside = 0;
+            return;
+        }
+        for j in 0..side + 2 {
+            for i in 0..es {
+                self.ext[j * es + i] = if i < side + 2 {
+                    img.sample(ox + i as f64, oy + j as f64).unwrap_or(f32::NAN)
+                } else {
+                    0.0
+                };
+            }
+        }
+        self.count = 0;
+        self.outside = 0;
+        for j in 0..side {
+            for i in 0..pw {
+                let k = j * pw + i;
+                if self.tw[k] == 0.0 {
+                    self.w[k] = 0.0;
+                    continue;
+                }
+                let e = (j + 1) * es + i + 1;
+                let taps = [
+                    self.ext[e],
+                    self.ext[e - 1],
+                    self.ext[e + 1],
+                    self.ext[e - es],
+                    self.ext[e + es],
+                ];
+                let usable = !taps.iter().any(|v| v.is_nan());
+                self.outside += usize::from(!usable);
+                self.w[k] = if usable { 1.0 } else { 0.0 };
+                self.count += usize::from(usable);
+            }
+        }
+        // Finite everywhere, so that a weight 0 makes a term 0.
+        self.ext
+            .iter_mut()
+            .filter(|v| v.is_nan())
+            .for_each(|v| *v = 0.0);
+    }
+
+    /// Accumulates the normal equations for `α = [d₁, d₂, a, b]`, the residual
+    /// `ρ = J(m + d) − a I(m) − b` (docs/VISION.md §5; the module documentation of `klt`
+    /// says why the residual is in live-image units).
+    pub fn accumulate(&self, a: f64, b: f64) -> Normal {
+        let (side, pw, es) = (self.side, self.pw, self.es);
+        let (av, bv) = (f32x4::splat(a as f32), f32x4::splat(b as f32));
+        let half = f32x4::splat(0.5);
+        // Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ, gy ρ, I ρ, ρ, ρ².
+        let mut s = [f32x4::ZERO; 15];
+        for j in 0..side {
+            let e0 = (j + 1) * es + 1;
+            let rows = (
+                &self.ext[e0..e0 + pw],
+                &self.ext[e0 - 1..e0 - 1 + pw],
+                &self.ext[e0 + 1..e0 + 1 + pw],
+                &self.ext[e0 - es..e0 - es + pw],
+                &self.ext[e0 + es..e0 + es + pw],
+            );
+            let t = &self.t[j * pw..(j + 1) * pw];
+            let w = &self.w[j * pw..(j + 1) * pw];
+            for c in (0..pw).step_by(LANES) {
+                let wv = load(w, c);
+                let iv = load(t, c);
+                let gx = (load(rows.2, c) - load(rows.1, c)) * half * wv;
+                let gy = (load(rows.4, c) - load(rows.3, c)) * half * wv;
+                let res = (load(rows.0, c) - av * iv - bv) * wv;
+                let ivw = iv * wv;
+                s[0] += gx * gx;
+                s[1] += gx * gy;
+                s[2] += gx * ivw;
+                s[3] += gx;
+                s[4] += gy * gy;
+                s[5] += gy * ivw;
+                s[6] += gy;
+                s[7] += ivw * iv;
+                s[8] += ivw;
+                s[9] += wv;
+                s[10] += gx * res;
+                s[11] += gy * res;
+                s[12] += ivw * res;
+                s[13] += res;
+                s[14] += res * res;
+            }
+        }
+        let v = s.map(sum);
+        // g = [gx, gy, −I, −1].
+        let h = [
+            [v[0], v[1], -v[2], -v[3]],
+            [v[1], v[4], -v[5], -v[6]],
+            [-v[2], -v[5], v[7], v[8]],
+            [-v[3], -v[6], v[8], v[9]],
+        ];
+        Normal {
+            h,
+            b: [-v[10], -v[11], v[12], v[13]],
+            ssd: v[14],
+            count: self.count,
+            outside: self.outside,
+            sum_i: v[8],
+            sum_i2: v[7],
+        }
+    }
+
+    /// `λ = σ_I / σ_J`, `δ = Ī − λ J̄` over the pixels used (the paper's initialisation from
+    /// the windows' means and standard deviations).
+    pub fn init_photometric(&self) -> Option<(f64, f64)> {
+        let (side, pw, es) = (self.side, self.pw, self.es);
+        let mut s = [f32x4::ZERO; 5];
+        for j in 0..side {
+            let e0 = (j + 1) * es + 1;
+            let live = &self.ext[e0..e0 + pw];
+            let t = &self.t[j * pw..(j + 1) * pw];
+            let w = &self.w[j * pw..(j + 1) * pw];
+            for c in (0..pw).step_by(LANES) {
+                let wv = load(w, c);
+                let iv = load(t, c) * wv;
+                let jv = load(live, c) * wv;
+                s[0] += wv;
+                s[1] += iv;
+                s[2] += iv * iv;
+                s[3] += jv;
+                s[4] += jv * jv;
+            }
+        }
+        let [n, si, si2, sj, sj2] = s.map(sum);
+        if n < 2.0 {
+            return None;
+        }
+        let (mi, mj) = (si / n, sj / n);
+        let (vi, vj) = ((si2 / n - mi * mi).max(0.0), (sj2 / n - mj * mj).max(0.0));
+        // A flat live window says nothing about contrast: keep λ = 1 and match the means.
+        let lambda = if vj > 1e-6 && vi > 1e-6 {
+            (vi / vj).sqrt()
+        } else {
+            1.0
+        };
+        Some((lambda, mi - lambda * mj))
+    }
+}
+
+/// Four consecutive values from `c`; `s` is a padded row, so they always exist.
+#[inline(always)]
+fn load(s: &[f32], c: usize) -> f32x4 {
+    match s.get(c..c + LANES) {
+        Some(&[a, b, cc, d]) => f32x4::new([a, b, cc, d]),
+        _ => f32x4::ZERO,
+    }
+}
+
+/// The lanes' sum in `f64`.
+#[inline]
+fn sum(v: f32x4) -> f64 {
+    v.to_array().iter().map(|&x| x as f64).sum()
+}
+
+/// Bilinear samples of `img` at `(ox + i, oy + j)`, `i < cols`, `j < rows`, into rows of
+/// `stride` values of `out`, if every sample's four pixels are inside the image (returns
+/// `false` and leaves `out` to the caller otherwise). Same arithmetic as `GrayF32::sample`.
+fn fill_bilinear(
+    img: &GrayF32,
+    ox: f64,
+    oy: f64,
+    cols: usize,
+    rows: usize,
+    stride: usize,
+    out: &mut [f32],
+) -> bool {
+    let (w, h) = (img.width(), img.height());
+    if !(ox >= 0.0 && oy >= 0.0) {
+        return false;
+    }
+    let (x0, y0) = (ox.floor(), oy.floor());
+    let (x0, y0) = (x0 as usize, y0 as usize);
+    // The last sample's right and lower neighbours must exist.
+    if x0 + cols >= w || y0 + rows >= h || out.len() < rows * stride {
+        return false;
+    }
+    let fx = (ox - x0 as f64) as f32;
+    let fy = (oy - y0 as f64) as f32;
+    let data = img.data();
+    for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
+        let at = (y0 + j) * w + x0;
+        let (a, b) = (&data[at..at + cols], &data[at + 1..at + 1 + cols]);
+        let (c, d) = (
+            &data[at + w..at + w + cols],
+            &data[at + w + 1..at + w + 1 + cols],
+        );
+        let o = &mut o[..cols];
+        for i in 0..cols {
+            let top = a[i] + fx * (b[i] - a[i]);
+            let bottom = c[i] + fx * (d[i] - c[i]);
+            o[i] = top + fy * (bottom - top);
+        }
+    }
+    true
+}
+
+/// Whether `m` is valid for every bilinear sample at `(ox + i, oy + j)`, `i < cols`,
+/// `j < rows`: all pixels of the rectangle the samples touch.
+fn mask_all_valid(m: &Mask, ox: f64, oy: f64, cols: usize, rows: usize) -> bool {
+    if !(ox >= 0.0 && oy >= 0.0) {
+        return false;
+    }
+    let (x0, y0) = (ox.floor() as usize, oy.floor() as usize);
+    let (x1, y1) = (
+        (ox + (cols - 1) as f64).ceil() as usize,
+        (oy + (rows - 1) as f64).ceil() as usize,
+    );
+    if x1 >= m.width() || y1 >= m.height() {
+        return false;
+    }
+    let w = m.width();
+    (y0..=y1).all(|y| m.data()[y * w + x0..=y * w + x1].iter().all(|&v| v))
+}
