@@ -68,8 +68,23 @@ fn tap_at(row: &[f32], kernel: &[f32], x: usize) -> f32 {
 /// outputs at a time in between (the last chunk overlaps the one before it rather than
 /// leaving a scalar tail; the overlapped outputs are computed twice, identically).
 fn blur_row(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
+    match kernel.len() - 1 {
+        1 => blur_row_impl(row, kernel, kv, out, 1),
+        2 => blur_row_impl(row, kernel, kv, out, 2),
+        3 => blur_row_impl(row, kernel, kv, out, 3),
+        4 => blur_row_impl(row, kernel, kv, out, 4),
+        5 => blur_row_impl(row, kernel, kv, out, 5),
+        6 => blur_row_impl(row, kernel, kv, out, 6),
+        r => blur_row_impl(row, kernel, kv, out, r),
+    }
+}
+
+/// [`blur_row`] for radius `r`; inlined into each arm of its `match`, so that the common radii
+/// are constants there and the tap loop unrolls.
+#[inline(always)]
+fn blur_row_impl(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: usize) {
     let w = row.len();
-    let r = kernel.len() - 1;
+    let kv = &kv[..=r];
     if w < 2 * r + LANES {
         for (x, o) in out.iter_mut().enumerate() {
             *o = tap_at(row, kernel, x);
@@ -84,8 +99,8 @@ fn blur_row(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
     loop {
         let xs = x.min(last);
         let mut acc = kv[0] * load(row, xs);
-        for (k, &wk) in kv.iter().enumerate().skip(1) {
-            acc += wk * (load(row, xs - k) + load(row, xs + k));
+        for k in 1..=r {
+            acc += kv[k] * (load(row, xs - k) + load(row, xs + k));
         }
         store(out, xs, acc);
         if xs == last {
@@ -99,8 +114,28 @@ fn blur_row(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
 /// the output row, top first; `out[x] = kernel[0]·rows[r][x] + Σ_k kernel[k]·(rows[r−k][x] +
 /// rows[r+k][x])`, eight columns at a time.
 fn column_pass(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
+    match kernel.len() - 1 {
+        1 => column_pass_impl(rows, kernel, kv, out, 1),
+        2 => column_pass_impl(rows, kernel, kv, out, 2),
+        3 => column_pass_impl(rows, kernel, kv, out, 3),
+        4 => column_pass_impl(rows, kernel, kv, out, 4),
+        5 => column_pass_impl(rows, kernel, kv, out, 5),
+        6 => column_pass_impl(rows, kernel, kv, out, 6),
+        r => column_pass_impl(rows, kernel, kv, out, r),
+    }
+}
+
+/// [`column_pass`] for radius `r` (a constant in the common arms, as [`blur_row_impl`]); the
+/// row slices are cut to the output's width once, so the loads need no further checks.
+#[inline(always)]
+fn column_pass_impl(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: usize) {
     let w = out.len();
-    let r = kernel.len() - 1;
+    let kv = &kv[..=r];
+    let mut cut: RingRows = [&[]; 2 * MAX_RADIUS + 1];
+    for (c, row) in cut.iter_mut().zip(&rows[..=2 * r]) {
+        *c = &row[..w];
+    }
+    let rows = &cut[..=2 * r];
     if w < LANES {
         for (x, o) in out.iter_mut().enumerate() {
             let mut acc = kernel[0] * rows[r][x];
@@ -116,8 +151,8 @@ fn column_pass(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
     loop {
         let xs = x.min(last);
         let mut acc = kv[0] * load(rows[r], xs);
-        for (k, &wk) in kv.iter().enumerate().skip(1) {
-            acc += wk * (load(rows[r - k], xs) + load(rows[r + k], xs));
+        for k in 1..=r {
+            acc += kv[k] * (load(rows[r - k], xs) + load(rows[r + k], xs));
         }
         store(out, xs, acc);
         if xs == last {
@@ -443,17 +478,53 @@ impl TemplatePyramid {
     }
 }
 
-use reference::erode_line;
+/// [`reference`]'s line erosion on bytes (0 or 1): `out[x]` = all of `line[x − r ..= x + r]`
+/// (clipped to the line), as shifted ANDs over whole slices. Bytes rather than `bool`s because
+/// the byte AND is what vectorises (the mask's `bool`s are read as their bytes).
+#[inline]
+fn erode_line(line: &[u8], r: usize, out: &mut [u8]) {
+    let w = line.len();
+    out.copy_from_slice(line);
+    for k in 1..=r.min(w.saturating_sub(1)) {
+        for (o, &v) in out[k..].iter_mut().zip(&line[..w - k]) {
+            *o &= v;
+        }
+        for (o, &v) in out[..w - k].iter_mut().zip(&line[k..]) {
+            *o &= v;
+        }
+    }
+}
 
 /// The rows `lo ..= hi` of a ring of `n` eroded lines (slot of line `j`: `j mod n`) ANDed into
-/// `out`, whole rows at a time (byte-wide, vectorised).
-fn and_rows(ring: &[bool], w: usize, n: usize, lo: usize, hi: usize, out: &mut [bool]) {
+/// `out`, whole rows at a time.
+fn and_rows(ring: &[u8], w: usize, n: usize, lo: usize, hi: usize, out: &mut [u8]) {
     let row = |j: usize| &ring[(j % n) * w..(j % n + 1) * w];
     out.copy_from_slice(row(lo));
     for j in lo + 1..=hi {
         for (o, &v) in out.iter_mut().zip(row(j)) {
             *o &= v;
         }
+    }
+}
+
+/// Rows `lo ..= hi` of `mask` eroded (radius `r`) into their ring slots, from `*next` on.
+fn fill_ring(
+    src: &[u8],
+    w: usize,
+    r: usize,
+    n: usize,
+    hi: usize,
+    next: &mut usize,
+    ring: &mut [u8],
+) {
+    while *next <= hi {
+        let slot = *next % n;
+        erode_line(
+            &src[*next * w..(*next + 1) * w],
+            r,
+            &mut ring[slot * w..(slot + 1) * w],
+        );
+        *next += 1;
     }
 }
 
@@ -465,24 +536,16 @@ fn and_rows(ring: &[bool], w: usize, n: usize, lo: usize, hi: usize, out: &mut [
 fn mask_pyr_down(last: &Mask) -> Option<Mask> {
     let (w, h) = (last.width(), last.height());
     let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
-    let src = last.data();
-    let mut ring = vec![false; 5 * w];
-    let mut column = vec![false; w];
+    let src: &[u8] = bytemuck::cast_slice(last.data());
+    let mut ring = vec![0u8; 5 * w];
+    let mut column = vec![0u8; w];
     let mut data = Vec::with_capacity(w2 * h2);
     let mut next = 0;
     for y in (0..h2).map(|y2| 2 * y2) {
         let (lo, hi) = (y.saturating_sub(2), (y + 2).min(h - 1));
-        while next <= hi {
-            let slot = next % 5;
-            erode_line(
-                &src[next * w..(next + 1) * w],
-                2,
-                &mut ring[slot * w..(slot + 1) * w],
-            );
-            next += 1;
-        }
+        fill_ring(src, w, 2, 5, hi, &mut next, &mut ring);
         and_rows(&ring, w, 5, lo, hi, &mut column);
-        data.extend(column.iter().step_by(2));
+        data.extend(column.iter().step_by(2).map(|&v| v != 0));
     }
     Mask::new(w2, h2, data).ok()
 }
@@ -496,23 +559,17 @@ pub fn erode(mask: &Mask, r: usize) -> Mask {
         return mask.clone();
     }
     let (w, h) = (mask.width(), mask.height());
-    let src = mask.data();
+    let src: &[u8] = bytemuck::cast_slice(mask.data());
     let n = 2 * r + 1;
-    let mut ring = vec![false; n * w];
-    let mut out = vec![false; w * h];
+    let mut ring = vec![0u8; n * w];
+    let mut column = vec![0u8; w];
+    let mut out = Vec::with_capacity(w * h);
     let mut next = 0;
-    for (y, o) in out.chunks_exact_mut(w).enumerate() {
+    for y in 0..h {
         let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
-        while next <= hi {
-            let slot = next % n;
-            erode_line(
-                &src[next * w..(next + 1) * w],
-                r,
-                &mut ring[slot * w..(slot + 1) * w],
-            );
-            next += 1;
-        }
-        and_rows(&ring, w, n, lo, hi, o);
+        fill_ring(src, w, r, n, hi, &mut next, &mut ring);
+        and_rows(&ring, w, n, lo, hi, &mut column);
+        out.extend(column.iter().map(|&v| v != 0));
     }
     Mask::new(w, h, out).unwrap_or_else(|_| mask.clone())
 }

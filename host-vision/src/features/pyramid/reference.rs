@@ -163,7 +163,7 @@ pub fn mask_pyr_down(last: &Mask) -> Option<Mask> {
 /// One line of [`erode`]: `out[x]` = all of `line[x − r ..= x + r]` (clipped to the line).
 /// Shifted ANDs over whole slices (byte-wide, vectorised); `r` is small (the blur's reach).
 #[inline]
-pub(super) fn erode_line(line: &[bool], r: usize, out: &mut [bool]) {
+fn erode_line(line: &[bool], r: usize, out: &mut [bool]) {
     let w = line.len();
     out.copy_from_slice(line);
     for k in 1..=r.min(w.saturating_sub(1)) {
