@@ -99,8 +99,8 @@ fn blur_row_impl(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: 
     loop {
         let xs = x.min(last);
         let mut acc = kv[0] * load(row, xs);
-        for k in 1..=r {
-            acc += kv[k] * (load(row, xs - k) + load(row, xs + k));
+        for (k, &wk) in kv.iter().enumerate().skip(1) {
+            acc += wk * (load(row, xs - k) + load(row, xs + k));
         }
         store(out, xs, acc);
         if xs == last {
@@ -151,8 +151,8 @@ fn column_pass_impl(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f3
     loop {
         let xs = x.min(last);
         let mut acc = kv[0] * load(rows[r], xs);
-        for k in 1..=r {
-            acc += kv[k] * (load(rows[r - k], xs) + load(rows[r + k], xs));
+        for (k, &wk) in kv.iter().enumerate().skip(1) {
+            acc += wk * (load(rows[r - k], xs) + load(rows[r + k], xs));
         }
         store(out, xs, acc);
         if xs == last {
