@@ -5,7 +5,11 @@
 //! sampled at its even pixels (as OpenCV's `pyrDown`). With integer pixel centres this makes
 //! level-`k` coordinates exactly level-0 coordinates divided by `2^k`.
 
+use wide::f32x8;
+
 use super::gray::{GrayF32, ImageError, Mask};
+
+pub mod reference;
 
 /// No level smaller than this on either side is built (a registration window would not fit).
 pub const MIN_LEVEL_SIDE: usize = 8;
@@ -25,111 +29,198 @@ fn reflect101(i: isize, n: usize) -> usize {
     i as usize
 }
 
-/// Horizontal pass of a symmetric kernel at output columns `x = step·i` (`i < out.len()`):
-/// reflect-101 only within the kernel's reach of the borders, plain slice indexing in between
-/// (no index arithmetic per tap there). Same sum order at every pixel.
+/// Lanes of the vectorised passes: two SSE2 registers (one AVX register where enabled), so
+/// that each tap is two independent multiply-adds.
+const LANES: usize = 8;
+
+/// Widest kernel radius the vectorised passes take (σ ≤ 5.33 px); wider ones run
+/// [`reference`], which gives the same values.
+const MAX_RADIUS: usize = 16;
+
+/// Eight values from `s[i..]` (the only bounds check of the load).
+#[inline(always)]
+fn load(s: &[f32], i: usize) -> f32x8 {
+    let a: [f32; LANES] = s[i..i + LANES].try_into().expect("8 values");
+    f32x8::new(a)
+}
+
+/// Stores eight values at `out[i..]`.
+#[inline(always)]
+fn store(out: &mut [f32], i: usize, v: f32x8) {
+    out[i..i + LANES].copy_from_slice(&v.to_array());
+}
+
+/// One output of a horizontal pass at column `x`, reflect-101 indices:
+/// `kernel[0]·row[x] + Σ_k kernel[k]·(row[x−k] + row[x+k])`, summed in this order, which is the
+/// order of every pass here and in [`reference`] (so the values agree to the last bit).
 #[inline]
-fn convolve_row(row: &[f32], kernel: &[f32], step: usize, out: &mut [f32]) {
+fn tap_at(row: &[f32], kernel: &[f32], x: usize) -> f32 {
     let w = row.len();
-    let r = kernel.len() - 1;
-    let border = |x: usize| {
-        let mut acc = kernel[0] * row[x];
-        for (k, &wk) in kernel.iter().enumerate().skip(1) {
-            let k = k as isize;
-            acc += wk * (row[reflect101(x as isize - k, w)] + row[reflect101(x as isize + k, w)]);
-        }
-        acc
-    };
-    // Outputs whose taps all lie inside the row: x = step·i with r ≤ x < w − r.
-    let first = r.div_ceil(step).min(out.len());
-    let end = if w > r {
-        (w - r).div_ceil(step).clamp(first, out.len())
-    } else {
-        first
-    };
-    for (i, o) in out.iter_mut().enumerate().take(first) {
-        *o = border(step * i);
+    let mut acc = kernel[0] * row[x];
+    for (k, &wk) in kernel.iter().enumerate().skip(1) {
+        let k = k as isize;
+        acc += wk * (row[reflect101(x as isize - k, w)] + row[reflect101(x as isize + k, w)]);
     }
-    if step == 1 && first < end {
-        // Tap by tap over the whole interior: plain slice zips the compiler vectorises.
-        let inner = &mut out[first..end];
-        for (o, &v) in inner.iter_mut().zip(&row[first..end]) {
-            *o = kernel[0] * v;
+    acc
+}
+
+/// Horizontal pass at every column: reflect-101 at the `r` columns of each border, eight
+/// outputs at a time in between (the last chunk overlaps the one before it rather than
+/// leaving a scalar tail; the overlapped outputs are computed twice, identically).
+fn blur_row(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
+    match kernel.len() - 1 {
+        1 => blur_row_impl(row, kernel, kv, out, 1),
+        2 => blur_row_impl(row, kernel, kv, out, 2),
+        3 => blur_row_impl(row, kernel, kv, out, 3),
+        4 => blur_row_impl(row, kernel, kv, out, 4),
+        5 => blur_row_impl(row, kernel, kv, out, 5),
+        6 => blur_row_impl(row, kernel, kv, out, 6),
+        r => blur_row_impl(row, kernel, kv, out, r),
+    }
+}
+
+/// [`blur_row`] for radius `r`; inlined into each arm of its `match`, so that the common radii
+/// are constants there and the tap loop unrolls.
+#[inline(always)]
+fn blur_row_impl(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: usize) {
+    let w = row.len();
+    let kv = &kv[..=r];
+    if w < 2 * r + LANES {
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = tap_at(row, kernel, x);
         }
-        for (k, &wk) in kernel.iter().enumerate().skip(1) {
-            let (left, right) = (&row[first - k..end - k], &row[first + k..end + k]);
-            for ((o, &a), &b) in inner.iter_mut().zip(left).zip(right) {
-                *o += wk * (a + b);
-            }
+        return;
+    }
+    for x in (0..r).chain(w - r..w) {
+        out[x] = tap_at(row, kernel, x);
+    }
+    let last = w - r - LANES;
+    let mut x = r;
+    loop {
+        let xs = x.min(last);
+        let mut acc = kv[0] * load(row, xs);
+        for (k, &wk) in kv.iter().enumerate().skip(1) {
+            acc += wk * (load(row, xs - k) + load(row, xs + k));
         }
-    } else if let (2, &[k0, k1, k2]) = (step, kernel) {
-        // The pyramid's 5-tap kernel at even columns: fixed-size windows, no index checks.
-        let windows = row[2 * first - 2..].windows(5).step_by(2);
-        for (o, win) in out[first..end].iter_mut().zip(windows) {
-            if let &[a, b, c, d, e] = win {
-                *o = k0 * c + k1 * (b + d) + k2 * (a + e);
-            }
+        store(out, xs, acc);
+        if xs == last {
+            break;
         }
-    } else {
-        for (i, o) in out.iter_mut().enumerate().take(end).skip(first) {
-            let x = step * i;
-            let win = &row[x - r..=x + r];
-            let mut acc = kernel[0] * win[r];
+        x += LANES;
+    }
+}
+
+/// Vertical pass over whole rows: `rows` are the `2r + 1` (horizontally filtered) rows around
+/// the output row, top first; `out[x] = kernel[0]·rows[r][x] + Σ_k kernel[k]·(rows[r−k][x] +
+/// rows[r+k][x])`, eight columns at a time.
+fn column_pass(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
+    match kernel.len() - 1 {
+        1 => column_pass_impl(rows, kernel, kv, out, 1),
+        2 => column_pass_impl(rows, kernel, kv, out, 2),
+        3 => column_pass_impl(rows, kernel, kv, out, 3),
+        4 => column_pass_impl(rows, kernel, kv, out, 4),
+        5 => column_pass_impl(rows, kernel, kv, out, 5),
+        6 => column_pass_impl(rows, kernel, kv, out, 6),
+        r => column_pass_impl(rows, kernel, kv, out, r),
+    }
+}
+
+/// [`column_pass`] for radius `r` (a constant in the common arms, as [`blur_row_impl`]); the
+/// row slices are cut to the output's width once, so the loads need no further checks.
+#[inline(always)]
+fn column_pass_impl(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: usize) {
+    let w = out.len();
+    let kv = &kv[..=r];
+    let mut cut: RingRows = [&[]; 2 * MAX_RADIUS + 1];
+    for (c, row) in cut.iter_mut().zip(&rows[..=2 * r]) {
+        *c = &row[..w];
+    }
+    let rows = &cut[..=2 * r];
+    if w < LANES {
+        for (x, o) in out.iter_mut().enumerate() {
+            let mut acc = kernel[0] * rows[r][x];
             for (k, &wk) in kernel.iter().enumerate().skip(1) {
-                acc += wk * (win[r - k] + win[r + k]);
+                acc += wk * (rows[r - k][x] + rows[r + k][x]);
             }
             *o = acc;
         }
+        return;
     }
-    for (i, o) in out.iter_mut().enumerate().skip(end) {
-        *o = border(step * i);
-    }
-}
-
-/// Vertical pass: `out[x] = Σ_k kernel[k] · (rows_above[k][x] + rows_below[k][x])` (centre
-/// once), row slices fetched once per output row so the inner loop is a plain zip.
-#[inline]
-fn convolve_column(tmp: &[f32], w: usize, h: usize, y: usize, kernel: &[f32], out: &mut [f32]) {
-    let row = |yy: usize| &tmp[yy * w..(yy + 1) * w];
-    let centre = row(y);
-    for (o, &c) in out.iter_mut().zip(centre) {
-        *o = kernel[0] * c;
-    }
-    for (k, &wk) in kernel.iter().enumerate().skip(1) {
-        let k = k as isize;
-        let (a, b) = (
-            row(reflect101(y as isize - k, h)),
-            row(reflect101(y as isize + k, h)),
-        );
-        for ((o, &va), &vb) in out.iter_mut().zip(a).zip(b) {
-            *o += wk * (va + vb);
+    let last = w - LANES;
+    let mut x = 0;
+    loop {
+        let xs = x.min(last);
+        let mut acc = kv[0] * load(rows[r], xs);
+        for (k, &wk) in kv.iter().enumerate().skip(1) {
+            acc += wk * (load(rows[r - k], xs) + load(rows[r + k], xs));
         }
+        store(out, xs, acc);
+        if xs == last {
+            break;
+        }
+        x += LANES;
     }
 }
 
-/// Separable convolution with a symmetric kernel (`kernel[0]` is the centre tap), reflect-101
-/// borders.
-fn convolve_separable(img: &GrayF32, kernel: &[f32]) -> GrayF32 {
-    let (w, h) = (img.width(), img.height());
-    let src = img.data();
-    let mut tmp = vec![0f32; w * h];
-    for (row, t) in src.chunks_exact(w).zip(tmp.chunks_exact_mut(w)) {
-        convolve_row(row, kernel, 1, t);
+/// The `2r + 1` rows of `ring` (slot of source row `j`: `j mod (2r + 1)`) around output row
+/// `y`, reflect-101, top first. The ring holds every row the window needs: reflect-101 indices
+/// of `y − r ..= y + r` stay within that range.
+fn ring_rows<'a>(ring: &'a [f32], w: usize, h: usize, y: usize, r: usize) -> RingRows<'a> {
+    let n = 2 * r + 1;
+    let mut rows: RingRows<'a> = [&[]; 2 * MAX_RADIUS + 1];
+    for (k, slot) in rows.iter_mut().take(n).enumerate() {
+        let j = reflect101(y as isize + k as isize - r as isize, h) % n;
+        *slot = &ring[j * w..(j + 1) * w];
     }
-    let mut out = vec![0f32; w * h];
-    for (y, o) in out.chunks_exact_mut(w).enumerate() {
-        convolve_column(&tmp, w, h, y, kernel, o);
+    rows
+}
+
+/// Row slices of a ring buffer (only the first `2r + 1` are used).
+type RingRows<'a> = [&'a [f32]; 2 * MAX_RADIUS + 1];
+
+/// Separable blur in place (rows, then columns, as [`reference::gaussian_blur`]): each source
+/// row is filtered horizontally into a ring of `2r + 1` rows (a few kB, stays in L1) just before
+/// the first output row that needs it; output row `y` overwrites source row `y`, which is
+/// already in the ring.
+fn blur_in_place(data: &mut [f32], w: usize, h: usize, kernel: &[f32]) {
+    let r = kernel.len() - 1;
+    let n = 2 * r + 1;
+    let kv: Vec<f32x8> = kernel.iter().map(|&k| f32x8::splat(k)).collect();
+    let mut ring = vec![0f32; n * w];
+    let mut next = 0;
+    for y in 0..h {
+        while next <= (y + r).min(h - 1) {
+            let slot = next % n;
+            blur_row(
+                &data[next * w..(next + 1) * w],
+                kernel,
+                &kv,
+                &mut ring[slot * w..(slot + 1) * w],
+            );
+            next += 1;
+        }
+        let rows = ring_rows(&ring, w, h, y, r);
+        column_pass(&rows[..n], kernel, &kv, &mut data[y * w..(y + 1) * w]);
     }
-    // Same size as the input, which was valid.
-    GrayF32::new(w, h, out).unwrap_or_else(|_| img.clone())
 }
 
 /// Gaussian blur with standard deviation `sigma` (px), kernel radius `ceil(3σ)`; `sigma ≤ 0`
 /// or non-finite returns a copy.
 pub fn gaussian_blur(img: &GrayF32, sigma: f32) -> GrayF32 {
+    let mut out = img.clone();
+    blur_image_in_place(&mut out, sigma);
+    out
+}
+
+/// [`gaussian_blur`] without a copy (the pyramid owns its base image).
+fn blur_image_in_place(img: &mut GrayF32, sigma: f32) {
     match gaussian_kernel(sigma) {
-        Some(kernel) => convolve_separable(img, &kernel),
-        None => img.clone(),
+        Some(kernel) if kernel.len() <= MAX_RADIUS + 1 => {
+            let (w, h) = (img.width(), img.height());
+            blur_in_place(img.data_mut(), w, h, &kernel);
+        }
+        Some(_) => *img = reference::gaussian_blur(img, sigma),
+        None => {}
     }
 }
 
@@ -154,20 +245,84 @@ pub fn antialias(rendered: &GrayF32, sigma: f32) -> GrayF32 {
     gaussian_blur(rendered, sigma)
 }
 
+/// The pyramid's binomial half kernel `[6 4 1] / 16` (centre first).
+const BINOMIAL: [f32; 3] = [6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
+
+/// Horizontal binomial pass at the even columns only (`out[i]` at column `2i`). With the row
+/// split into its even `E` and odd `O` samples, `out[i] = k₀·E[i] + k₁·(O[i−1] + O[i]) +
+/// k₂·(E[i−1] + E[i+1])`: the terms of [`reference::pyr_down`] in its order, from contiguous
+/// loads. `even`, `odd`: scratch of `⌈w/2⌉` and `⌊w/2⌋` values.
+fn pyr_row(row: &[f32], kv: &[f32x8; 3], even: &mut [f32], odd: &mut [f32], out: &mut [f32]) {
+    let w = row.len();
+    let w2 = out.len();
+    // Interior: the columns 2i with 2 ≤ 2i ≤ w − 3 (all five taps inside the row).
+    let first = 1.min(w2);
+    let end = if w > 2 {
+        (w - 2).div_ceil(2).clamp(first, w2)
+    } else {
+        first
+    };
+    if end - first < LANES {
+        for (i, o) in out.iter_mut().enumerate() {
+            *o = tap_at(row, &BINOMIAL, 2 * i);
+        }
+        return;
+    }
+    for ((p, e), o) in row.chunks_exact(2).zip(even.iter_mut()).zip(odd.iter_mut()) {
+        *e = p[0];
+        *o = p[1];
+    }
+    if w % 2 == 1 {
+        even[w2 - 1] = row[w - 1];
+    }
+    out[0] = tap_at(row, &BINOMIAL, 0);
+    for (i, o) in out.iter_mut().enumerate().skip(end) {
+        *o = tap_at(row, &BINOMIAL, 2 * i);
+    }
+    let last = end - LANES;
+    let mut i = first;
+    loop {
+        let is = i.min(last);
+        let acc = kv[0] * load(even, is)
+            + kv[1] * (load(odd, is - 1) + load(odd, is))
+            + kv[2] * (load(even, is - 1) + load(even, is + 1));
+        store(out, is, acc);
+        if is == last {
+            break;
+        }
+        i += LANES;
+    }
+}
+
 /// One pyramid step: binomial smoothing and every second pixel; size `⌈w/2⌉ × ⌈h/2⌉`.
+///
+/// Only the kept samples are computed: the horizontal pass at the even columns of every row
+/// (into a ring of five rows), the vertical pass at the even rows, both vectorised across the
+/// row; the same sums in the same order as [`reference::pyr_down`].
 pub fn pyr_down(img: &GrayF32) -> GrayF32 {
-    const K: [f32; 3] = [6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
     let (w, h) = (img.width(), img.height());
     let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
     let src = img.data();
-    // Horizontal pass only at even columns, then vertical only at even rows.
-    let mut tmp = vec![0f32; w2 * h];
-    for (row, t) in src.chunks_exact(w).zip(tmp.chunks_exact_mut(w2)) {
-        convolve_row(row, &K, 2, t);
-    }
+    let kv = BINOMIAL.map(f32x8::splat);
+    let (mut even, mut odd) = (vec![0f32; w2], vec![0f32; w / 2]);
+    let mut ring = vec![0f32; 5 * w2];
     let mut out = vec![0f32; w2 * h2];
+    let mut next = 0;
     for (y2, o) in out.chunks_exact_mut(w2).enumerate() {
-        convolve_column(&tmp, w2, h, 2 * y2, &K, o);
+        let y = 2 * y2;
+        while next <= (y + 2).min(h - 1) {
+            let slot = next % 5;
+            pyr_row(
+                &src[next * w..(next + 1) * w],
+                &kv,
+                &mut even,
+                &mut odd,
+                &mut ring[slot * w2..(slot + 1) * w2],
+            );
+            next += 1;
+        }
+        let rows = ring_rows(&ring, w2, h, y, 2);
+        column_pass(&rows[..5], &BINOMIAL, &kv, o);
     }
     GrayF32::new(w2, h2, out).unwrap_or_else(|_| img.clone())
 }
@@ -196,11 +351,10 @@ impl Pyramid {
         } else {
             0.0
         };
-        let base = if smoothing > 0.0 {
-            gaussian_blur(&base, smoothing)
-        } else {
-            base
-        };
+        let mut base = base;
+        if smoothing > 0.0 {
+            blur_image_in_place(&mut base, smoothing);
+        }
         let mut out = vec![base];
         while out.len() < levels.max(1) {
             let last = &out[out.len() - 1];
@@ -262,29 +416,9 @@ impl MaskPyramid {
             if w2 < MIN_LEVEL_SIDE || h2 < MIN_LEVEL_SIDE {
                 break;
             }
-            // A coarse pixel is the AND over its 5×5 support. Reflect-101 only repeats pixels
-            // of that (symmetric) support, so this is the radius-2 erosion with the window
-            // clipped at the borders, taken at the even pixels: rows at every row, columns only
-            // at even rows.
-            let mut rows = vec![false; w * h];
-            for (row, t) in last.data().chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
-                erode_line(row, 2, t);
-            }
-            let mut data = vec![true; w2 * h2];
-            for (y2, o) in data.chunks_exact_mut(w2).enumerate() {
-                let y = 2 * y2;
-                for yy in y.saturating_sub(2)..=(y + 2).min(h - 1) {
-                    for (v, &r) in o
-                        .iter_mut()
-                        .zip(rows[yy * w..(yy + 1) * w].iter().step_by(2))
-                    {
-                        *v &= r;
-                    }
-                }
-            }
-            match Mask::new(w2, h2, data) {
-                Ok(m) => out.push(m),
-                Err(_) => break,
+            match mask_pyr_down(last) {
+                Some(m) => out.push(m),
+                None => break,
             }
         }
         Self { levels: out }
@@ -344,10 +478,11 @@ impl TemplatePyramid {
     }
 }
 
-/// One line of [`erode`]: `out[x]` = all of `line[x − r ..= x + r]` (clipped to the line).
-/// Shifted ANDs over whole slices (byte-wide, vectorised); `r` is small (the blur's reach).
+/// [`reference`]'s line erosion on bytes (0 or 1): `out[x]` = all of `line[x − r ..= x + r]`
+/// (clipped to the line), as shifted ANDs over whole slices. Bytes rather than `bool`s because
+/// the byte AND is what vectorises (the mask's `bool`s are read as their bytes).
 #[inline]
-fn erode_line(line: &[bool], r: usize, out: &mut [bool]) {
+fn erode_line(line: &[u8], r: usize, out: &mut [u8]) {
     let w = line.len();
     out.copy_from_slice(line);
     for k in 1..=r.min(w.saturating_sub(1)) {
@@ -360,25 +495,81 @@ fn erode_line(line: &[bool], r: usize, out: &mut [bool]) {
     }
 }
 
+/// The rows `lo ..= hi` of a ring of `n` eroded lines (slot of line `j`: `j mod n`) ANDed into
+/// `out`, whole rows at a time.
+fn and_rows(ring: &[u8], w: usize, n: usize, lo: usize, hi: usize, out: &mut [u8]) {
+    let row = |j: usize| &ring[(j % n) * w..(j % n + 1) * w];
+    out.copy_from_slice(row(lo));
+    for j in lo + 1..=hi {
+        for (o, &v) in out.iter_mut().zip(row(j)) {
+            *o &= v;
+        }
+    }
+}
+
+/// Rows `lo ..= hi` of `mask` eroded (radius `r`) into their ring slots, from `*next` on.
+fn fill_ring(
+    src: &[u8],
+    w: usize,
+    r: usize,
+    n: usize,
+    hi: usize,
+    next: &mut usize,
+    ring: &mut [u8],
+) {
+    while *next <= hi {
+        let slot = *next % n;
+        erode_line(
+            &src[*next * w..(*next + 1) * w],
+            r,
+            &mut ring[slot * w..(slot + 1) * w],
+        );
+        *next += 1;
+    }
+}
+
+/// One level of [`MaskPyramid`]: a coarse pixel is the AND over its 5×5 support. Reflect-101
+/// only repeats pixels of that (symmetric) support, so this is the radius-2 erosion with the
+/// window clipped at the borders, taken at the even pixels: the rows eroded into a ring of five
+/// lines, the columns ANDed at the even rows over the whole width, then every second value
+/// kept (as [`reference::mask_pyr_down`]).
+fn mask_pyr_down(last: &Mask) -> Option<Mask> {
+    let (w, h) = (last.width(), last.height());
+    let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+    let src: &[u8] = bytemuck::cast_slice(last.data());
+    let mut ring = vec![0u8; 5 * w];
+    let mut column = vec![0u8; w];
+    let mut data = Vec::with_capacity(w2 * h2);
+    let mut next = 0;
+    for y in (0..h2).map(|y2| 2 * y2) {
+        let (lo, hi) = (y.saturating_sub(2), (y + 2).min(h - 1));
+        fill_ring(src, w, 2, 5, hi, &mut next, &mut ring);
+        and_rows(&ring, w, 5, lo, hi, &mut column);
+        data.extend(column.iter().step_by(2).map(|&v| v != 0));
+    }
+    Mask::new(w2, h2, data).ok()
+}
+
 /// Square erosion of radius `r` (separable: rows, then columns); outside the image is valid,
-/// so only background shrinks the mask.
+/// so only background shrinks the mask. The rows are eroded into a ring of `2r + 1` lines just
+/// before the first output row that needs them, as [`reference::erode`] without its full-size
+/// intermediate.
 pub fn erode(mask: &Mask, r: usize) -> Mask {
     if r == 0 {
         return mask.clone();
     }
     let (w, h) = (mask.width(), mask.height());
-    let mut rows = vec![false; w * h];
-    for (line, out) in mask.data().chunks_exact(w).zip(rows.chunks_exact_mut(w)) {
-        erode_line(line, r, out);
-    }
-    // Columns: AND of the whole rows y − r ..= y + r.
-    let mut out = vec![true; w * h];
-    for (y, o) in out.chunks_exact_mut(w).enumerate() {
-        for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-            for (v, &m) in o.iter_mut().zip(&rows[yy * w..(yy + 1) * w]) {
-                *v &= m;
-            }
-        }
+    let src: &[u8] = bytemuck::cast_slice(mask.data());
+    let n = 2 * r + 1;
+    let mut ring = vec![0u8; n * w];
+    let mut column = vec![0u8; w];
+    let mut out = Vec::with_capacity(w * h);
+    let mut next = 0;
+    for y in 0..h {
+        let (lo, hi) = (y.saturating_sub(r), (y + r).min(h - 1));
+        fill_ring(src, w, r, n, hi, &mut next, &mut ring);
+        and_rows(&ring, w, n, lo, hi, &mut column);
+        out.extend(column.iter().map(|&v| v != 0));
     }
     Mask::new(w, h, out).unwrap_or_else(|_| mask.clone())
 }
@@ -501,6 +692,140 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    fn random_image(w: usize, h: usize, seed: &mut u64) -> GrayF32 {
+        let data = (0..w * h)
+            .map(|_| (lcg(seed) % 25_600) as f32 / 100.0)
+            .collect();
+        GrayF32::new(w, h, data).unwrap()
+    }
+
+    fn assert_same(a: &GrayF32, b: &GrayF32, what: &str) {
+        assert_eq!((a.width(), a.height()), (b.width(), b.height()), "{what}");
+        for (i, (x, y)) in a.data().iter().zip(b.data()).enumerate() {
+            assert_eq!(x.to_bits(), y.to_bits(), "{what} at {i}: {x} vs {y}");
+        }
+    }
+
+    /// Every size up to 40 × 40 (all the border cases of every kernel here, both parities,
+    /// the vector chunks' overlapping tails): blur and pyramid step equal the reference to the
+    /// last bit.
+    #[test]
+    fn vectorised_passes_equal_the_reference_bit_for_bit() {
+        let mut seed = 3;
+        for w in 1..=40 {
+            for h in 1..=40 {
+                let img = random_image(w, h, &mut seed);
+                for sigma in [0.5f32, 1.0, std::f32::consts::SQRT_2] {
+                    assert_same(
+                        &gaussian_blur(&img, sigma),
+                        &reference::gaussian_blur(&img, sigma),
+                        &format!("blur {w}x{h} σ={sigma}"),
+                    );
+                }
+                assert_same(
+                    &pyr_down(&img),
+                    &reference::pyr_down(&img),
+                    &format!("pyr_down {w}x{h}"),
+                );
+            }
+        }
+        // Wide kernels (radius above the vectorised passes' limit) and a wide image.
+        let img = random_image(300, 21, &mut seed);
+        for sigma in [2.5f32, 6.0] {
+            assert_same(
+                &gaussian_blur(&img, sigma),
+                &reference::gaussian_blur(&img, sigma),
+                &format!("blur 300x21 σ={sigma}"),
+            );
+        }
+        assert_same(
+            &pyr_down(&img),
+            &reference::pyr_down(&img),
+            "pyr_down 300x21",
+        );
+    }
+
+    /// The pyramids as the tracker builds them, on a 752 × 480 image: every level equal.
+    #[test]
+    fn pyramids_equal_the_reference_at_full_size() {
+        let mut seed = 17;
+        let img = random_image(752, 480, &mut seed);
+        let p = Pyramid::build_smoothed(img.clone(), 4, 1.0);
+        let mut want = vec![reference::gaussian_blur(&img, 1.0)];
+        for _ in 1..4 {
+            want.push(reference::pyr_down(&want[want.len() - 1]));
+        }
+        assert_eq!(p.len(), 4);
+        for (k, (a, b)) in p.levels().iter().zip(&want).enumerate() {
+            assert_same(a, b, &format!("level {k}"));
+        }
+        let mask = Mask::new(
+            752,
+            480,
+            (0..752 * 480)
+                .map(|_| !lcg(&mut seed).is_multiple_of(50))
+                .collect(),
+        )
+        .unwrap();
+        let t = TemplatePyramid::build(&img, mask.clone(), 4, std::f32::consts::SQRT_2).unwrap();
+        let mut m = reference::erode(&mask, 3);
+        assert_eq!(t.mask.level(0).unwrap().data(), m.data());
+        for k in 1..4 {
+            m = reference::mask_pyr_down(&m).unwrap();
+            assert_eq!(t.mask.level(k).unwrap().data(), m.data(), "mask level {k}");
+        }
+        let b = reference::gaussian_blur(&img, std::f32::consts::SQRT_2);
+        assert_same(t.image.level(0).unwrap(), &b, "template level 0");
+    }
+
+    /// Erosion and the mask pyramid step against the reference for every size up to 24 × 24.
+    #[test]
+    fn masks_equal_the_reference() {
+        let mut seed = 23;
+        for w in 1..=24 {
+            for h in 1..=24 {
+                for density in [2, 7] {
+                    let data = (0..w * h)
+                        .map(|_| !lcg(&mut seed).is_multiple_of(density))
+                        .collect();
+                    let m = Mask::new(w, h, data).unwrap();
+                    for r in [1, 2, 3, 5] {
+                        assert_eq!(
+                            erode(&m, r).data(),
+                            reference::erode(&m, r).data(),
+                            "{w}x{h} r={r}"
+                        );
+                    }
+                    let (a, b) = (
+                        mask_pyr_down(&m).unwrap(),
+                        reference::mask_pyr_down(&m).unwrap(),
+                    );
+                    assert_eq!((a.width(), a.height()), (b.width(), b.height()));
+                    assert_eq!(a.data(), b.data(), "{w}x{h}");
+                }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Random sizes, σ and values (including large and negative ones).
+        #[test]
+        fn blur_equals_the_reference_on_random_images(
+            w in 1usize..120, h in 1usize..30, sigma in 0.1f32..4.0, seed in 0u64..1_000_000,
+        ) {
+            let mut seed = seed;
+            let data = (0..w * h)
+                .map(|_| (lcg(&mut seed) as f32 / 1000.0) - 1.0e6)
+                .collect();
+            let img = GrayF32::new(w, h, data).unwrap();
+            let (a, b) = (gaussian_blur(&img, sigma), reference::gaussian_blur(&img, sigma));
+            proptest::prop_assert!(a.data().iter().zip(b.data()).all(|(x, y)| x.to_bits() == y.to_bits()));
+            let (a, b) = (pyr_down(&img), reference::pyr_down(&img));
+            proptest::prop_assert!(a.data().iter().zip(b.data()).all(|(x, y)| x.to_bits() == y.to_bits()));
         }
     }
 }
