@@ -188,9 +188,16 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
         let q0 = st.q();
         let n = n.min(N);
         let r = self.rank;
+        if r < M {
+            // Rows past the rank do not apply (rare: a singular or non-finite pivot). Tested
+            // once here, not per row: a fill of variable length per row cost ~20 instructions
+            // (issue 18).
+            for wj in u.iter_mut().take(n) {
+                wj[r..].fill(T::zero());
+            }
+        }
         for (wj, xj) in u.iter_mut().zip(st.x.as_mut_slice()).take(n) {
             let mut w = *wj;
-            w[r..].fill(T::zero());
             // Rows of L past the rank are zero.
             for m in 1..M {
                 for t in 0..m {
