@@ -129,8 +129,12 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// Factors `S` and decorrelates `y`; stops at the first non-positive or non-finite pivot.
     #[allow(clippy::needless_range_loop)] // triangle index loops
     pub fn new(s: &[[T; M]; M], y: &[T; M]) -> Self {
-        // Locals rather than the struct's fields, assembled at the end: once the loops are
-        // unrolled they stay in registers (the same operations in the same order).
+        // Locals rather than the struct's fields, assembled at the end, and the rows written
+        // out for m = 0..6 (`row!`): the small loops inside each then unroll fully and the
+        // factors stay in registers. As a loop over m (with the `break` of a refused pivot)
+        // the 6×6 factorisation ran over memory, ~1k instructions (issue 18). The same
+        // operations in the same order.
+        const { assert!(M <= 6, "Ldl::new is written out for up to 6 rows") };
         let mut l = [[T::zero(); M]; M];
         let mut d_inv = [T::zero(); M];
         let mut e = [T::zero(); M];
@@ -138,32 +142,43 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
         let mut nis = T::zero();
         let mut d = [T::zero(); M];
         let mut yt = [T::zero(); M];
-        for m in 0..M {
-            for k in 0..m {
-                let mut a = s[m][k];
-                for t in 0..k {
-                    a -= l[m][t] * l[k][t] * d[t];
+        macro_rules! row {
+            ($m:literal) => {
+                if $m < M && rank == M {
+                    let m = $m;
+                    for k in 0..m {
+                        let mut a = s[m][k];
+                        for t in 0..k {
+                            a -= l[m][t] * l[k][t] * d[t];
+                        }
+                        l[m][k] = a * d_inv[k];
+                    }
+                    let mut dm = s[m][m];
+                    let mut ym = y[m];
+                    for t in 0..m {
+                        dm -= l[m][t] * l[m][t] * d[t];
+                        ym -= l[m][t] * yt[t];
+                    }
+                    // Written so that a NaN is refused too.
+                    if !(dm > T::zero() && dm.is_finite()) {
+                        rank = m;
+                        l[m] = [T::zero(); M];
+                    } else {
+                        d[m] = dm;
+                        d_inv[m] = T::one() / dm;
+                        yt[m] = ym;
+                        e[m] = ym * d_inv[m];
+                        nis += ym * e[m];
+                    }
                 }
-                l[m][k] = a * d_inv[k];
-            }
-            let mut dm = s[m][m];
-            let mut ym = y[m];
-            for t in 0..m {
-                dm -= l[m][t] * l[m][t] * d[t];
-                ym -= l[m][t] * yt[t];
-            }
-            // Written so that a NaN is refused too.
-            if !(dm > T::zero() && dm.is_finite()) {
-                rank = m;
-                l[m] = [T::zero(); M];
-                break;
-            }
-            d[m] = dm;
-            d_inv[m] = T::one() / dm;
-            yt[m] = ym;
-            e[m] = ym * d_inv[m];
-            nis += ym * e[m];
+            };
         }
+        row!(0);
+        row!(1);
+        row!(2);
+        row!(3);
+        row!(4);
+        row!(5);
         Ldl {
             l,
             d_inv,
