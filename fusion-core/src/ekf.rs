@@ -322,14 +322,20 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
 /// other means, and a cheap guarantee at the end of a batch.
 pub fn condition<T: Scalar>(p: &mut Cov<T>, n: usize) {
     let floor = T::c(T::VARIANCE_FLOOR);
+    let n = n.min(N);
     let ps = p.as_mut_slice();
     for j in 0..n {
-        if ps[j * N + j] < floor {
-            ps[j * N + j] = floor;
+        // Column j below the diagonal from row j of the columns after it, by slices: indexed
+        // (`ps[j * N + i] = ps[i * N + j]`) each copy carried two bounds checks at the device
+        // loop's opt-level (~10 instructions per entry, issue 18).
+        let (head, tail) = ps.split_at_mut((j + 1) * N);
+        let col = &mut head[j * N..];
+        if col[j] < floor {
+            col[j] = floor;
         }
-        for i in j + 1..n {
+        for (dst, src) in col[j + 1..n].iter_mut().zip(tail.chunks_exact(N)) {
             // P[i, j] (column j, row i) ← P[j, i] (column i, row j).
-            ps[j * N + i] = ps[i * N + j];
+            *dst = src[j];
         }
     }
 }
