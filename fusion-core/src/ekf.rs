@@ -127,7 +127,8 @@ pub struct Ldl<T: Scalar, const M: usize> {
 
 impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// Factors `S` and decorrelates `y`; stops at the first non-positive or non-finite pivot.
-    #[allow(clippy::needless_range_loop)] // triangle index loops
+    // Triangle index loops; the last row's `d` and `ỹ` are not read again.
+    #[allow(clippy::needless_range_loop, unused_assignments)]
     pub fn new(s: &[[T; M]; M], y: &[T; M]) -> Self {
         // Locals rather than the struct's fields, assembled at the end, and the rows written
         // out for m = 0..6 (`row!`): the small loops inside each then unroll fully and the
