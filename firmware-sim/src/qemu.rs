@@ -1,8 +1,8 @@
 //! Runs the firmware image on QEMU's Cortex-M4F board (`mps2-an386`) and connects to its
 //! UART over TCP, so the host talks to it exactly as to hardware on a serial line.
 
-use std::io::Read;
-use std::net::TcpListener;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::thread;
@@ -31,12 +31,30 @@ pub enum QemuError {
     /// The TCP link failed.
     #[error(transparent)]
     Transport(#[from] TransportError),
+    /// QEMU's machine protocol (QMP) failed or refused a command.
+    #[error("QMP: {0}")]
+    Qmp(String),
+    /// The image lacks a symbol the measurement needs, or is not an ELF32 file.
+    #[error("firmware image: {0}")]
+    Image(String),
+}
+
+/// What the device image uses of its RAM, read from a running board.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RamUse {
+    /// `.data` + `.bss` + `.uninit`: from the start of RAM to `__sheap`.
+    pub static_bytes: u32,
+    /// Deepest stack use since boot: from the lowest word that no longer holds the paint
+    /// pattern (`firmware/src/stack.rs`) to the top of the stack.
+    pub stack_high_water: u32,
 }
 
 /// A running QEMU board; killed when dropped.
 #[derive(Debug)]
 pub struct QemuBoard {
     child: Child,
+    /// QEMU's machine protocol, for reading memory (`ram_use`).
+    qmp_port: u16,
 }
 
 impl QemuBoard {
@@ -46,10 +64,15 @@ impl QemuBoard {
         if !image.is_file() {
             return Err(QemuError::MissingImage(image.to_owned()));
         }
-        let port = TcpListener::bind("127.0.0.1:0")
-            .and_then(|l| l.local_addr())
-            .map_err(QemuError::Port)?
-            .port();
+        let free_port = || {
+            TcpListener::bind("127.0.0.1:0")
+                .and_then(|l| l.local_addr())
+                .map(|a| a.port())
+                .map_err(QemuError::Port)
+        };
+        let port = free_port()?;
+        let qmp_port = free_port()?;
+        let qmp = format!("tcp:127.0.0.1:{qmp_port},server=on,wait=off");
         let serial = format!("tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on");
         let child = Command::new("qemu-system-arm")
             .args([
@@ -62,6 +85,7 @@ impl QemuBoard {
                 "none",
             ])
             .args(["-semihosting-config", "enable=on,target=native"])
+            .args(["-qmp", &qmp])
             .args(["-serial", &serial, "-kernel"])
             .arg(image)
             .stdin(Stdio::null())
@@ -69,7 +93,7 @@ impl QemuBoard {
             .stderr(Stdio::piped())
             .spawn()
             .map_err(QemuError::NotInstalled)?;
-        let mut board = QemuBoard { child };
+        let mut board = QemuBoard { child, qmp_port };
         let start = Instant::now();
         loop {
             match transport::tcp_connect(("127.0.0.1", port)) {
@@ -88,6 +112,106 @@ impl QemuBoard {
             }
         }
     }
+}
+
+impl QemuBoard {
+    /// Static RAM and stack high-water of `image` (the one running) so far, read from the
+    /// board's memory: the free stack that the image painted at boot (`firmware::stack::paint`)
+    /// is saved through QMP's `pmemsave` and searched for the deepest overwritten word, as
+    /// `firmware::stack::high_water` does on the device.
+    pub fn ram_use(&mut self, image: &Path) -> Result<RamUse, QemuError> {
+        const PAINT: u32 = 0xDEAD_BEEF;
+        const RAM: u32 = 0x2000_0000;
+        let elf = std::fs::read(image).map_err(|e| QemuError::Image(e.to_string()))?;
+        let bottom = elf32_symbol(&elf, "__sheap")?;
+        let top = elf32_symbol(&elf, "_stack_start")?;
+        let dump =
+            std::env::temp_dir().join(format!("qemu-ram-{}-{}", std::process::id(), self.qmp_port));
+        let stream = TcpStream::connect(("127.0.0.1", self.qmp_port))
+            .map_err(|e| QemuError::Qmp(e.to_string()))?;
+        stream
+            .set_read_timeout(Some(Duration::from_secs(20)))
+            .map_err(|e| QemuError::Qmp(e.to_string()))?;
+        let mut lines = BufReader::new(
+            stream
+                .try_clone()
+                .map_err(|e| QemuError::Qmp(e.to_string()))?,
+        );
+        let mut out = stream;
+        let mut command = |cmd: String| -> Result<(), QemuError> {
+            out.write_all(cmd.as_bytes())
+                .map_err(|e| QemuError::Qmp(e.to_string()))?;
+            // Skip the greeting and events; the command's own answer is `return` or `error`.
+            loop {
+                let mut line = String::new();
+                if lines
+                    .read_line(&mut line)
+                    .map_err(|e| QemuError::Qmp(e.to_string()))?
+                    == 0
+                {
+                    return Err(QemuError::Qmp("connection closed".into()));
+                }
+                if line.contains("\"return\"") {
+                    return Ok(());
+                }
+                if line.contains("\"error\"") {
+                    return Err(QemuError::Qmp(line.trim().to_owned()));
+                }
+            }
+        };
+        command("{\"execute\": \"qmp_capabilities\"}\n".into())?;
+        command(format!(
+            "{{\"execute\": \"pmemsave\", \"arguments\": {{\"val\": {bottom}, \"size\": {}, \"filename\": {:?}}}}}\n",
+            top - bottom,
+            dump.display().to_string()
+        ))?;
+        let ram =
+            std::fs::read(&dump).map_err(|e| QemuError::Qmp(format!("{}: {e}", dump.display())));
+        let _ = std::fs::remove_file(&dump);
+        let ram = ram?;
+        let painted = ram
+            .chunks_exact(4)
+            .take_while(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]]) == PAINT)
+            .count() as u32;
+        Ok(RamUse {
+            static_bytes: bottom - RAM,
+            stack_high_water: top - bottom - 4 * painted,
+        })
+    }
+}
+
+/// The value of the symbol `name` in a little-endian ELF32 file.
+fn elf32_symbol(d: &[u8], name: &str) -> Result<u32, QemuError> {
+    let u16_at = |o: usize| {
+        d.get(o..o + 2)
+            .map(|b| u16::from_le_bytes([b[0], b[1]]) as usize)
+    };
+    let u32_at = |o: usize| {
+        d.get(o..o + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    };
+    let find = || -> Option<u32> {
+        if d.get(..5)? != b"\x7fELF\x01" {
+            return None;
+        }
+        let (shoff, shentsize, shnum) = (u32_at(0x20)? as usize, u16_at(0x2e)?, u16_at(0x30)?);
+        let header = |i: usize| shoff + i * shentsize;
+        let symtab = (0..shnum).find(|&i| u32_at(header(i) + 4) == Some(2))?;
+        let strtab = header(u32_at(header(symtab) + 24)? as usize);
+        let (sym_off, sym_len) = (
+            u32_at(header(symtab) + 16)? as usize,
+            u32_at(header(symtab) + 20)? as usize,
+        );
+        let str_off = u32_at(strtab + 16)? as usize;
+        (sym_off..sym_off + sym_len).step_by(16).find_map(|s| {
+            let at = str_off + u32_at(s)? as usize;
+            let end = at + d.get(at..)?.iter().position(|&b| b == 0)?;
+            (&d[at..end] == name.as_bytes())
+                .then(|| u32_at(s + 4))
+                .flatten()
+        })
+    };
+    find().ok_or_else(|| QemuError::Image(format!("no symbol {name}")))
 }
 
 impl Drop for QemuBoard {

@@ -127,10 +127,15 @@ pub struct Ldl<T: Scalar, const M: usize> {
 
 impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// Factors `S` and decorrelates `y`; stops at the first non-positive or non-finite pivot.
-    #[allow(clippy::needless_range_loop)] // triangle index loops
+    // Triangle index loops; the last row's `d` and `ỹ` are not read again.
+    #[allow(clippy::needless_range_loop, unused_assignments)]
     pub fn new(s: &[[T; M]; M], y: &[T; M]) -> Self {
-        // Locals rather than the struct's fields, assembled at the end: once the loops are
-        // unrolled they stay in registers (the same operations in the same order).
+        // Locals rather than the struct's fields, assembled at the end, and the rows written
+        // out for m = 0..6 (`row!`): the small loops inside each then unroll fully and the
+        // factors stay in registers. As a loop over m (with the `break` of a refused pivot)
+        // the 6×6 factorisation ran over memory, ~1k instructions (issue 18). The same
+        // operations in the same order.
+        const { assert!(M <= 6, "Ldl::new is written out for up to 6 rows") };
         let mut l = [[T::zero(); M]; M];
         let mut d_inv = [T::zero(); M];
         let mut e = [T::zero(); M];
@@ -138,32 +143,43 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
         let mut nis = T::zero();
         let mut d = [T::zero(); M];
         let mut yt = [T::zero(); M];
-        for m in 0..M {
-            for k in 0..m {
-                let mut a = s[m][k];
-                for t in 0..k {
-                    a -= l[m][t] * l[k][t] * d[t];
+        macro_rules! row {
+            ($m:literal) => {
+                if $m < M && rank == M {
+                    let m = $m;
+                    for k in 0..m {
+                        let mut a = s[m][k];
+                        for t in 0..k {
+                            a -= l[m][t] * l[k][t] * d[t];
+                        }
+                        l[m][k] = a * d_inv[k];
+                    }
+                    let mut dm = s[m][m];
+                    let mut ym = y[m];
+                    for t in 0..m {
+                        dm -= l[m][t] * l[m][t] * d[t];
+                        ym -= l[m][t] * yt[t];
+                    }
+                    // Written so that a NaN is refused too.
+                    if !(dm > T::zero() && dm.is_finite()) {
+                        rank = m;
+                        l[m] = [T::zero(); M];
+                    } else {
+                        d[m] = dm;
+                        d_inv[m] = T::one() / dm;
+                        yt[m] = ym;
+                        e[m] = ym * d_inv[m];
+                        nis += ym * e[m];
+                    }
                 }
-                l[m][k] = a * d_inv[k];
-            }
-            let mut dm = s[m][m];
-            let mut ym = y[m];
-            for t in 0..m {
-                dm -= l[m][t] * l[m][t] * d[t];
-                ym -= l[m][t] * yt[t];
-            }
-            // Written so that a NaN is refused too.
-            if !(dm > T::zero() && dm.is_finite()) {
-                rank = m;
-                l[m] = [T::zero(); M];
-                break;
-            }
-            d[m] = dm;
-            d_inv[m] = T::one() / dm;
-            yt[m] = ym;
-            e[m] = ym * d_inv[m];
-            nis += ym * e[m];
+            };
         }
+        row!(0);
+        row!(1);
+        row!(2);
+        row!(3);
+        row!(4);
+        row!(5);
         Ldl {
             l,
             d_inv,
@@ -188,9 +204,16 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
         let q0 = st.q();
         let n = n.min(N);
         let r = self.rank;
+        if r < M {
+            // Rows past the rank do not apply (rare: a singular or non-finite pivot). Tested
+            // once here, not per row: a fill of variable length per row cost ~20 instructions
+            // (issue 18).
+            for wj in u.iter_mut().take(n) {
+                wj[r..].fill(T::zero());
+            }
+        }
         for (wj, xj) in u.iter_mut().zip(st.x.as_mut_slice()).take(n) {
             let mut w = *wj;
-            w[r..].fill(T::zero());
             // Rows of L past the rank are zero.
             for m in 1..M {
                 for t in 0..m {
@@ -300,14 +323,20 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
 /// other means, and a cheap guarantee at the end of a batch.
 pub fn condition<T: Scalar>(p: &mut Cov<T>, n: usize) {
     let floor = T::c(T::VARIANCE_FLOOR);
+    let n = n.min(N);
     let ps = p.as_mut_slice();
     for j in 0..n {
-        if ps[j * N + j] < floor {
-            ps[j * N + j] = floor;
+        // Column j below the diagonal from row j of the columns after it, by slices: indexed
+        // (`ps[j * N + i] = ps[i * N + j]`) each copy carried two bounds checks at the device
+        // loop's opt-level (~10 instructions per entry, issue 18).
+        let (head, tail) = ps.split_at_mut((j + 1) * N);
+        let col = &mut head[j * N..];
+        if col[j] < floor {
+            col[j] = floor;
         }
-        for i in j + 1..n {
+        for (dst, src) in col[j + 1..n].iter_mut().zip(tail.chunks_exact(N)) {
             // P[i, j] (column j, row i) ← P[j, i] (column i, row j).
-            ps[j * N + i] = ps[i * N + j];
+            *dst = src[j];
         }
     }
 }

@@ -65,52 +65,60 @@ pub fn encode_frame<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o 
     }
 }
 
-/// Where [`encode_in_place`] serialises the body: far enough into the buffer that the COBS
-/// output, which grows by one code byte per 254 data bytes, never overtakes its input.
-const BODY_AT: usize = 2 + (MAX_PAYLOAD_LEN + CRC_LEN - 1) / 254;
-const _: () = assert!(BODY_AT + MAX_PAYLOAD_LEN + CRC_LEN <= MAX_FRAME_LEN);
+/// Where [`encode_in_place`] serialises the body: after the opening delimiter and the first
+/// COBS code byte.
+const BODY_AT: usize = 2;
+/// Room for the body, its CRC, one inserted code byte per 254 data bytes after the first block
+/// and the closing delimiter.
+const _: () = assert!(
+    BODY_AT + MAX_PAYLOAD_LEN + CRC_LEN + (MAX_PAYLOAD_LEN + CRC_LEN - 1) / 254 < MAX_FRAME_LEN
+);
 
 /// [`encode_frame`] into a buffer of at least [`MAX_FRAME_LEN`] bytes: the body and its CRC
-/// are written at [`BODY_AT`] and COBS-encoded forwards in place (no second buffer to zero
-/// and copy). The same bytes as [`encode_via_copy`].
+/// are written at [`BODY_AT`] and COBS-encoded in place (no second buffer to zero and copy).
+/// The same bytes as [`encode_via_copy`].
 fn encode_in_place<'o, T: Serialize>(msg: &T, out: &'o mut [u8]) -> Result<&'o [u8], EncodeError> {
     let body_len = postcard::to_slice(msg, &mut out[BODY_AT..BODY_AT + MAX_PAYLOAD_LEN])
         .map_err(|_| EncodeError::PayloadTooLarge)?
         .len();
     let crc = crc32c(&out[BODY_AT..BODY_AT + body_len]);
-    let end = BODY_AT + body_len + CRC_LEN;
+    let mut end = BODY_AT + body_len + CRC_LEN;
     out[BODY_AT + body_len..end].copy_from_slice(&crc.to_le_bytes());
     // COBS: each block is a code byte (1 + its data bytes) and up to 254 non-zero bytes; a zero
-    // ends a block, and so does the 254th data byte (code 0xFF, no zero implied). Blocks are
-    // moved down by one code byte each, so the write index stays behind the read index (see
-    // `BODY_AT`).
+    // ends a block, and so does the 254th data byte (code 0xFF, no zero implied). With the
+    // body one byte after the first code byte, every zero is where the next block's code byte
+    // goes: nothing moves, except after a full block without a zero (only in bodies of more
+    // than 254 bytes), where the rest shifts by one for the inserted code byte.
     out[0] = 0;
-    let mut w = 1;
-    let mut r = BODY_AT;
+    let mut code_at = BODY_AT - 1;
     loop {
-        let limit = (end - r).min(254);
-        let zero = out[r..r + limit].iter().position(|&b| b == 0);
-        let k = zero.unwrap_or(limit);
-        out[w] = k as u8 + 1;
-        if k < 8 {
-            // Short blocks (zeros in the data): a call to memmove costs more than the bytes.
-            for i in 0..k {
-                out[w + 1 + i] = out[r + i];
+        let start = code_at + 1;
+        let limit = (end - start).min(254);
+        match out[start..start + limit].iter().position(|&b| b == 0) {
+            Some(k) => {
+                // The zero is implied by the block; an empty block follows a final zero.
+                out[code_at] = k as u8 + 1;
+                code_at = start + k;
             }
-        } else {
-            out.copy_within(r..r + k, w + 1);
-        }
-        w += k + 1;
-        r += k;
-        if zero.is_some() {
-            // The zero is implied by the block; an empty block follows a final zero.
-            r += 1;
-        } else if k < 254 || r == end {
-            break;
+            None => {
+                out[code_at] = limit as u8 + 1;
+                code_at = start + limit;
+                if limit < 254 || code_at == end {
+                    break;
+                }
+                // A byte loop, not `copy_within`: the device image then needs no `memmove`
+                // (1.6 KB of flash, issue 18) for this rare path.
+                let mut i = end;
+                while i > code_at {
+                    out[i] = out[i - 1];
+                    i -= 1;
+                }
+                end += 1;
+            }
         }
     }
-    out[w] = 0;
-    Ok(&out[..w + 1])
+    out[end] = 0;
+    Ok(&out[..end + 1])
 }
 
 /// [`encode_frame`] into any buffer, through a body buffer on the stack.

@@ -71,7 +71,7 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
         .unwrap_or_else(|| default_image(&workspace, "device"));
     let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
     let started = QemuBoard::start(&image, Duration::from_secs(20));
-    let (board, link) = match started {
+    let (mut board, link) = match started {
         Ok(b) => b,
         Err(e) if !required => {
             println!("SKIPPED: {e} (set REQUIRE_FIRMWARE to make this a failure)");
@@ -125,15 +125,42 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
                 Err(e) => panic!("firmware link: {e}"),
             }
         }
-        (got, decode_errors)
+        (got, decode_errors, r)
     });
     let mut w = FrameWriter::new(link.writer);
     let start = Instant::now();
     for m in &sent {
         w.send(m).expect("send to firmware");
     }
-    let (fw_answers, decode_errors) = reader.join().expect("reader");
+    let (fw_answers, decode_errors, mut r) = reader.join().expect("reader");
     let elapsed = start.elapsed();
+
+    // The device image's own RAM (not the bench's): after the session, one message of every
+    // other kind too (Query, Resume, Reset, Tick, ...; the answers are not compared), so that
+    // each handler has run once; then the stack it painted at boot is read from the board.
+    for (_, m) in protocol::samples::host_messages() {
+        if !matches!(m, HostToCore::Hello(_)) {
+            w.send(&m).expect("send to firmware");
+        }
+    }
+    w.send(&HostToCore::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    }))
+    .expect("send to firmware");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        assert!(
+            Instant::now() < deadline,
+            "no HelloAck after the other messages"
+        );
+        match r.recv::<CoreToHost>() {
+            Ok(CoreToHost::HelloAck(_)) => break,
+            Ok(_) => {}
+            Err(RecvError::Io(e)) if firmware_sim::transport::is_poll_timeout(&e) => {}
+            Err(e) => panic!("firmware link: {e}"),
+        }
+    }
+    let ram = board.ram_use(&image).expect("read the board's RAM");
     drop(board);
 
     // The first answer is the HelloAck of the opening Hello (kept by the reader).
@@ -143,6 +170,17 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
         fw_answers.len(),
         pc_answers.len(),
         elapsed.as_secs_f64()
+    );
+    println!(
+        "{model:?}: device image RAM: static {} B + stack high-water {} B = {} B",
+        ram.static_bytes,
+        ram.stack_high_water,
+        ram.static_bytes + ram.stack_high_water
+    );
+    // Issue 18's goal for the device: static RAM and stack within 24 KiB.
+    assert!(
+        ram.static_bytes + ram.stack_high_water <= 24 * 1024,
+        "device image RAM {ram:?} over 24 KiB"
     );
     assert_eq!(
         decode_errors, 0,

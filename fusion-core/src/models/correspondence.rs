@@ -5,7 +5,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix2x4, Matrix3, Vector2, Vector3};
 
-use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov, p_columns};
+use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov};
 use crate::params::Params;
 use crate::quat;
 use crate::scalar::Scalar;
@@ -157,9 +157,14 @@ pub(crate) fn update_generic<T: Scalar>(
     }
     let inf = T::c(f64::INFINITY);
     // U = P Hᵀ from whole columns of the symmetric P, on the two blocks of H.
-    let mut u: Gains<T, 2> = [[T::zero(); 2]; N];
-    for (ui, col) in u.iter_mut().zip(p_columns(&st.p, prm.n)) {
-        for (k, uk) in ui.iter_mut().enumerate() {
+    // Built in place rather than zeroed first (a memset call per update).
+    let n = prm.n.min(N);
+    let p = st.p.as_slice();
+    let mut u: Gains<T, 2> = core::array::from_fn(|i| {
+        let Some(col) = p.get(i * N..i * N + N).filter(|_| i < n) else {
+            return [T::zero(); 2];
+        };
+        core::array::from_fn(|k| {
             let mut a = T::zero();
             for c in 0..3 {
                 a += d_s[(k, c)] * col[POS + c];
@@ -167,9 +172,9 @@ pub(crate) fn update_generic<T: Scalar>(
             for c in 0..4 {
                 a += d_q[(k, c)] * col[QUAT + c];
             }
-            *uk = a;
-        }
-    }
+            a
+        })
+    });
     let rs = (r[(0, 1)] + r[(1, 0)]) * T::c(0.5);
     let r = [[r[(0, 0)], rs], [rs, r[(1, 1)]]];
     let s = innovation_cov(&rows_of(&d_s, &d_q), &u, &r);
