@@ -70,7 +70,7 @@ pub(super) fn interpolated(
     for j in 0..side {
         for i in 0..side {
             let k = win.at(i, j);
-            if win.w[k] == 0.0 {
+            if win.weights()[k] == 0.0 {
                 continue;
             }
             let e = win.ext_at(i, j);
@@ -108,17 +108,51 @@ pub(super) fn interpolated(
     (c, m)
 }
 
-/// Convolves each of the `lines` equal lines of `src` with the full 1-D `kernel` and returns
-/// the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes convolve
-/// a field along both axes and restore its orientation.
+/// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel` and
+/// returns the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes
+/// convolve a field along both axes and restore its orientation.
 fn convolve_lines_transposed(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
+    // The default smoothing (σ = 1 px) has 7 taps: a copy with them unrolled.
+    match <[f32; 7]>::try_from(kernel) {
+        Ok(k) => convolve_fixed(src, lines, k),
+        Err(_) => convolve_any(src, lines, kernel),
+    }
+}
+
+/// [`convolve_lines_transposed`] for a kernel of `N` taps.
+fn convolve_fixed<const N: usize>(src: &[f32x4], lines: usize, kernel: [f32; N]) -> Vec<f32x4> {
+    let len = src.len() / lines.max(1);
+    let out_len = len + N - 1;
+    let mut out = vec![f32x4::ZERO; out_len * lines];
+    let taps = kernel.map(f32x4::splat);
+    let mut padded = vec![f32x4::ZERO; len + 2 * (N - 1)];
+    for (l, line) in src.chunks_exact(len.max(1)).enumerate() {
+        padded[N - 1..N - 1 + len].copy_from_slice(line);
+        for (o, win) in padded.windows(N).enumerate() {
+            let win: &[f32x4; N] = match win.try_into() {
+                Ok(w) => w,
+                Err(_) => continue,
+            };
+            let mut acc = f32x4::ZERO;
+            for k in 0..N {
+                acc += win[k] * taps[k];
+            }
+            if let Some(v) = out.get_mut(o * lines + l) {
+                *v = acc;
+            }
+        }
+    }
+    out
+}
+
+/// [`convolve_lines_transposed`] for any kernel length.
+fn convolve_any(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
     let len = src.len() / lines.max(1);
     let mut out = vec![f32x4::ZERO; (len + kernel.len() - 1) * lines];
-    let taps: Vec<f32x4> = kernel.iter().map(|&k| f32x4::splat(k)).collect();
     for (l, line) in src.chunks_exact(len.max(1)).enumerate() {
         for (i, v) in line.iter().enumerate() {
-            for (k, gk) in taps.iter().enumerate() {
-                out[(i + k) * lines + l] += *v * *gk;
+            for (k, gk) in kernel.iter().enumerate() {
+                out[(i + k) * lines + l] += *v * f32x4::splat(*gk);
             }
         }
     }

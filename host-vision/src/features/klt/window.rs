@@ -39,7 +39,8 @@ pub(super) struct Window {
     side: usize,
     /// Padded row length of the template-sized arrays (a multiple of [`LANES`]).
     pw: usize,
-    /// Row length of the live samples: `pw + 2` (a one-sample rim for the gradient).
+    /// Row length of the live samples: `pw + 4` (a one-sample rim for the gradient, and whole
+    /// lanes).
     es: usize,
     /// Template values, `side × pw`, 0 where not valid.
     pub t: Vec<f32>,
@@ -49,10 +50,13 @@ pub(super) struct Window {
     pub tcount: usize,
     /// Live samples on the window grid and its rim, `(side + 2) × es`, finite (0 outside).
     pub ext: Vec<f32>,
-    /// Pixels used: template valid, the five live samples inside the image and unclipped.
-    pub w: Vec<f32>,
+    /// Pixels used: template valid and the five live samples inside the image.
+    w: Vec<f32>,
     /// Whether `tw` holds the all-valid weights.
     tw_full: bool,
+    /// Whether the live samples leave every template pixel usable (then `w` is stale and
+    /// `tw` holds the weights, see [`Window::weights`]).
+    live_all: bool,
     pub count: usize,
     pub outside: usize,
 }
@@ -61,7 +65,8 @@ impl Window {
     pub fn new(r: usize) -> Self {
         let side = 2 * r + 1;
         let pw = side.div_ceil(LANES) * LANES;
-        let es = pw + 2;
+        // The rim and room to sample whole lanes (see `fill_bilinear`).
+        let es = pw + LANES;
         Self {
             r,
             side,
@@ -73,9 +78,15 @@ impl Window {
             ext: vec![0.0; (side + 2) * es],
             w: vec![0.0; side * pw],
             tw_full: false,
+            live_all: false,
             count: 0,
             outside: 0,
         }
+    }
+
+    /// The weights (1 used, 0 not) of the pixels, `side × pw`, after [`Window::sample_live`].
+    pub fn weights(&self) -> &[f32] {
+        if self.live_all { &self.tw } else { &self.w }
     }
 
     pub fn side(&self) -> usize {
@@ -149,11 +160,13 @@ impl Window {
         let (r, side, pw, es) = (self.r as f64, self.side, self.pw, self.es);
         let (ox, oy) = (cx - r - 1.0, cy - r - 1.0);
         if fill_bilinear(img, ox, oy, side + 2, side + 2, es, &mut self.ext) {
-            self.w.copy_from_slice(&self.tw);
+            // The template's weights are the pixels used: no copy.
+            self.live_all = true;
             self.count = self.tcount;
             self.outside = 0;
             return;
         }
+        self.live_all = false;
         for j in 0..side + 2 {
             for i in 0..es {
                 self.ext[j * es + i] = if i < side + 2 {
@@ -202,23 +215,19 @@ impl Window {
         let half = f32x4::splat(0.5);
         // Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ, gy ρ, I ρ, ρ, ρ².
         let mut s = [f32x4::ZERO; 15];
+        let weights = self.weights();
         for j in 0..side {
             let e0 = (j + 1) * es + 1;
-            let rows = (
-                &self.ext[e0..e0 + pw],
-                &self.ext[e0 - 1..e0 - 1 + pw],
-                &self.ext[e0 + 1..e0 + 1 + pw],
-                &self.ext[e0 - es..e0 - es + pw],
-                &self.ext[e0 + es..e0 + es + pw],
-            );
-            let t = &self.t[j * pw..(j + 1) * pw];
-            let w = &self.w[j * pw..(j + 1) * pw];
-            for c in (0..pw).step_by(LANES) {
-                let wv = load(w, c);
-                let iv = load(t, c);
-                let gx = (load(rows.2, c) - load(rows.1, c)) * half * wv;
-                let gy = (load(rows.4, c) - load(rows.3, c)) * half * wv;
-                let res = (load(rows.0, c) - av * iv - bv) * wv;
+            let row = |at: usize| self.ext[at..at + pw].chunks_exact(LANES);
+            let t = self.t[j * pw..(j + 1) * pw].chunks_exact(LANES);
+            let w = weights[j * pw..(j + 1) * pw].chunks_exact(LANES);
+            let centre = row(e0).zip(row(e0 - 1)).zip(row(e0 + 1));
+            let vertical = row(e0 - es).zip(row(e0 + es));
+            for ((((jc, jl), jr), (ju, jd)), (iv, wv)) in centre.zip(vertical).zip(t.zip(w)) {
+                let (wv, iv) = (v4(wv), v4(iv));
+                let gx = (v4(jr) - v4(jl)) * half * wv;
+                let gy = (v4(jd) - v4(ju)) * half * wv;
+                let res = (v4(jc) - av * iv - bv) * wv;
                 let ivw = iv * wv;
                 s[0] += gx * gx;
                 s[1] += gx * gy;
@@ -261,15 +270,16 @@ impl Window {
     pub fn init_photometric(&self) -> Option<(f64, f64)> {
         let (side, pw, es) = (self.side, self.pw, self.es);
         let mut s = [f32x4::ZERO; 5];
+        let weights = self.weights();
         for j in 0..side {
             let e0 = (j + 1) * es + 1;
-            let live = &self.ext[e0..e0 + pw];
-            let t = &self.t[j * pw..(j + 1) * pw];
-            let w = &self.w[j * pw..(j + 1) * pw];
-            for c in (0..pw).step_by(LANES) {
-                let wv = load(w, c);
-                let iv = load(t, c) * wv;
-                let jv = load(live, c) * wv;
+            let live = self.ext[e0..e0 + pw].chunks_exact(LANES);
+            let t = self.t[j * pw..(j + 1) * pw].chunks_exact(LANES);
+            let w = weights[j * pw..(j + 1) * pw].chunks_exact(LANES);
+            for ((jv, iv), wv) in live.zip(t).zip(w) {
+                let wv = v4(wv);
+                let iv = v4(iv) * wv;
+                let jv = v4(jv) * wv;
                 s[0] += wv;
                 s[1] += iv;
                 s[2] += iv * iv;
@@ -293,13 +303,10 @@ impl Window {
     }
 }
 
-/// Four consecutive values from `c`; `s` is a padded row, so they always exist.
+/// A chunk of [`LANES`] values (from `chunks_exact`, so the conversion cannot fail).
 #[inline(always)]
-fn load(s: &[f32], c: usize) -> f32x4 {
-    match s.get(c..c + LANES) {
-        Some(&[a, b, cc, d]) => f32x4::new([a, b, cc, d]),
-        _ => f32x4::ZERO,
-    }
+fn v4(c: &[f32]) -> f32x4 {
+    f32x4::new(c.try_into().unwrap_or_default())
 }
 
 /// The lanes' sum in `f64`.
@@ -333,6 +340,25 @@ fn fill_bilinear(
     let fx = (ox - x0 as f64) as f32;
     let fy = (oy - y0 as f64) as f32;
     let data = img.data();
+    // Whole lanes where the rows and the image have room: the extra samples land in the
+    // rows' padding, which carries weight 0.
+    let lanes = cols.div_ceil(LANES) * LANES;
+    if lanes <= stride && x0 + lanes < w {
+        let (vx, vy) = (f32x4::splat(fx), f32x4::splat(fy));
+        for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
+            let at = (y0 + j) * w + x0;
+            let row = |from: usize| data[from..from + lanes].chunks_exact(LANES);
+            let top = row(at).zip(row(at + 1));
+            let bottom = row(at + w).zip(row(at + w + 1));
+            for (o, ((a, b), (c, d))) in o[..lanes].chunks_exact_mut(LANES).zip(top.zip(bottom)) {
+                let (a, c) = (v4(a), v4(c));
+                let t = a + vx * (v4(b) - a);
+                let u = c + vx * (v4(d) - c);
+                o.copy_from_slice(&(t + vy * (u - t)).to_array());
+            }
+        }
+        return true;
+    }
     for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
         let at = (y0 + j) * w + x0;
         let (a, b) = (&data[at..at + cols], &data[at + 1..at + 1 + cols]);
