@@ -9,6 +9,7 @@ use std::time::Instant;
 use image::GrayImage;
 use nalgebra::{Matrix2, UnitQuaternion, Vector2, Vector3};
 use protocol::{Correspondence, PosePrediction};
+use rayon::prelude::*;
 
 use crate::camera::{Camera, CameraPose, UndistortMap};
 use crate::features::correspondence::correspondence;
@@ -482,37 +483,57 @@ impl Vision {
         if !selected.is_empty() {
             let t = Instant::now();
             let klt = &self.options.klt;
-            let template = TemplatePyramid::build(
-                &GrayF32::from_gray8(&rendering.gray)?,
-                Mask::from_gray8(&rendering.mask)?,
-                klt.levels,
-                klt.template_sigma(self.options.blur_sigma),
-            )?;
-            let target = klt.target_pyramid(GrayF32::from_gray8(&live)?);
+            // The two pyramids are independent: built side by side.
+            let (template, target) = rayon::join(
+                || -> Result<TemplatePyramid, TrackError> {
+                    Ok(TemplatePyramid::build(
+                        &GrayF32::from_gray8(&rendering.gray)?,
+                        Mask::from_gray8(&rendering.mask)?,
+                        klt.levels,
+                        klt.template_sigma(self.options.blur_sigma),
+                    )?)
+                },
+                || -> Result<_, TrackError> { Ok(klt.target_pyramid(GrayF32::from_gray8(&live)?)) },
+            );
+            let (template, target) = (template?, target?);
             times.pyramids = t.elapsed().as_secs_f64();
 
             let t = Instant::now();
-            // Register until `wanted` succeeded; then judge the successes together.
+            // Register until `wanted` succeeded; then judge the successes together. The
+            // registrations are independent: they run in parallel (rayon) in batches of the
+            // successes still missing, and the attempts are kept in order up to the one that
+            // completes `wanted`, so the result is the sequential one whatever the threads.
+            let candidates: Vec<(&Predicted, MapFeature)> = selected
+                .iter()
+                .filter_map(|p| Some((p, self.map.get(p.id).copied()?)))
+                .collect();
             let mut attempts: Vec<(&Predicted, MapFeature, Result<KltResult, KltFailure>)> =
-                Vec::with_capacity(selected.len());
+                Vec::with_capacity(candidates.len());
             let mut succeeded = 0usize;
-            for p in &selected {
-                if succeeded >= wanted {
-                    break;
+            let mut next = 0usize;
+            while succeeded < wanted && next < candidates.len() {
+                let batch = &candidates[next..(next + wanted - succeeded).min(candidates.len())];
+                next += batch.len();
+                let results: Vec<Result<KltResult, KltFailure>> = batch
+                    .par_iter()
+                    .map(|(p, _)| {
+                        register(
+                            &template.image,
+                            Some(&template.mask),
+                            &target,
+                            [p.pixel.x, p.pixel.y],
+                            [0.0, 0.0],
+                            klt,
+                        )
+                    })
+                    .collect();
+                for ((p, feature), result) in batch.iter().zip(results) {
+                    if succeeded >= wanted {
+                        break;
+                    }
+                    succeeded += usize::from(result.is_ok());
+                    attempts.push((p, *feature, result));
                 }
-                let Some(feature) = self.map.get(p.id).copied() else {
-                    continue;
-                };
-                let result = register(
-                    &template.image,
-                    Some(&template.mask),
-                    &target,
-                    [p.pixel.x, p.pixel.y],
-                    [0.0, 0.0],
-                    klt,
-                );
-                succeeded += usize::from(result.is_ok());
-                attempts.push((p, feature, result));
             }
             let pairs: Vec<Registration> = attempts
                 .iter()

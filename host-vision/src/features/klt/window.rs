@@ -218,32 +218,30 @@ impl Window {
         let weights = self.weights();
         for j in 0..side {
             let e0 = (j + 1) * es + 1;
-            let row = |at: usize| self.ext[at..at + pw].chunks_exact(LANES);
-            let t = self.t[j * pw..(j + 1) * pw].chunks_exact(LANES);
-            let w = weights[j * pw..(j + 1) * pw].chunks_exact(LANES);
-            let centre = row(e0).zip(row(e0 - 1)).zip(row(e0 + 1));
-            let vertical = row(e0 - es).zip(row(e0 + es));
-            for ((((jc, jl), jr), (ju, jd)), (iv, wv)) in centre.zip(vertical).zip(t.zip(w)) {
-                let (wv, iv) = (v4(wv), v4(iv));
-                let gx = (v4(jr) - v4(jl)) * half * wv;
-                let gy = (v4(jd) - v4(ju)) * half * wv;
-                let res = (v4(jc) - av * iv - bv) * wv;
-                let ivw = iv * wv;
-                s[0] += gx * gx;
-                s[1] += gx * gy;
-                s[2] += gx * ivw;
-                s[3] += gx;
-                s[4] += gy * gy;
-                s[5] += gy * ivw;
-                s[6] += gy;
-                s[7] += ivw * iv;
-                s[8] += ivw;
-                s[9] += wv;
-                s[10] += gx * res;
-                s[11] += gy * res;
-                s[12] += ivw * res;
-                s[13] += res;
-                s[14] += res * res;
+            let rows = [
+                &self.ext[e0..e0 + pw],
+                &self.ext[e0 - 1..e0 - 1 + pw],
+                &self.ext[e0 + 1..e0 + 1 + pw],
+                &self.ext[e0 - es..e0 - es + pw],
+                &self.ext[e0 + es..e0 + es + pw],
+                &self.t[j * pw..(j + 1) * pw],
+                &weights[j * pw..(j + 1) * pw],
+            ];
+            // The default window (15 px, rows of 16) with the row's four steps unrolled.
+            match rows.map(<&[f32; 16]>::try_from) {
+                [Ok(jc), Ok(jl), Ok(jr), Ok(ju), Ok(jd), Ok(t), Ok(w)] => {
+                    for c in 0..16 / LANES {
+                        let at = |r: &[f32; 16]| v4(&r[c * LANES..(c + 1) * LANES]);
+                        let v = [at(jc), at(jl), at(jr), at(ju), at(jd), at(t), at(w)];
+                        accumulate_lanes(&mut s, v, av, bv, half);
+                    }
+                }
+                _ => {
+                    for c in (0..pw).step_by(LANES) {
+                        let v = rows.map(|r| v4(&r[c..c + LANES]));
+                        accumulate_lanes(&mut s, v, av, bv, half);
+                    }
+                }
             }
         }
         let v = s.map(sum);
@@ -301,6 +299,32 @@ impl Window {
         };
         Some((lambda, mi - lambda * mj))
     }
+}
+
+/// One step of [`Window::accumulate`]: four pixels' live samples (centre, left, right, up,
+/// down), template values and weights.
+#[inline(always)]
+fn accumulate_lanes(s: &mut [f32x4; 15], v: [f32x4; 7], av: f32x4, bv: f32x4, half: f32x4) {
+    let [jc, jl, jr, ju, jd, iv, wv] = v;
+    let gx = (jr - jl) * half * wv;
+    let gy = (jd - ju) * half * wv;
+    let res = (jc - av * iv - bv) * wv;
+    let ivw = iv * wv;
+    s[0] += gx * gx;
+    s[1] += gx * gy;
+    s[2] += gx * ivw;
+    s[3] += gx;
+    s[4] += gy * gy;
+    s[5] += gy * ivw;
+    s[6] += gy;
+    s[7] += ivw * iv;
+    s[8] += ivw;
+    s[9] += wv;
+    s[10] += gx * res;
+    s[11] += gy * res;
+    s[12] += ivw * res;
+    s[13] += res;
+    s[14] += res * res;
 }
 
 /// A chunk of [`LANES`] values (from `chunks_exact`, so the conversion cannot fail).
