@@ -74,6 +74,9 @@ pub struct Counters {
     pub behind_camera: u32,
     /// Correspondences with a singular innovation covariance.
     pub singular: u32,
+    /// Correspondences that passed the gate but were withheld with their part, most of whose
+    /// correspondences failed it, after a soft re-initialisation (docs/FILTER.md §7).
+    pub withheld: u32,
     /// Divergences detected.
     pub divergences: u32,
     /// Clock jumps accepted.
@@ -94,6 +97,7 @@ impl Counters {
         gated: 0,
         behind_camera: 0,
         singular: 0,
+        withheld: 0,
         divergences: 0,
         clock_jumps: 0,
     };
@@ -182,6 +186,9 @@ pub struct Device<T: Scalar> {
     /// IMU time since the covariance was last checked [µs].
     unchecked_us: u64,
     since_state: u16,
+    /// After a soft re-initialisation, until a part is applied: a part most of whose
+    /// correspondences fail the gate is withheld whole (docs/FILTER.md §7).
+    consensus: bool,
     counters: Counters,
 }
 
@@ -213,6 +220,7 @@ impl<T: Scalar> Device<T> {
             unchecked_us: 0,
             since_state: 0,
             counters: Counters::ZERO,
+            consensus: false,
         }
     }
 
@@ -320,6 +328,7 @@ impl<T: Kernels> Device<T> {
         self.monitor = Monitor::default();
         self.unchecked_us = 0;
         self.since_state = 0;
+        self.consensus = false;
     }
 
     fn set_mode(&mut self, mode: Mode, reason: StatusReason, out: Out) {
@@ -466,6 +475,7 @@ impl<T: Kernels> Device<T> {
         // Pending snapshots hold the old estimate: their frames are refused as too old.
         self.delay.clear();
         self.monitor = Monitor::default();
+        self.consensus = false;
         self.anchor = Anchor {
             position: *position,
             q_sw,
@@ -770,6 +780,11 @@ impl<T: Kernels> Device<T> {
                 return;
             }
         };
+        // After a soft re-initialisation the part must agree with the state as a whole (§7):
+        // a copy to return to if most of it fails the gate.
+        let before = self.consensus.then(|| snap.filter.st.clone());
+        let mut gated = 0u32;
+        let mut radial_diverged = false;
         let mut diverged = None;
         let mut error_sum = T::zero();
         let mut error_count = 0u32;
@@ -786,12 +801,11 @@ impl<T: Kernels> Device<T> {
                 Ok(radial) => {
                     report.accepted += 1;
                     Counters::bump(&mut self.counters.accepted);
-                    if radial > prm.quat_norm_threshold {
-                        diverged.get_or_insert(StatusReason::QuaternionNorm);
-                    }
+                    radial_diverged |= radial > prm.quat_norm_threshold;
                 }
                 Err(why) => {
                     report.rejected += 1;
+                    gated += u32::from(why == Rejection::Gated);
                     Counters::bump(match why {
                         Rejection::Gated => &mut self.counters.gated,
                         Rejection::BehindCamera => &mut self.counters.behind_camera,
@@ -802,6 +816,29 @@ impl<T: Kernels> Device<T> {
             if let Some(reason) = self.monitor.residual(c.frame_id, s_i, &prm) {
                 diverged.get_or_insert(reason);
             }
+        }
+        // The few that passed where most were gated are chance passes of outliers, or of a
+        // state gone wrong: withheld either way, the part's updates undone.
+        if let Some(st) = before
+            && report.accepted > 0
+            && u32::from(report.accepted) < gated
+        {
+            snap.filter.st = st;
+            self.counters.withheld = self
+                .counters
+                .withheld
+                .saturating_add(u32::from(report.accepted));
+            self.counters.accepted = self
+                .counters
+                .accepted
+                .saturating_sub(u32::from(report.accepted));
+            report.rejected += report.accepted;
+            report.accepted = 0;
+            radial_diverged = false;
+        }
+        // An applied update that broke the quaternion's norm asks for the full restart.
+        if radial_diverged {
+            diverged = Some(StatusReason::QuaternionNorm);
         }
         crate::ekf::condition(&mut snap.filter.st.p, prm.n);
         snap.parts_done |= 1 << c.part;
@@ -827,6 +864,7 @@ impl<T: Kernels> Device<T> {
             return;
         }
         if report.accepted > 0 {
+            self.consensus = false;
             self.anchor = Anchor {
                 position: good.0,
                 q_sw: good.1,
@@ -856,6 +894,8 @@ impl<T: Kernels> Device<T> {
             crate::init::reset_covariance(&mut self.filter.st, prm, tilt);
             self.delay.clear();
             self.monitor = Monitor::default();
+            // What made it diverge may still be coming: outliers a wide gate lets through.
+            self.consensus = true;
             self.set_mode(Mode::Reinitialising, reason, out);
             self.set_mode(Mode::DeadReckoning, StatusReason::InitComplete, out);
             return;

@@ -430,6 +430,87 @@ fn a_short_divergence_after_good_vision_is_a_soft_reinitialisation() {
     assert!(err < 0.01, "position error {err}");
 }
 
+/// After a soft re-initialisation the gate is wide, and outliers pass it by chance: a part
+/// most of whose correspondences fail the gate is withheld whole, the few that passed with it
+/// (docs/FILTER.md §7), and the state stays as it was. A part that agrees with the state is
+/// applied and the core tracks again, after which parts are judged one correspondence at a
+/// time as before.
+#[test]
+fn after_a_soft_reinitialisation_a_part_that_mostly_fails_the_gate_is_withheld() {
+    let mut sc = scenario(ModelKind::Acc);
+    sc.config.divergence.residual_threshold = 20.0;
+    let mut shifted = scenario(ModelKind::Acc);
+    shifted.config = sc.config;
+    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    let d = tracking(&sc, 8.0);
+    let before = d.out.statuses.len();
+    let mut bad = d.switch_scenario(&shifted);
+    while !bad.out.statuses[before..]
+        .iter()
+        .any(|s| s.mode == Mode::DeadReckoning && s.reason == StatusReason::InitComplete)
+    {
+        assert!(bad.k < 10 * 200, "no soft re-initialisation");
+        bad.step();
+    }
+    let mut d = bad.switch_scenario(&sc);
+    d.answer_frames = false;
+    let frame = |d: &mut Driver<'_, f64>| loop {
+        let msg = d.next_imu();
+        if let Some(p) = d.send(&msg).into_iter().find_map(|a| match a {
+            CoreToHost::PosePrediction(p) => Some(p),
+            _ => None,
+        }) {
+            let truth = d.last.unwrap().0;
+            break (p, d.observe(&truth));
+        }
+    };
+    let report_of = |answers: Vec<CoreToHost>| {
+        answers
+            .into_iter()
+            .find_map(|a| match a {
+                CoreToHost::UpdateReport(r) => Some(r),
+                _ => None,
+            })
+            .expect("a report")
+    };
+    // Two good correspondences among eight registered 100 px off.
+    let (pred, good) = frame(&mut d);
+    assert!(good.len() >= 10, "{} correspondences", good.len());
+    let mut items = good[..10].to_vec();
+    for c in &mut items[2..] {
+        c.m_n[0] += 100.0 / sc.camera.fx as f32;
+    }
+    let filter = d.device.filter().clone();
+    let withheld = d.device.counters().withheld;
+    let part = Correspondences::split(pred.frame_id, pred.t_us, &items)
+        .unwrap()
+        .next()
+        .unwrap();
+    let report = report_of(d.send(&HostToCore::Correspondences(part)));
+    let passed = report
+        .residuals
+        .iter()
+        .filter(|&&s| s <= sc.config.gate)
+        .count();
+    assert!((1..=2).contains(&passed), "{:?}", report.residuals);
+    assert_eq!((report.accepted, report.rejected), (0, 10));
+    assert_eq!(d.device.counters().withheld, withheld + passed as u32);
+    assert_eq!(d.device.filter(), &filter, "the withheld part left a trace");
+    assert_ne!(d.device.mode(), Mode::Tracking);
+    // The next frame's correspondences are right: applied, and tracking again.
+    let (pred, good) = frame(&mut d);
+    let part = Correspondences::split(pred.frame_id, pred.t_us, &good)
+        .unwrap()
+        .next()
+        .unwrap();
+    let report = report_of(d.send(&HostToCore::Correspondences(part)));
+    assert!(
+        report.accepted as usize > good.len().min(16) / 2,
+        "{report:?}"
+    );
+    assert_eq!(d.device.mode(), Mode::Tracking);
+}
+
 #[test]
 fn corrupted_bytes_are_reported_and_the_stream_goes_on() {
     let mut io = DeviceIo::<f32>::new();

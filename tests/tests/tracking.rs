@@ -169,47 +169,57 @@ fn desktop_fast_with_20_percent_outliers_still_meets_the_bounds() {
     assert_desktop_fast_accuracy(&run);
 }
 
+/// 0.3 s of nothing but outliers, in the middle of the fast figure eight. The core detects the
+/// divergence and re-initialises softly (the estimate kept, the covariance restarted); until a
+/// part of a frame agrees with it as a whole, the few outliers its wide gate lets through are
+/// withheld (docs/FILTER.md §7), so tracking resumes as soon as the frames' correspondences are
+/// good again. Two corruption seeds: before that rule, tracking came back on one seed in six.
 #[test]
 fn a_forced_divergence_is_detected_and_tracking_resumes_by_itself() {
     let ds = dataset(ScenarioName::DesktopFast, 12.0);
-    let mut o = options(&ds, "desktop-fast-divergence", ModelKind::Acc);
-    // 0.3 s of nothing but outliers, in the middle of the fast figure eight.
-    o.faults = Faults {
-        corrupt_from: Some(6.0),
-        corrupt_seconds: 0.3,
-        seed: 3,
-        ..Faults::default()
-    };
-    let run = track(&o);
-    let first = run
-        .summary
-        .divergences
-        .first()
-        .expect("divergence detected");
-    assert!(
-        (6.0..6.35).contains(&first.t),
-        "detected at {:.2} s",
-        first.t
-    );
-    // Tracking resumes: every frame from 6.5 s on has accepted correspondences, and the
-    // camera position of the predictions is as good as before.
-    let after: Vec<_> = run.frames.iter().filter(|f| f.t >= 6.5).collect();
-    assert!(after.len() > 100);
-    let with_vision = after.iter().filter(|f| f.accepted > 0).count();
-    assert_eq!(
-        with_vision,
-        after.len(),
-        "frames without vision after recovery"
-    );
-    let err = after.iter().filter_map(|f| f.position_error_m).sum::<f64>() / after.len() as f64;
-    println!(
-        "divergence at {:.2} s ({}), {} divergences in all; mean predicted position error after 6.5 s {:.2} mm",
-        first.t,
-        first.reason,
-        run.summary.divergences.len(),
-        err * 1e3
-    );
-    assert!(err < 0.01, "{err}");
+    for seed in [3, 2] {
+        let mut o = options(
+            &ds,
+            &format!("desktop-fast-divergence-{seed}"),
+            ModelKind::Acc,
+        );
+        o.faults = Faults {
+            corrupt_from: Some(6.0),
+            corrupt_seconds: 0.3,
+            seed,
+            ..Faults::default()
+        };
+        let run = track(&o);
+        let first = run
+            .summary
+            .divergences
+            .first()
+            .expect("divergence detected");
+        assert!(
+            (6.0..6.35).contains(&first.t),
+            "seed {seed}: detected at {:.2} s",
+            first.t
+        );
+        // Tracking resumes: every frame from 6.5 s on has accepted correspondences, and the
+        // camera position of the predictions is as good as before.
+        let after: Vec<_> = run.frames.iter().filter(|f| f.t >= 6.5).collect();
+        assert!(after.len() > 100);
+        let with_vision = after.iter().filter(|f| f.accepted > 0).count();
+        assert_eq!(
+            with_vision,
+            after.len(),
+            "seed {seed}: frames without vision after recovery"
+        );
+        let err = after.iter().filter_map(|f| f.position_error_m).sum::<f64>() / after.len() as f64;
+        println!(
+            "seed {seed}: divergence at {:.2} s ({}), {} divergences in all; mean predicted position error after 6.5 s {:.2} mm",
+            first.t,
+            first.reason,
+            run.summary.divergences.len(),
+            err * 1e3
+        );
+        assert!(err < 0.01, "seed {seed}: {err}");
+    }
 }
 
 /// The paper's Fig. 6: with two features per frame the gyro model's attitude drifts while the
