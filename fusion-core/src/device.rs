@@ -19,7 +19,7 @@ use crate::models::correspondence::{self, Observation, Rejection};
 use crate::params::Params;
 use crate::quat::{self, Quat};
 use crate::scalar::Scalar;
-use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, VEL};
+use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, State, VEL};
 
 /// Largest IMU interval integrated as dead reckoning [µs]; a longer jump, or a time stamp
 /// going backwards, is refused until the new clock is confirmed.
@@ -189,6 +189,9 @@ pub struct Device<T: Scalar> {
     /// After a soft re-initialisation, until a part is applied: a part most of whose
     /// correspondences fail the gate is withheld whole (docs/FILTER.md §7).
     consensus: bool,
+    /// The part's snapshot state before its updates, while `consensus` holds (kept with the
+    /// device rather than on the stack, which the device loop's budget has no room for).
+    withheld_from: State<T>,
     counters: Counters,
 }
 
@@ -221,6 +224,7 @@ impl<T: Scalar> Device<T> {
             since_state: 0,
             counters: Counters::ZERO,
             consensus: false,
+            withheld_from: State::zeroed(),
         }
     }
 
@@ -782,7 +786,10 @@ impl<T: Kernels> Device<T> {
         };
         // After a soft re-initialisation the part must agree with the state as a whole (§7):
         // a copy to return to if most of it fails the gate.
-        let before = self.consensus.then(|| snap.filter.st.clone());
+        if self.consensus {
+            self.withheld_from.x.copy_from(&snap.filter.st.x);
+            self.withheld_from.p.copy_from(&snap.filter.st.p);
+        }
         let mut gated = 0u32;
         let mut radial_diverged = false;
         let mut diverged = None;
@@ -819,11 +826,9 @@ impl<T: Kernels> Device<T> {
         }
         // The few that passed where most were gated are chance passes of outliers, or of a
         // state gone wrong: withheld either way, the part's updates undone.
-        if let Some(st) = before
-            && report.accepted > 0
-            && u32::from(report.accepted) < gated
-        {
-            snap.filter.st = st;
+        if self.consensus && report.accepted > 0 && u32::from(report.accepted) < gated {
+            snap.filter.st.x.copy_from(&self.withheld_from.x);
+            snap.filter.st.p.copy_from(&self.withheld_from.p);
             self.counters.withheld = self
                 .counters
                 .withheld
