@@ -190,7 +190,7 @@ pub struct Device<T: Scalar> {
     /// correspondences fail the gate is withheld whole (docs/FILTER.md §7).
     consensus: bool,
     /// The part's snapshot state before its updates, while `consensus` holds (kept with the
-    /// device rather than on the stack, which the device loop's budget has no room for).
+    /// device: on the stack it raised the device loop's high-water mark by 3.7 KB).
     withheld_from: State<T>,
     counters: Counters,
 }

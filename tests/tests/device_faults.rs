@@ -2,6 +2,7 @@
 //! counted, and leaves the filter untouched; faults of the paper's system (no model in view,
 //! outliers, divergence, lost frames) are handled as it does.
 
+use firmware_sim::sim::trajectory::Kinematics;
 use fusion_core::{Device, DeviceIo};
 use nalgebra::Vector3;
 use protocol::{
@@ -23,6 +24,42 @@ fn tracking<'s>(sc: &'s Scenario, seconds: f64) -> Driver<'s, f64> {
     }
     assert_eq!(d.device.mode(), Mode::Tracking);
     d
+}
+
+/// The acc scenario with a lower residual threshold, and the same with the model moved by 30 cm
+/// (say, the target was moved): every correspondence of the second disagrees with the first.
+fn with_model_moved() -> (Scenario, Scenario) {
+    let mut sc = scenario(ModelKind::Acc);
+    sc.config.divergence.residual_threshold = 20.0;
+    let mut shifted = scenario(ModelKind::Acc);
+    shifted.config = sc.config;
+    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    (sc, shifted)
+}
+
+/// Steps `d` (not answering frames) to its next pose prediction: the prediction and the truth
+/// at its trigger.
+fn next_prediction(d: &mut Driver<'_, f64>) -> (protocol::PosePrediction, Kinematics) {
+    loop {
+        let msg = d.next_imu();
+        if let Some(p) = d.send(&msg).into_iter().find_map(|a| match a {
+            CoreToHost::PosePrediction(p) => Some(p),
+            _ => None,
+        }) {
+            break (p, d.last.unwrap().0);
+        }
+    }
+}
+
+/// The update report among `answers`.
+fn report_in(answers: Vec<CoreToHost>) -> protocol::UpdateReport {
+    answers
+        .into_iter()
+        .find_map(|a| match a {
+            CoreToHost::UpdateReport(r) => Some(r),
+            _ => None,
+        })
+        .expect("an update report")
 }
 
 fn errors_in(answers: &[CoreToHost]) -> Vec<ErrorCode> {
@@ -235,15 +272,7 @@ fn bad_correspondences_are_rejected_one_by_one_without_touching_the_state() {
     let sc = scenario(ModelKind::Gyro);
     let mut d = tracking(&sc, 3.0);
     d.answer_frames = false;
-    let (pred, truth) = loop {
-        let msg = d.next_imu();
-        if let Some(p) = d.send(&msg).into_iter().find_map(|a| match a {
-            CoreToHost::PosePrediction(p) => Some(p),
-            _ => None,
-        }) {
-            break (p, d.last.unwrap().0);
-        }
-    };
+    let (pred, truth) = next_prediction(&mut d);
     let good = d.observe(&truth);
     let before = d.device.filter().clone();
     // Behind the camera: the model point mirrored through the camera centre.
@@ -259,12 +288,7 @@ fn bad_correspondences_are_rejected_one_by_one_without_touching_the_state() {
         .unwrap()
         .next()
         .unwrap();
-    let answers = d.send(&HostToCore::Correspondences(c));
-    let report = answers.iter().find_map(|a| match a {
-        CoreToHost::UpdateReport(r) => Some(r.clone()),
-        _ => None,
-    });
-    let report = report.unwrap();
+    let report = report_in(d.send(&HostToCore::Correspondences(c)));
     assert_eq!((report.accepted, report.rejected), (0, 2));
     assert!(report.residuals[0].is_infinite() && report.residuals[1] > sc.config.gate);
     let counters = d.device.counters();
@@ -317,13 +341,9 @@ fn dead_reckoning_through_a_blind_stretch_then_tracking_again() {
 
 #[test]
 fn divergence_is_detected_and_the_core_reinitialises_and_recovers() {
-    let mut sc = scenario(ModelKind::Acc);
-    sc.config.divergence.residual_threshold = 20.0;
-    // At 8 s the model no longer matches the scene by 30 cm (say, the target was moved):
-    // every correspondence disagrees with the current estimate.
-    let mut shifted = scenario(ModelKind::Acc);
-    shifted.config = sc.config;
-    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    // At 8 s the model no longer matches the scene by 30 cm: every correspondence disagrees
+    // with the current estimate.
+    let (sc, shifted) = with_model_moved();
     let mut d = Driver::<f64>::new(&sc);
     while d.k < 8 * 200 {
         d.step();
@@ -374,11 +394,7 @@ fn divergence_is_detected_and_the_core_reinitialises_and_recovers() {
 /// as the correspondences are right.
 #[test]
 fn a_short_divergence_after_good_vision_is_a_soft_reinitialisation() {
-    let mut sc = scenario(ModelKind::Acc);
-    sc.config.divergence.residual_threshold = 20.0;
-    let mut shifted = scenario(ModelKind::Acc);
-    shifted.config = sc.config;
-    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    let (sc, shifted) = with_model_moved();
     let d = tracking(&sc, 8.0);
     let before = d.out.statuses.len();
     let mut bad = d.switch_scenario(&shifted);
@@ -437,11 +453,7 @@ fn a_short_divergence_after_good_vision_is_a_soft_reinitialisation() {
 /// time as before.
 #[test]
 fn after_a_soft_reinitialisation_a_part_that_mostly_fails_the_gate_is_withheld() {
-    let mut sc = scenario(ModelKind::Acc);
-    sc.config.divergence.residual_threshold = 20.0;
-    let mut shifted = scenario(ModelKind::Acc);
-    shifted.config = sc.config;
-    shifted.model_offset = Vector3::new(0.0, 0.3, 0.0);
+    let (sc, shifted) = with_model_moved();
     let d = tracking(&sc, 8.0);
     let before = d.out.statuses.len();
     let mut bad = d.switch_scenario(&shifted);
@@ -454,27 +466,9 @@ fn after_a_soft_reinitialisation_a_part_that_mostly_fails_the_gate_is_withheld()
     }
     let mut d = bad.switch_scenario(&sc);
     d.answer_frames = false;
-    let frame = |d: &mut Driver<'_, f64>| loop {
-        let msg = d.next_imu();
-        if let Some(p) = d.send(&msg).into_iter().find_map(|a| match a {
-            CoreToHost::PosePrediction(p) => Some(p),
-            _ => None,
-        }) {
-            let truth = d.last.unwrap().0;
-            break (p, d.observe(&truth));
-        }
-    };
-    let report_of = |answers: Vec<CoreToHost>| {
-        answers
-            .into_iter()
-            .find_map(|a| match a {
-                CoreToHost::UpdateReport(r) => Some(r),
-                _ => None,
-            })
-            .expect("a report")
-    };
     // Two good correspondences among eight registered 100 px off.
-    let (pred, good) = frame(&mut d);
+    let (pred, truth) = next_prediction(&mut d);
+    let good = d.observe(&truth);
     assert!(good.len() >= 10, "{} correspondences", good.len());
     let mut items = good[..10].to_vec();
     for c in &mut items[2..] {
@@ -486,7 +480,7 @@ fn after_a_soft_reinitialisation_a_part_that_mostly_fails_the_gate_is_withheld()
         .unwrap()
         .next()
         .unwrap();
-    let report = report_of(d.send(&HostToCore::Correspondences(part)));
+    let report = report_in(d.send(&HostToCore::Correspondences(part)));
     let passed = report
         .residuals
         .iter()
@@ -498,12 +492,13 @@ fn after_a_soft_reinitialisation_a_part_that_mostly_fails_the_gate_is_withheld()
     assert_eq!(d.device.filter(), &filter, "the withheld part left a trace");
     assert_ne!(d.device.mode(), Mode::Tracking);
     // The next frame's correspondences are right: applied, and tracking again.
-    let (pred, good) = frame(&mut d);
+    let (pred, truth) = next_prediction(&mut d);
+    let good = d.observe(&truth);
     let part = Correspondences::split(pred.frame_id, pred.t_us, &good)
         .unwrap()
         .next()
         .unwrap();
-    let report = report_of(d.send(&HostToCore::Correspondences(part)));
+    let report = report_in(d.send(&HostToCore::Correspondences(part)));
     assert!(
         report.accepted as usize > good.len().min(16) / 2,
         "{report:?}"
