@@ -784,8 +784,8 @@ impl<T: Kernels> Device<T> {
                 return;
             }
         };
-        // After a soft re-initialisation the part must agree with the state as a whole (§7):
-        // a copy to return to if most of it fails the gate.
+        // After a soft re-initialisation the part must agree with the state as a whole
+        // (docs/FILTER.md §7): a copy to return to if most of it fails the gate.
         if self.consensus {
             self.withheld_from.x.copy_from(&snap.filter.st.x);
             self.withheld_from.p.copy_from(&snap.filter.st.p);
