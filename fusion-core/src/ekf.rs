@@ -195,8 +195,8 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     /// `P ← P − w wᵀ / d` (each symmetric, each removing variance only along its row).
     ///
     /// The rows of `W` and the mean step come first; then one pass over the upper triangle of
-    /// the active block, two columns at a time, updates every `P_ij` once, mirrors it into the
-    /// lower triangle and applies the variance floor (the work of [`condition`]).
+    /// the active block, a group of columns at a time, updates every `P_ij` once, mirrors it into
+    /// the lower triangle and applies the variance floor (the work of [`condition`]).
     ///
     /// Returns the step's component along the quaternion (see [`radial_step`]) for the
     /// divergence monitor.
@@ -232,52 +232,69 @@ impl<T: Scalar, const M: usize> Ldl<T, M> {
     }
 
     /// `P ← P − W D⁻¹ Wᵀ` over the upper triangle of the first `n` columns, mirrored, with the
-    /// variance floor. Two columns at a time: each row of `W` is loaded once for both (the
-    /// pass is load-bound on the MCU), and the mirrored entries of a row pair are adjacent.
+    /// variance floor. Columns go in groups of [`Self::GROUP`]: each row of `W` is loaded once
+    /// for the whole group (the pass is load-bound on the MCU) and the group's mirrored entries
+    /// of a row are adjacent. Every entry is its own `dot_sub` of its old value, so neither the
+    /// grouping nor the order of the entries changes a bit of the result.
     fn downdate(&self, p: &mut Cov<T>, n: usize, w: &Gains<T, M>) {
-        let floor = T::c(T::VARIANCE_FLOOR);
-        let p = p.as_mut_slice();
-        let mut j = 0;
+        let cols = &mut p.data.0;
+        let n = n.min(N);
+        // The columns that do not fill a group come first: they have the fewest rows above.
+        let lead = n % Self::GROUP;
+        for j in 0..lead {
+            self.columns::<1>(cols, j, w);
+        }
+        let mut j = lead;
         while j < n {
-            let (left, rest) = p.split_at_mut(j * N);
-            let pair = j + 1 < n;
-            let (col0, col1) = rest.split_at_mut(N);
-            let c0 = self.scaled(&w[j]);
-            if pair {
-                let c1 = self.scaled(&w[j + 1]);
-                for ((other, (a, b)), wi) in left
-                    .chunks_exact_mut(N)
-                    .zip(col0.iter_mut().zip(col1.iter_mut()))
-                    .zip(w)
-                {
-                    let va = Self::dot_sub(*a, wi, &c0);
-                    let vb = Self::dot_sub(*b, wi, &c1);
-                    *a = va;
-                    *b = vb;
-                    // P[j, i], P[j + 1, i] (column i, rows j and j + 1) ← P[i, j], P[i, j + 1].
-                    if let Some([oa, ob]) = other.get_mut(j..j + 2) {
-                        *oa = va;
-                        *ob = vb;
-                    }
-                }
-                // Row j: P_jj, and P_j,j+1 mirrored into P_j+1,j; then P_j+1,j+1.
-                let djj = Self::dot_sub(col0[j], &w[j], &c0);
-                col0[j] = if djj < floor { floor } else { djj };
-                let pj1 = Self::dot_sub(col1[j], &w[j], &c1);
-                col1[j] = pj1;
-                col0[j + 1] = pj1;
-                let d11 = Self::dot_sub(col1[j + 1], &w[j + 1], &c1);
-                col1[j + 1] = if d11 < floor { floor } else { d11 };
+            // `GROUP` as a const argument (no generic const expressions on stable Rust).
+            if Self::GROUP == 3 {
+                self.columns::<3>(cols, j, w);
             } else {
-                for ((other, a), wi) in left.chunks_exact_mut(N).zip(col0.iter_mut()).zip(w) {
-                    let va = Self::dot_sub(*a, wi, &c0);
-                    *a = va;
-                    other[j] = va;
-                }
-                let djj = Self::dot_sub(col0[j], &w[j], &c0);
-                col0[j] = if djj < floor { floor } else { djj };
+                self.columns::<4>(cols, j, w);
             }
-            j += 2;
+            j += Self::GROUP;
+        }
+    }
+
+    /// Columns per group in [`Self::downdate`]: as many as keep the group's `G · M`
+    /// coefficients, a row of `W` and `G` sums within the Cortex-M4F's 32 single-precision
+    /// registers (`M` = 6: 3 · 6 + 6 + 3 = 27; `M` = 2: 4 · 2 + 2 + 4 = 14, where more columns
+    /// gained no more than the code they cost).
+    const GROUP: usize = if M > 3 { 3 } else { 4 };
+
+    /// The downdate of columns `j .. j + G` (rows `0 .. j + G`), see [`Self::downdate`].
+    #[inline(always)]
+    fn columns<const G: usize>(&self, cols: &mut [[T; N]; N], j: usize, w: &Gains<T, M>) {
+        let floor = T::c(T::VARIANCE_FLOOR);
+        let (left, right) = cols.split_at_mut(j.min(N));
+        let Some(group) = right.first_chunk_mut::<G>() else {
+            return;
+        };
+        let Some(wg) = w.get(j..).and_then(|r| r.first_chunk::<G>()) else {
+            return;
+        };
+        let c: [[T; M]; G] = core::array::from_fn(|g| self.scaled(&wg[g]));
+        for (i, (other, wi)) in left.iter_mut().zip(w).enumerate() {
+            let v: [T; G] = core::array::from_fn(|g| Self::dot_sub(group[g][i], wi, &c[g]));
+            for (col, &vg) in group.iter_mut().zip(&v) {
+                col[i] = vg;
+            }
+            // P[j + g, i] (column i, rows j .. j + G) ← P[i, j + g].
+            if let Some(mirror) = other.get_mut(j..).and_then(|r| r.first_chunk_mut::<G>()) {
+                *mirror = v;
+            }
+        }
+        // The group's own triangle: P[j + a, j + b] for a ≤ b, the diagonal floored.
+        for b in 0..G {
+            for a in 0..=b {
+                let v = Self::dot_sub(group[b][j + a], &wg[a], &c[b]);
+                if a == b {
+                    group[b][j + b] = if v < floor { floor } else { v };
+                } else {
+                    group[b][j + a] = v;
+                    group[a][j + b] = v;
+                }
+            }
         }
     }
 
@@ -398,6 +415,55 @@ mod tests {
         assert_relative_eq!(st.p, p_ref, epsilon = 1e-10);
         assert_eq!(st.p, st.p.transpose());
         assert_relative_eq!(st.x - x0, k_ref * z, epsilon = 1e-10);
+    }
+
+    /// The grouped downdate against the entry-by-entry formula, bit for bit, for both
+    /// measurement sizes and every active block size (lead columns and groups alike).
+    fn downdate_is_the_entrywise_formula<const M: usize>(seed: u64) {
+        let mut s = seed;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f32 / (1u64 << 53) as f32) - 0.5
+        };
+        let ldl = Ldl::<f32, M> {
+            l: [[0.0; M]; M],
+            d_inv: core::array::from_fn(|_| next() + 1.0),
+            e: [0.0; M],
+            rank: M,
+            nis: 0.0,
+        };
+        let w: Gains<f32, M> = core::array::from_fn(|_| core::array::from_fn(|_| next()));
+        let p0 = Cov::<f32>::from_fn(|_, _| next() * 0.01);
+        for n in 0..=N {
+            let mut got = p0;
+            ldl.downdate(&mut got, n, &w);
+            let mut want = p0;
+            for j in 0..n {
+                let c = ldl.scaled(&w[j]);
+                for i in 0..=j {
+                    let mut v = Ldl::<f32, M>::dot_sub(p0[(i, j)], &w[i], &c);
+                    let floor = <f32 as Scalar>::c(<f32 as Scalar>::VARIANCE_FLOOR);
+                    if i == j && v < floor {
+                        v = floor;
+                    }
+                    want[(i, j)] = v;
+                    want[(j, i)] = v;
+                }
+            }
+            for (k, (a, b)) in got.iter().zip(want.iter()).enumerate() {
+                assert_eq!(a.to_bits(), b.to_bits(), "M {M}, n {n}, entry {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn grouped_downdate_is_bit_identical_to_the_entrywise_formula() {
+        downdate_is_the_entrywise_formula::<6>(3);
+        downdate_is_the_entrywise_formula::<2>(5);
+        downdate_is_the_entrywise_formula::<1>(7);
+        downdate_is_the_entrywise_formula::<3>(9);
     }
 
     #[test]
