@@ -1,4 +1,4 @@
-//! Puts `memory.x` on the linker's search path and links with cortex-m-rt's `link.x`, only when
+//! Puts `memory.x` (and an empty `device.x`) on the linker's search path and links with cortex-m-rt's `link.x`, only when
 //! building for a Cortex-M target.
 
 use std::env;
@@ -8,6 +8,13 @@ use std::path::PathBuf;
 fn main() {
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR"));
     fs::copy("memory.x", out.join("memory.x")).expect("copy memory.x");
+    // cortex-m-rt's `device` feature includes `device.x` for the interrupt handlers' names; the
+    // table (`src/vectors.rs`) binds every line to `DefaultHandler`, so there are none to name.
+    fs::write(
+        out.join("device.x"),
+        "/* No named interrupt handlers: see src/vectors.rs. */\n",
+    )
+    .expect("write device.x");
     println!("cargo:rustc-link-search={}", out.display());
     println!("cargo:rerun-if-changed=memory.x");
     println!("cargo:rerun-if-changed=build.rs");

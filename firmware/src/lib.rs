@@ -1,11 +1,12 @@
 //! Board support for the fusion-core firmware on QEMU's `mps2-an386` (Cortex-M4F): the CMSDK
-//! APB UART and timer, stack painting, and the panic handler. The device loop itself is
+//! APB UART and timer, stack painting, the interrupt vectors, and the panic handler. The device loop itself is
 //! `fusion_core::DeviceIo`, wrapped unchanged by `bin/device.rs`.
 #![no_std]
 
 pub mod stack;
 pub mod timer;
 pub mod uart;
+pub mod vectors;
 
 use core::panic::PanicInfo;
 
