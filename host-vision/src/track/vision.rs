@@ -191,6 +191,8 @@ pub struct Vision {
     map: FeatureMap,
     options: VisionOptions,
     last: Option<LastFrame>,
+    /// The last frame's rendering, whose buffers the next frame's fills.
+    rendering: Option<crate::render::Frame>,
 }
 
 impl std::fmt::Debug for Vision {
@@ -243,6 +245,7 @@ impl Vision {
             map: FeatureMap::new(options.map),
             options,
             last: None,
+            rendering: None,
         })
     }
 
@@ -428,9 +431,8 @@ impl Vision {
                 expected: (self.camera.width, self.camera.height),
             });
         }
-        let live = self.undistort.remap_gray(&raw)?;
-        times.load = t0.elapsed().as_secs_f64();
-
+        // The rendering is submitted first: the driver rasterises on its threads while this
+        // one undistorts the live image.
         let t = Instant::now();
         let pose = prediction_pose(&job.prediction)?;
         let view = RenderView {
@@ -439,8 +441,18 @@ impl Vision {
             near: self.options.clip.0,
             far: self.options.clip.1,
         };
-        let rendering = self.renderer.render(&view)?;
-        times.render = t.elapsed().as_secs_f64();
+        self.renderer.submit(&view)?;
+        let submitted = t.elapsed();
+        let live = self.undistort.remap_gray(&raw)?;
+        times.load = (t0.elapsed() - submitted).as_secs_f64();
+        let t = Instant::now();
+        // The previous frame's buffers, refilled (no fresh pages to fault in).
+        let mut rendering = self
+            .rendering
+            .take()
+            .unwrap_or_else(|| crate::render::Frame::empty(view));
+        self.renderer.finish_into(&mut rendering)?;
+        times.render = (submitted + t.elapsed()).as_secs_f64();
         let (w, h) = (self.camera.width, self.camera.height);
         let frame_index = job.index as u64;
         let model_coverage =
@@ -606,6 +618,7 @@ impl Vision {
         // The live image stays for the judgement; only an overlay's frame needs a copy.
         let image = job.keep_image.then(|| live.clone());
         self.last = Some(LastFrame { live, registered });
+        self.rendering = Some(rendering);
         times.total = t0.elapsed().as_secs_f64();
         Ok(FrameResult {
             visible: visible.len(),
