@@ -191,7 +191,8 @@ pub struct Vision {
     map: FeatureMap,
     options: VisionOptions,
     last: Option<LastFrame>,
-    /// The last frame's rendering, whose buffers the next frame's fills.
+    /// The last rendering (of a frame, an assessment or a contrast), whose buffers the next
+    /// one fills.
     rendering: Option<crate::render::Frame>,
 }
 
@@ -204,12 +205,14 @@ impl std::fmt::Debug for Vision {
     }
 }
 
-/// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`.
+/// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`,
+/// into `reuse`'s buffers when given (the tracker keeps its last rendering's).
 fn render_at(
     renderer: &mut Renderer,
     ideal: &Camera,
     clip: (f64, f64),
     pose: &CameraPose,
+    reuse: Option<crate::render::Frame>,
 ) -> Result<crate::render::Frame, TrackError> {
     let view = RenderView {
         pinhole: ideal.pinhole,
@@ -217,7 +220,9 @@ fn render_at(
         near: clip.0,
         far: clip.1,
     };
-    Ok(renderer.render(&view)?)
+    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty(view));
+    renderer.render_into(&view, &mut frame)?;
+    Ok(frame)
 }
 
 /// The camera pose of a prediction.
@@ -269,8 +274,16 @@ impl Vision {
             .map(|(r, _)| *r)
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
-        let rendering = render_at(&mut self.renderer, &self.ideal, self.options.clip, pose)?;
+        let reuse = self.rendering.take();
+        let rendering = render_at(
+            &mut self.renderer,
+            &self.ideal,
+            self.options.clip,
+            pose,
+            reuse,
+        )?;
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
+        self.rendering = Some(rendering);
         Ok(Assessment {
             features,
             rms_px,
@@ -289,9 +302,12 @@ impl Vision {
     ) -> Result<Contrast, TrackError> {
         let live = self.undistort(raw)?;
         let clip = self.options.clip;
-        let ra = render_at(&mut self.renderer, &self.ideal, clip, a)?;
-        let rb = render_at(&mut self.renderer, &self.ideal, clip, b)?;
-        Ok(contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live))
+        let reuse = self.rendering.take();
+        let ra = render_at(&mut self.renderer, &self.ideal, clip, a, reuse)?;
+        let rb = render_at(&mut self.renderer, &self.ideal, clip, b, None)?;
+        let c = contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live);
+        self.rendering = Some(ra);
+        Ok(c)
     }
 
     /// The live image of `raw` undistorted into the ideal camera the analysis works in.
