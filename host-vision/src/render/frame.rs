@@ -1,6 +1,8 @@
 //! What one rendering returns, and the view it was rendered from.
 
 use image::{GrayImage, RgbaImage};
+use rayon::prelude::*;
+use wide::f64x4;
 
 use super::RenderError;
 use super::projection::depth_to_z;
@@ -41,6 +43,47 @@ impl RenderView {
     }
 }
 
+/// Rows per band of the parallel conversion: a few bands per thread at 240 rows and more.
+const BAND_ROWS: usize = 32;
+
+/// One row of depth bits (`f32`, native byte order) into camera `z` (0 on background) and the
+/// mask (255 where `z > 0`): [`depth_to_z`]'s operations in its order on four lanes of `f64`,
+/// so the values are the same to the last bit. Background (`d = 0`) and non-finite values fail
+/// the `d > 0` lane test or give `z = 0` (`d = ∞`), as [`depth_to_z`]'s `None`.
+fn depth_row(bits: &[u8], near: f64, far: f64, z: &mut [f32], mask: &mut [u8]) {
+    let (range, n, nf) = (
+        f64x4::splat(far - near),
+        f64x4::splat(near),
+        f64x4::splat(near * far),
+    );
+    let zero = f64x4::ZERO;
+    let depth = |b: &[u8]| f32::from_bits(u32::from_ne_bytes([b[0], b[1], b[2], b[3]]));
+    let mut z4 = z.chunks_exact_mut(4);
+    let mut m4 = mask.chunks_exact_mut(4);
+    let mut b16 = bits.chunks_exact(16);
+    for ((z, m), b) in (&mut z4).zip(&mut m4).zip(&mut b16) {
+        let d = f64x4::from([
+            depth(&b[0..4]) as f64,
+            depth(&b[4..8]) as f64,
+            depth(&b[8..12]) as f64,
+            depth(&b[12..16]) as f64,
+        ]);
+        let v = d
+            .simd_gt(zero)
+            .select(nf / (range * d + n), zero)
+            .to_array();
+        for k in 0..4 {
+            z[k] = v[k] as f32;
+            m[k] = if z[k] > 0.0 { 255 } else { 0 };
+        }
+    }
+    let tail = z4.into_remainder().iter_mut().zip(m4.into_remainder());
+    for ((z, m), b) in tail.zip(b16.remainder().chunks_exact(4)) {
+        *z = depth_to_z(depth(b), near, far).unwrap_or(0.0) as f32;
+        *m = if *z > 0.0 { 255 } else { 0 };
+    }
+}
+
 /// One rendered frame, all images row-major with the top row first.
 #[derive(Debug, Clone)]
 pub struct Frame {
@@ -57,44 +100,80 @@ pub struct Frame {
 }
 
 impl Frame {
-    pub(crate) fn from_readback(
-        view: RenderView,
-        width: u32,
-        height: u32,
-        rgba: Vec<u8>,
-        depth_bits: &[u32],
-    ) -> Result<Self, RenderError> {
-        let size_err = || RenderError::Readback("readback size mismatch".into());
-        let rgba = RgbaImage::from_raw(width, height, rgba).ok_or_else(size_err)?;
-        // BT.601 luma in 16.16 fixed point: one pass over the raw bytes.
-        let gray_raw: Vec<u8> = rgba
-            .as_raw()
-            .chunks_exact(4)
-            .map(|p| {
-                ((19595 * p[0] as u32 + 38470 * p[1] as u32 + 7471 * p[2] as u32 + 32768) >> 16)
-                    as u8
-            })
-            .collect();
-        let gray = GrayImage::from_raw(width, height, gray_raw).ok_or_else(size_err)?;
-        let (near, far) = (view.near, view.far);
-        let mut mask_raw = Vec::with_capacity(depth_bits.len());
-        let z: Vec<f32> = depth_bits
-            .iter()
-            .map(|&bits| {
-                let z = depth_to_z(f32::from_bits(bits), near, far).unwrap_or(0.0) as f32;
-                mask_raw.push(if z > 0.0 { 255 } else { 0 });
-                z
-            })
-            .collect();
-        let mask = GrayImage::from_raw(width, height, mask_raw).ok_or_else(size_err)?;
-        let depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
-        Ok(Self {
+    /// A frame with no pixels, whose buffers [`super::Renderer::render_into`] fills (and
+    /// reuses from then on).
+    pub fn empty(view: RenderView) -> Self {
+        Self {
             view,
-            rgba,
-            gray,
-            depth,
-            mask,
-        })
+            rgba: RgbaImage::new(0, 0),
+            gray: GrayImage::new(0, 0),
+            depth: Gray32FImage::new(0, 0),
+            mask: GrayImage::new(0, 0),
+        }
+    }
+
+    /// Fills the images from the mapped read-back buffers (`stride` bytes per row, rows padded
+    /// to wgpu's copy alignment), reusing their allocations: a fresh 640×480 frame is 4.6 MB
+    /// of new pages, and faulting them in every frame cost more than the conversion itself.
+    /// Bands of rows are converted in parallel on rayon's pool.
+    pub(crate) fn fill_from_mapped(
+        &mut self,
+        view: RenderView,
+        (width, height): (u32, u32),
+        colour: &[u8],
+        depth_bits: &[u8],
+        stride: usize,
+    ) -> Result<(), RenderError> {
+        let size_err = || RenderError::Readback("readback size mismatch".into());
+        let (w, h) = (width as usize, height as usize);
+        let n = w * h;
+        if stride < 4 * w || colour.len() < stride * h || depth_bits.len() < stride * h {
+            return Err(size_err());
+        }
+        let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
+        let mut gray = std::mem::replace(&mut self.gray, GrayImage::new(0, 0)).into_raw();
+        let mut z = std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw();
+        let mut mask = std::mem::replace(&mut self.mask, GrayImage::new(0, 0)).into_raw();
+        // Same length as last frame: no-ops, every value is overwritten below.
+        rgba.resize(4 * n, 0);
+        gray.resize(n, 0);
+        z.resize(n, 0.0);
+        mask.resize(n, 0);
+        let (near, far) = (view.near, view.far);
+        rgba.par_chunks_mut(4 * w * BAND_ROWS)
+            .zip(gray.par_chunks_mut(w * BAND_ROWS))
+            .zip(z.par_chunks_mut(w * BAND_ROWS))
+            .zip(mask.par_chunks_mut(w * BAND_ROWS))
+            .enumerate()
+            .for_each(|(band, (((rgba, gray), z), mask))| {
+                let first = band * BAND_ROWS;
+                for (k, (((rgba, gray), z), mask)) in rgba
+                    .chunks_exact_mut(4 * w)
+                    .zip(gray.chunks_exact_mut(w))
+                    .zip(z.chunks_exact_mut(w))
+                    .zip(mask.chunks_exact_mut(w))
+                    .enumerate()
+                {
+                    let at = (first + k) * stride;
+                    let colour = &colour[at..at + 4 * w];
+                    rgba.copy_from_slice(colour);
+                    // BT.601 luma in 16.16 fixed point.
+                    for (g, p) in gray.iter_mut().zip(colour.chunks_exact(4)) {
+                        *g = ((19595 * p[0] as u32
+                            + 38470 * p[1] as u32
+                            + 7471 * p[2] as u32
+                            + 32768)
+                            >> 16) as u8;
+                    }
+                    depth_row(&depth_bits[at..at + 4 * w], near, far, z, mask);
+                }
+            });
+        self.view = view;
+        self.rgba = RgbaImage::from_raw(width, height, rgba).ok_or_else(size_err)?;
+        self.gray = GrayImage::from_raw(width, height, gray).ok_or_else(size_err)?;
+        self.depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
+        self.mask = GrayImage::from_raw(width, height, mask).ok_or_else(size_err)?;
+        Ok(())
     }
 
     /// Image size `(width, height)`.
@@ -106,5 +185,50 @@ impl Frame {
     pub fn depth_at(&self, u: u32, v: u32) -> Option<f64> {
         let z = self.depth.get_pixel_checked(u, v)?.0[0];
         (z > 0.0).then_some(z as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The lanes of `depth_row` give `depth_to_z`'s values bit for bit, the tail included.
+    #[test]
+    fn depth_row_equals_depth_to_z() {
+        let (near, far) = (0.05, 50.0);
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            -1.0,
+            1.0,
+            0.5,
+            f32::MIN_POSITIVE,
+            f32::MIN_POSITIVE / 8.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            1.0e-7,
+        ];
+        // A deterministic spread of bit patterns over the whole f32 range.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..4000 {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            values.push(f32::from_bits((state >> 32) as u32));
+            values.push((state >> 40) as f32 / (1u64 << 24) as f32);
+        }
+        for width in [1, 3, 4, 5, 8, 11, values.len()] {
+            for row in values.chunks(width) {
+                let bits: Vec<u8> = row.iter().flat_map(|v| v.to_ne_bytes()).collect();
+                let (mut z, mut mask) = (vec![7.0f32; row.len()], vec![7u8; row.len()]);
+                depth_row(&bits, near, far, &mut z, &mut mask);
+                for ((&d, &z), &m) in row.iter().zip(&z).zip(&mask) {
+                    let want = depth_to_z(d, near, far).unwrap_or(0.0) as f32;
+                    assert_eq!(z.to_bits(), want.to_bits(), "d = {d:e}");
+                    assert_eq!(m, if want > 0.0 { 255 } else { 0 }, "d = {d:e}");
+                }
+            }
+        }
     }
 }

@@ -85,6 +85,9 @@ pub enum RenderError {
     /// `render` before `set_model`, or a model without meshes.
     #[error("no model to render (call set_model with a non-empty model)")]
     EmptyModel,
+    /// `finish_into` without a rendering submitted.
+    #[error("no rendering submitted (call submit before finish_into)")]
+    NothingSubmitted,
 }
 
 /// How depth reaches the CPU.
@@ -114,6 +117,8 @@ pub struct Renderer {
     gpu: Gpu,
     targets: Targets,
     scene: Option<GpuScene>,
+    /// The view of the rendering submitted and not yet read back.
+    pending: Option<RenderView>,
 }
 
 impl Renderer {
@@ -150,6 +155,7 @@ impl Renderer {
             gpu,
             targets,
             scene: None,
+            pending: None,
         })
     }
 
@@ -200,6 +206,22 @@ impl Renderer {
 
     /// Renders the model as seen from `view` and reads everything back.
     pub fn render(&mut self, view: &RenderView) -> Result<Frame, RenderError> {
+        let mut frame = Frame::empty(*view);
+        self.render_into(view, &mut frame)?;
+        Ok(frame)
+    }
+
+    /// [`Renderer::render`] into `frame`, reusing its buffers (a tracker renders every frame).
+    pub fn render_into(&mut self, view: &RenderView, frame: &mut Frame) -> Result<(), RenderError> {
+        self.submit(view)?;
+        self.finish_into(frame)
+    }
+
+    /// Starts rendering `view` and returns without waiting: the driver rasterises on its own
+    /// threads while the caller does other work, then [`Renderer::finish_into`] collects it.
+    /// A rendering submitted and never collected is replaced by the next.
+    pub fn submit(&mut self, view: &RenderView) -> Result<(), RenderError> {
+        self.pending = None;
         view.validate()?;
         let scene = self.scene.as_ref().ok_or(RenderError::EmptyModel)?;
         let (gpu, targets) = (&self.gpu, &self.targets);
@@ -207,9 +229,17 @@ impl Renderer {
             targets.encode_and_submit(&gpu.device, &gpu.queue, scene, view);
             Ok(())
         })?;
-        let (rgba, depth_bits) = targets.read_back(&gpu.device)?;
-        gpu.take_uncaptured("reading back")?;
-        Frame::from_readback(*view, targets.width, targets.height, rgba, &depth_bits)
+        self.pending = Some(*view);
+        Ok(())
+    }
+
+    /// Waits for the rendering [`Renderer::submit`] started and reads it back into `frame`,
+    /// reusing its buffers.
+    pub fn finish_into(&mut self, frame: &mut Frame) -> Result<(), RenderError> {
+        let view = self.pending.take().ok_or(RenderError::NothingSubmitted)?;
+        let (gpu, targets) = (&self.gpu, &self.targets);
+        targets.read_into(&gpu.device, view, frame)?;
+        gpu.take_uncaptured("reading back")
     }
 }
 

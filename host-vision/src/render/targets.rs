@@ -4,7 +4,7 @@ use std::sync::mpsc;
 
 use super::projection::projection_matrix;
 use super::scene::{GpuScene, Vertex};
-use super::{DepthReadback, RenderError, RenderView};
+use super::{DepthReadback, Frame, RenderError, RenderView};
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -394,9 +394,14 @@ impl Targets {
         queue.submit(Some(encoder.finish()));
     }
 
-    /// Waits for the frame and returns the colour bytes (RGBA8) and depth bits (`f32` as
-    /// `u32`), both tightly packed row-major, top row first.
-    pub fn read_back(&self, device: &wgpu::Device) -> Result<(Vec<u8>, Vec<u32>), RenderError> {
+    /// Waits for the frame and converts it into `frame` (see [`Frame::fill_from_mapped`]),
+    /// straight from the mapped buffers.
+    pub fn read_into(
+        &self,
+        device: &wgpu::Device,
+        view: RenderView,
+        frame: &mut Frame,
+    ) -> Result<(), RenderError> {
         let (tx, rx) = mpsc::channel();
         for (i, buffer) in [&self.colour_readback, &self.depth_readback_buffer]
             .into_iter()
@@ -425,7 +430,7 @@ impl Targets {
         }
         let result = match failure {
             Some(f) => Err(RenderError::Readback(f)),
-            None => self.copy_out(),
+            None => self.convert(view, frame),
         };
         for (i, buffer) in [&self.colour_readback, &self.depth_readback_buffer]
             .into_iter()
@@ -438,32 +443,19 @@ impl Targets {
         result
     }
 
-    fn copy_out(&self) -> Result<(Vec<u8>, Vec<u32>), RenderError> {
-        let row = padded_row(self.width) as usize;
-        let used = self.width as usize * 4;
-        let n = self.width as usize * self.height as usize;
+    fn convert(&self, view: RenderView, frame: &mut Frame) -> Result<(), RenderError> {
         let map_err = |e: wgpu::MapRangeError| RenderError::Readback(e.to_string());
-        let mut rgba = Vec::with_capacity(n * 4);
-        {
-            let view = self.colour_readback.get_mapped_range(..).map_err(map_err)?;
-            for r in view.chunks_exact(row) {
-                rgba.extend_from_slice(&r[..used]);
-            }
-        }
-        let mut depth = Vec::with_capacity(n);
-        {
-            let view = self
-                .depth_readback_buffer
-                .get_mapped_range(..)
-                .map_err(map_err)?;
-            for r in view.chunks_exact(row) {
-                depth.extend(
-                    r[..used]
-                        .chunks_exact(4)
-                        .map(|b| u32::from_ne_bytes([b[0], b[1], b[2], b[3]])),
-                );
-            }
-        }
-        Ok((rgba, depth))
+        let colour = self.colour_readback.get_mapped_range(..).map_err(map_err)?;
+        let depth = self
+            .depth_readback_buffer
+            .get_mapped_range(..)
+            .map_err(map_err)?;
+        frame.fill_from_mapped(
+            view,
+            (self.width, self.height),
+            &colour,
+            &depth,
+            padded_row(self.width) as usize,
+        )
     }
 }

@@ -191,6 +191,9 @@ pub struct Vision {
     map: FeatureMap,
     options: VisionOptions,
     last: Option<LastFrame>,
+    /// The last rendering (of a frame, an assessment or a contrast), whose buffers the next
+    /// one fills.
+    rendering: Option<crate::render::Frame>,
 }
 
 impl std::fmt::Debug for Vision {
@@ -202,12 +205,14 @@ impl std::fmt::Debug for Vision {
     }
 }
 
-/// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`.
+/// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`,
+/// into `reuse`'s buffers when given (the tracker keeps its last rendering's).
 fn render_at(
     renderer: &mut Renderer,
     ideal: &Camera,
     clip: (f64, f64),
     pose: &CameraPose,
+    reuse: Option<crate::render::Frame>,
 ) -> Result<crate::render::Frame, TrackError> {
     let view = RenderView {
         pinhole: ideal.pinhole,
@@ -215,7 +220,9 @@ fn render_at(
         near: clip.0,
         far: clip.1,
     };
-    Ok(renderer.render(&view)?)
+    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty(view));
+    renderer.render_into(&view, &mut frame)?;
+    Ok(frame)
 }
 
 /// The camera pose of a prediction.
@@ -243,6 +250,7 @@ impl Vision {
             map: FeatureMap::new(options.map),
             options,
             last: None,
+            rendering: None,
         })
     }
 
@@ -266,8 +274,16 @@ impl Vision {
             .map(|(r, _)| *r)
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
-        let rendering = render_at(&mut self.renderer, &self.ideal, self.options.clip, pose)?;
+        let reuse = self.rendering.take();
+        let rendering = render_at(
+            &mut self.renderer,
+            &self.ideal,
+            self.options.clip,
+            pose,
+            reuse,
+        )?;
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
+        self.rendering = Some(rendering);
         Ok(Assessment {
             features,
             rms_px,
@@ -286,9 +302,12 @@ impl Vision {
     ) -> Result<Contrast, TrackError> {
         let live = self.undistort(raw)?;
         let clip = self.options.clip;
-        let ra = render_at(&mut self.renderer, &self.ideal, clip, a)?;
-        let rb = render_at(&mut self.renderer, &self.ideal, clip, b)?;
-        Ok(contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live))
+        let reuse = self.rendering.take();
+        let ra = render_at(&mut self.renderer, &self.ideal, clip, a, reuse)?;
+        let rb = render_at(&mut self.renderer, &self.ideal, clip, b, None)?;
+        let c = contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live);
+        self.rendering = Some(ra);
+        Ok(c)
     }
 
     /// The live image of `raw` undistorted into the ideal camera the analysis works in.
@@ -428,9 +447,8 @@ impl Vision {
                 expected: (self.camera.width, self.camera.height),
             });
         }
-        let live = self.undistort.remap_gray(&raw)?;
-        times.load = t0.elapsed().as_secs_f64();
-
+        // The rendering is submitted first: the driver rasterises on its threads while this
+        // one undistorts the live image.
         let t = Instant::now();
         let pose = prediction_pose(&job.prediction)?;
         let view = RenderView {
@@ -439,8 +457,18 @@ impl Vision {
             near: self.options.clip.0,
             far: self.options.clip.1,
         };
-        let rendering = self.renderer.render(&view)?;
-        times.render = t.elapsed().as_secs_f64();
+        self.renderer.submit(&view)?;
+        let submitted = t.elapsed();
+        let live = self.undistort.remap_gray(&raw)?;
+        times.load = (t0.elapsed() - submitted).as_secs_f64();
+        let t = Instant::now();
+        // The previous frame's buffers, refilled (no fresh pages to fault in).
+        let mut rendering = self
+            .rendering
+            .take()
+            .unwrap_or_else(|| crate::render::Frame::empty(view));
+        self.renderer.finish_into(&mut rendering)?;
+        times.render = (submitted + t.elapsed()).as_secs_f64();
         let (w, h) = (self.camera.width, self.camera.height);
         let frame_index = job.index as u64;
         let model_coverage =
@@ -606,6 +634,7 @@ impl Vision {
         // The live image stays for the judgement; only an overlay's frame needs a copy.
         let image = job.keep_image.then(|| live.clone());
         self.last = Some(LastFrame { live, registered });
+        self.rendering = Some(rendering);
         times.total = t0.elapsed().as_secs_f64();
         Ok(FrameResult {
             visible: visible.len(),
