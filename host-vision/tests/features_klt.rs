@@ -964,7 +964,7 @@ fn typed_failure_reasons() {
 /// (its script's table); the photometric model is meant for exactly these. The fast path and
 /// the reference implementation are run side by side. Where the targets clip (1.8J − 30 and
 /// 2.5J − 60 saturate much of the frame) the fast path predicts the clipping (eq. 5.6; the
-/// reference does not): 2.5J − 60 fails on 7.0 %, not yet issue 16's goal (≤ 5 %).
+/// reference does not): 2.5J − 60 fails on 5.6 %, not yet issue 16's goal (≤ 5 %).
 #[test]
 fn registers_opencvs_cases_under_illumination_changes() {
     let Some(cases) = klt_cases::load() else {
@@ -1025,7 +1025,7 @@ fn registers_opencvs_cases_under_illumination_changes() {
         let (max_share, max_median) = match name {
             "none" => (0.5, 0.02),
             "c1.8b-30" => (2.0, 0.03),
-            "c2.5b-60" => (8.0, 0.03),
+            "c2.5b-60" => (6.0, 0.03),
             _ => (1.0, 0.03),
         };
         assert!(

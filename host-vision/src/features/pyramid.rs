@@ -17,7 +17,7 @@ pub const MIN_LEVEL_SIDE: usize = 8;
 
 /// Reflect-101 border index (`… 2 1 | 0 1 2 … n−1 | n−2 …`), as OpenCV's default border.
 #[inline]
-fn reflect101(i: isize, n: usize) -> usize {
+pub(crate) fn reflect101(i: isize, n: usize) -> usize {
     if n == 1 {
         return 0;
     }

@@ -12,6 +12,7 @@
 use wide::f32x4;
 
 use super::super::gray::{GrayF32, Mask};
+use super::super::pyramid::reflect101;
 use super::clip::ClipLevel;
 
 /// The template's level 0 before its smoothing, for the clipped prediction (eq. 5.6).
@@ -33,8 +34,8 @@ pub(super) struct Pre<'a> {
 /// `1[inside]` on the unsmoothed template sampled (bilinearly) where the grid's points fall at
 /// level 0, then smoothed and reduced exactly as the pyramid was (the Gaussian, then
 /// `pyr_down`'s binomial and every second pixel per level). The clip acts on the template
-/// at the live pixels' sub-pixel positions, as the camera's does on the scene. `None` if the
-/// support leaves the image.
+/// at the live pixels' sub-pixel positions, as the camera's does on the scene; beyond the
+/// image border, the pyramid's reflect-101 border. `None` for a position far outside.
 fn clipped_fields(
     pre: &Pre<'_>,
     origin: [f64; 2],
@@ -53,8 +54,26 @@ fn clipped_fields(
     let rr = pre.kernel.len().saturating_sub(1);
     let pn = bn + 2 * rr;
     let mut v = vec![0f32; pn * pn];
-    if !fill_bilinear(pre.img, bx - rr as f64, by - rr as f64, pn, pn, pn, &mut v) {
-        return None;
+    let (x0, y0) = (bx - rr as f64, by - rr as f64);
+    if !fill_bilinear(pre.img, x0, y0, pn, pn, pn, &mut v) {
+        // The support crosses the border: the pyramid's reflect-101 border, per sample.
+        let (fx, fy) = (x0.floor(), y0.floor());
+        let limit = 4.0 * (pre.img.width() + pre.img.height()) as f64;
+        if !(fx.abs() < limit && fy.abs() < limit) {
+            return None;
+        }
+        let (tx, ty) = ((x0 - fx) as f32, (y0 - fy) as f32);
+        let (w, h, data) = (pre.img.width(), pre.img.height(), pre.img.data());
+        let px = |x: isize, y: isize| data[reflect101(y, h) * w + reflect101(x, w)];
+        for (y, row) in v.chunks_exact_mut(pn).enumerate() {
+            let yi = fy as isize + y as isize;
+            for (x, o) in row.iter_mut().enumerate() {
+                let xi = fx as isize + x as isize;
+                let top = px(xi, yi) + tx * (px(xi + 1, yi) - px(xi, yi));
+                let bottom = px(xi, yi + 1) + tx * (px(xi + 1, yi + 1) - px(xi, yi + 1));
+                *o = top + ty * (bottom - top);
+            }
+        }
     }
     let mut f = [
         vec![0f32; pn * pn],
@@ -439,12 +458,12 @@ impl Window {
         }
     }
 
-    /// The clipped prediction `P = G ⊛ clip(a I₀ + b)` of eq. 5.6 in `p` with its derivatives
-    /// `pa = G ⊛ (I₀ · 1[inside])`, `pb = G ⊛ 1[inside]`, when it differs from `a I + b`:
-    /// the prediction passes a clip level by more than one quantisation step (the template
-    /// window's extremes, eq. 5.7). `I₀` is the template before its smoothing `G` (`pre`);
-    /// without it (coarse levels, or a window too near the border) the smoothed template is
-    /// clipped instead, `P = clip(a I + b)`, `pa = I · 1[inside]`, `pb = 1[inside]`.
+    /// The clipped prediction `P = D G ⊛ clip(a I₀ + b)` of eq. 5.6 in `p` with its
+    /// derivatives `pa = D G ⊛ (I₀ · 1[inside])`, `pb = D G ⊛ 1[inside]` (`clipped_fields`),
+    /// when it differs from `a I + b`: the prediction passes a clip level by more than one
+    /// quantisation step (the template window's extremes, eq. 5.7). `I₀` is the template
+    /// before its smoothing `G` (`pre`); without it the smoothed template is clipped instead,
+    /// `P = clip(a I + b)`, `pa = I · 1[inside]`, `pb = 1[inside]`.
     fn clipped_prediction(&mut self, a: f64, b: f64, pre: Option<Pre<'_>>) -> bool {
         let (side, pw) = (self.side, self.pw);
         let [lo, hi] = self.range;
