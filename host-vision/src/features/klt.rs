@@ -337,7 +337,11 @@ pub fn register(
             continue;
         };
         let tmask = mask.and_then(|m| m.level(level));
-        let jclip = target.clip().and_then(|c| c.level(level));
+        // Eq. 5.6 needs the template before its smoothing; without it, no cost.
+        let jclip = target
+            .clip()
+            .filter(|_| template.unsmoothed().is_some())
+            .and_then(|c| c.level(level));
         let (cx, cy) = (position[0] / scale, position[1] / scale);
         let mut dl = [d[0] / scale, d[1] / scale];
         // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
@@ -463,7 +467,10 @@ pub fn register(
     win.sample_template(t0, tmask, g[0], g[1]);
     win.sample_live(
         j0,
-        target.clip().and_then(|c| c.level(0)),
+        target
+            .clip()
+            .filter(|_| template.unsmoothed().is_some())
+            .and_then(|c| c.level(0)),
         g[0] + d[0],
         g[1] + d[1],
     );

@@ -389,7 +389,10 @@ impl Window {
         let half = f32x4::splat(0.5);
         // Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ, gy ρ, I ρ, ρ, ρ².
         let mut s = [f32x4::ZERO; 15];
-        self.clip_model = self.clip_any && self.clipped_prediction(a, b, pre);
+        self.clip_model = match pre {
+            Some(pre) if self.clip_any => self.clipped_prediction(a, b, pre),
+            _ => false,
+        };
         if self.clip_model {
             return self.accumulate_clipped();
         }
@@ -462,9 +465,8 @@ impl Window {
     /// derivatives `pa = D G ⊛ (I₀ · 1[inside])`, `pb = D G ⊛ 1[inside]` (`clipped_fields`),
     /// when it differs from `a I + b`: the prediction passes a clip level by more than one
     /// quantisation step (the template window's extremes, eq. 5.7). `I₀` is the template
-    /// before its smoothing `G` (`pre`); without it the smoothed template is clipped instead,
-    /// `P = clip(a I + b)`, `pa = I · 1[inside]`, `pb = 1[inside]`.
-    fn clipped_prediction(&mut self, a: f64, b: f64, pre: Option<Pre<'_>>) -> bool {
+    /// before its smoothing `G` (`pre`).
+    fn clipped_prediction(&mut self, a: f64, b: f64, pre: Pre<'_>) -> bool {
         let (side, pw) = (self.side, self.pw);
         let [lo, hi] = self.range;
         let (af, bf) = (a as f32, b as f32);
@@ -478,28 +480,14 @@ impl Window {
         if !(af * tmax + bf > hi + 1.0 || af * tmin + bf < lo - 1.0) {
             return false;
         }
-        if let Some(pre) = pre {
-            let origin = [pre.gx - self.r as f64, pre.gy - self.r as f64];
-            if let Some(f) = clipped_fields(&pre, origin, side, [af, bf], self.range) {
-                for (field, out) in f.iter().zip([&mut self.p, &mut self.pa, &mut self.pb]) {
-                    for (src, dst) in field.chunks_exact(side).zip(out.chunks_exact_mut(pw)) {
-                        dst[..side].copy_from_slice(src);
-                    }
-                }
-                return true;
+        let origin = [pre.gx - self.r as f64, pre.gy - self.r as f64];
+        let Some(f) = clipped_fields(&pre, origin, side, [af, bf], self.range) else {
+            return false;
+        };
+        for (field, out) in f.iter().zip([&mut self.p, &mut self.pa, &mut self.pb]) {
+            for (src, dst) in field.chunks_exact(side).zip(out.chunks_exact_mut(pw)) {
+                dst[..side].copy_from_slice(src);
             }
-        }
-        for ((&t, p), (pa, pb)) in self
-            .t
-            .iter()
-            .zip(self.p.iter_mut())
-            .zip(self.pa.iter_mut().zip(self.pb.iter_mut()))
-        {
-            let q = af * t + bf;
-            let inside = q > lo && q < hi;
-            *p = q.clamp(lo, hi);
-            *pa = if inside { t } else { 0.0 };
-            *pb = if inside { 1.0 } else { 0.0 };
         }
         true
     }
