@@ -963,8 +963,8 @@ fn typed_failure_reasons() {
 /// guess. OpenCV's 2-parameter LK (21×21, 3 levels) fails on 35-74 % of the changed targets
 /// (its script's table); the photometric model is meant for exactly these. The fast path and
 /// the reference implementation are run side by side. Where the targets clip (1.8J − 30 and
-/// 2.5J − 60 saturate the bright half of the frame) the model `I ≈ λJ + δ` no longer holds:
-/// the bounds there are today's figures, not issue 16's goal (≤ 5 % at 2.5J − 60).
+/// 2.5J − 60 saturate much of the frame) the fast path predicts the clipping (eq. 5.6; the
+/// reference does not): 2.5J − 60 fails on 5.6 %, not yet issue 16's goal (≤ 5 %).
 #[test]
 fn registers_opencvs_cases_under_illumination_changes() {
     let Some(cases) = klt_cases::load() else {
@@ -977,7 +977,9 @@ fn registers_opencvs_cases_under_illumination_changes() {
         let (mut tried, mut failed, mut errors) = (0, 0, Vec::new());
         let (mut ref_failed, mut ref_errors) = (0, Vec::new());
         for case in &cases {
-            let tmpl = Pyramid::build_smoothed(
+            // Keeping the template before its smoothing lets the KLT predict the clipped
+            // targets exactly (docs/VISION.md §5, eq. 5.6).
+            let tmpl = Pyramid::build_keeping_unsmoothed(
                 GrayF32::from_gray8(&case.template).unwrap(),
                 cfg.levels,
                 cfg.template_sigma(0.0),
@@ -1022,8 +1024,8 @@ fn registers_opencvs_cases_under_illumination_changes() {
     for (name, share, med) in rows {
         let (max_share, max_median) = match name {
             "none" => (0.5, 0.02),
-            "c1.8b-30" => (4.0, 0.12),
-            "c2.5b-60" => (45.0, 0.25),
+            "c1.8b-30" => (2.0, 0.03),
+            "c2.5b-60" => (6.0, 0.03),
             _ => (1.0, 0.03),
         };
         assert!(

@@ -36,13 +36,14 @@ use nalgebra::Matrix2;
 use super::gray::GrayF32;
 use super::pyramid::{MaskPyramid, Pyramid};
 
+pub mod clip;
 mod noise;
 pub mod reference;
 mod solve;
 mod window;
 
 use solve::Factor;
-use window::{Normal, Window};
+use window::{Normal, Pre, Window};
 
 /// Position step (px of the level) below which the photometric parameters join the
 /// estimation.
@@ -92,13 +93,32 @@ pub struct KltConfig {
     pub smoothing: f32,
     /// Estimated parameters.
     pub model: KltModel,
+    /// The live camera's clip levels `[lo, hi]` (gray levels): a raw live pixel exactly at
+    /// one is censored (docs/VISION.md §5, eq. 5.6). `None`: the live image never clips.
+    pub saturation: Option<[f32; 2]>,
 }
 
 impl KltConfig {
     /// The live image's pyramid as [`register`] expects it: smoothed by
     /// [`KltConfig::smoothing`], [`KltConfig::levels`] levels.
     pub fn target_pyramid(&self, live: GrayF32) -> Pyramid {
-        Pyramid::build_smoothed(live, self.levels, self.smoothing)
+        let Some([lo, hi]) = self.saturation else {
+            return Pyramid::build_smoothed(live, self.levels, self.smoothing);
+        };
+        // The clipped pixels of the raw image, before the smoothing spreads them.
+        let flags = clip::ClipMap::raw_flags(&live, lo, hi);
+        let pyramid = Pyramid::build_smoothed(live, self.levels, self.smoothing);
+        let map = flags.and_then(|f| {
+            let radius =
+                super::pyramid::gaussian_kernel(pyramid.smoothing()).map_or(0, |k| k.len() - 1);
+            let sizes: Vec<_> = pyramid
+                .levels()
+                .iter()
+                .map(|l| (l.width(), l.height()))
+                .collect();
+            clip::ClipMap::build(&f, [lo, hi], radius, &sizes)
+        });
+        pyramid.with_clip(map)
     }
 
     /// The total blur σ for the template: the anti-aliasing blur `antialias` and
@@ -132,6 +152,7 @@ impl Default for KltConfig {
             min_eigenvalue: 0.05,
             smoothing: 1.0,
             model: KltModel::Photometric,
+            saturation: Some([0.0, 255.0]),
         }
     }
 }
@@ -299,6 +320,16 @@ pub fn register(
     let mut iterations = 0;
     let mut win = Window::new(r);
 
+    // The template before its smoothing at level 0, for the clipped prediction (eq. 5.6).
+    let pre = |level: usize, g: [f64; 2]| {
+        template.unsmoothed().map(|(img, kernel)| Pre {
+            img,
+            kernel,
+            level,
+            gx: g[0],
+            gy: g[1],
+        })
+    };
     let mut final_anchor = None;
     for level in (0..levels).rev() {
         let scale = (1u32 << level) as f64;
@@ -306,6 +337,11 @@ pub fn register(
             continue;
         };
         let tmask = mask.and_then(|m| m.level(level));
+        // Eq. 5.6 needs the template before its smoothing; without it, no cost.
+        let jclip = target
+            .clip()
+            .filter(|_| template.unsmoothed().is_some())
+            .and_then(|c| c.level(level));
         let (cx, cy) = (position[0] / scale, position[1] / scale);
         let mut dl = [d[0] / scale, d[1] / scale];
         // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
@@ -337,7 +373,7 @@ pub fn register(
                 g = g_new;
                 win.sample_template(ti, tmask, g[0], g[1]);
             }
-            win.sample_live(ji, g[0] + dl[0], g[1] + dl[1]);
+            win.sample_live(ji, jclip, g[0] + dl[0], g[1] + dl[1]);
             if !locked {
                 // The paper's initialisation of λ, δ from the windows' means and standard
                 // deviations, repeated while the position is far off: there the windows hardly
@@ -348,7 +384,7 @@ pub fn register(
                     b = -dd / l;
                 }
             }
-            let n = win.accumulate(a, b);
+            let n = win.accumulate(a, b, pre(level, g));
             if n.count < needed {
                 if level == 0 {
                     return Err(n.shortfall(needed));
@@ -356,6 +392,9 @@ pub fn register(
                 (dl, a, b, locked) = start;
                 break;
             }
+            // The windows' moments ignore the clipping (it shrinks σ_J and moves J̄): where
+            // the prediction is clipped (eq. 5.6), λ, δ are estimated jointly from the start.
+            locked |= photometric && win.clip_model();
             let model = if locked {
                 cfg.model
             } else {
@@ -426,14 +465,23 @@ pub fn register(
     ];
     let tmask = mask.and_then(|m| m.level(0));
     win.sample_template(t0, tmask, g[0], g[1]);
-    win.sample_live(j0, g[0] + d[0], g[1] + d[1]);
-    let n = win.accumulate(a, b);
+    win.sample_live(
+        j0,
+        target
+            .clip()
+            .filter(|_| template.unsmoothed().is_some())
+            .and_then(|c| c.level(0)),
+        g[0] + d[0],
+        g[1] + d[1],
+    );
+    let n = win.accumulate(a, b, pre(0, g));
     if n.count < needed {
         return Err(n.shortfall(needed));
     }
     let factor = Factor::new(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
     let inv = factor.inverse();
-    let count = n.count as f64;
+    // The pixels used: censored ones carry no residual (eq. 5.6).
+    let count = n.used;
     let var_sum = n.sum_i2 - n.sum_i * n.sum_i / count;
     if var_sum <= 1e-9 * count {
         return Err(KltFailure::Singular);

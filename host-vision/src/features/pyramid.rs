@@ -8,6 +8,7 @@
 use wide::f32x8;
 
 use super::gray::{GrayF32, ImageError, Mask};
+use super::klt::clip::ClipMap;
 
 pub mod reference;
 
@@ -16,7 +17,7 @@ pub const MIN_LEVEL_SIDE: usize = 8;
 
 /// Reflect-101 border index (`… 2 1 | 0 1 2 … n−1 | n−2 …`), as OpenCV's default border.
 #[inline]
-fn reflect101(i: isize, n: usize) -> usize {
+pub(crate) fn reflect101(i: isize, n: usize) -> usize {
     if n == 1 {
         return 0;
     }
@@ -333,6 +334,12 @@ pub fn pyr_down(img: &GrayF32) -> GrayF32 {
 pub struct Pyramid {
     levels: Vec<GrayF32>,
     smoothing: f32,
+    /// Where the raw image's clipping reaches the levels (live images, see
+    /// [`Pyramid::with_clip`]).
+    clip: Option<ClipMap>,
+    /// Level 0 before its smoothing and the smoothing's half kernel (templates, see
+    /// [`Pyramid::build_keeping_unsmoothed`]).
+    unsmoothed: Option<(GrayF32, Vec<f32>)>,
 }
 
 impl Pyramid {
@@ -369,7 +376,41 @@ impl Pyramid {
         Self {
             levels: out,
             smoothing,
+            clip: None,
+            unsmoothed: None,
         }
+    }
+
+    /// As [`Pyramid::build_smoothed`], keeping level 0 before the smoothing: the KLT then
+    /// predicts a clipping live camera's smoothed image exactly (docs/VISION.md §5, eq. 5.6).
+    pub fn build_keeping_unsmoothed(base: GrayF32, levels: usize, sigma: f32) -> Self {
+        let kept = base.clone();
+        let mut out = Self::build_smoothed(base, levels, sigma);
+        out.unsmoothed = gaussian_kernel(out.smoothing).map(|k| (kept, k));
+        out
+    }
+
+    /// Level 0 before its smoothing and the smoothing's half kernel, if kept (see
+    /// [`Pyramid::build_keeping_unsmoothed`]).
+    pub fn unsmoothed(&self) -> Option<(&GrayF32, &[f32])> {
+        self.unsmoothed.as_ref().map(|(i, k)| (i, k.as_slice()))
+    }
+
+    /// The pyramid with the map of where the raw image's clipped pixels reach its levels
+    /// (`None`: no clipped pixel). Built by `KltConfig::target_pyramid`.
+    pub fn with_clip(mut self, clip: Option<ClipMap>) -> Self {
+        self.clip = clip.filter(|c| {
+            self.levels.iter().enumerate().all(|(k, l)| {
+                c.level(k)
+                    .is_some_and(|m| (m.width(), m.height()) == (l.width(), l.height()))
+            })
+        });
+        self
+    }
+
+    /// The clip map given to [`Pyramid::with_clip`].
+    pub fn clip(&self) -> Option<&ClipMap> {
+        self.clip.as_ref()
     }
 
     /// The Gaussian σ (px) level 0 was smoothed with; 0 for none.

@@ -75,11 +75,12 @@ pub(super) fn interpolated(
             }
             let e = win.ext_at(i, j);
             let x = &win.ext;
+            let (ia, ib) = win.ab_jacobian(k);
             let g = f32x4::new([
                 0.5 * (x[e + 1] - x[e - 1]),
                 0.5 * (x[e + es] - x[e - es]),
-                -win.t[k] * photometric,
-                -photometric,
+                -ia * photometric,
+                -ib * photometric,
             ]);
             for &(ox, oy, wv) in &wts {
                 u[(j + oy) * us + i + ox] += g * f32x4::splat(wv);

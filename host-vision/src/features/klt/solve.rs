@@ -21,7 +21,7 @@ impl Factor {
     /// Factorises the normal matrix restricted to `model`'s parameters (fixed `λ, δ` as unit
     /// rows, so the same solve applies); `None` if it is not positive definite or the position
     /// block's smallest eigenvalue, after eliminating `λ, δ`, is below `min_eigenvalue` per
-    /// pixel used (no usable texture).
+    /// pixel used (no usable texture; censored pixels, eq. 5.6, carry none and do not count).
     pub fn new(n: &Normal, model: KltModel, min_eigenvalue: f64) -> Option<Self> {
         let mut h = [[0f64; 4]; 4];
         for (i, row) in h.iter_mut().enumerate() {
@@ -55,7 +55,7 @@ impl Factor {
             l[3][2] * l[3][2] + l[3][3] * l[3][3],
         );
         let min_eig = 0.5 * (s11 + s22 - (s11 - s22).hypot(2.0 * s12));
-        if !min_eig.is_finite() || min_eig < min_eigenvalue * n.count as f64 {
+        if !min_eig.is_finite() || min_eig < min_eigenvalue * n.used {
             return None;
         }
         Some(Self { l })

@@ -12,6 +12,117 @@
 use wide::f32x4;
 
 use super::super::gray::{GrayF32, Mask};
+use super::super::pyramid::reflect101;
+use super::clip::ClipLevel;
+
+/// The template's level 0 before its smoothing, for the clipped prediction (eq. 5.6).
+#[derive(Clone, Copy)]
+pub(super) struct Pre<'a> {
+    /// The unsmoothed image.
+    pub img: &'a GrayF32,
+    /// The smoothing's half kernel (`gaussian_kernel`).
+    pub kernel: &'a [f32],
+    /// The pyramid level of the window.
+    pub level: usize,
+    /// The template grid's centre, px of that level.
+    pub gx: f64,
+    pub gy: f64,
+}
+
+/// The three fields of the clipped prediction (eq. 5.6) on the `n × n` window grid from
+/// `origin` (px of pyramid level `pre.level`): `clip(a I₀ + b)`, `I₀ · 1[inside]` and
+/// `1[inside]` on the unsmoothed template sampled (bilinearly) where the grid's points fall at
+/// level 0, then smoothed and reduced exactly as the pyramid was (the Gaussian, then
+/// `pyr_down`'s binomial and every second pixel per level). The clip acts on the template
+/// at the live pixels' sub-pixel positions, as the camera's does on the scene; beyond the
+/// image border, the pyramid's reflect-101 border. `None` for a position far outside.
+fn clipped_fields(
+    pre: &Pre<'_>,
+    origin: [f64; 2],
+    n: usize,
+    ab: [f32; 2],
+    range: [f32; 2],
+) -> Option<[Vec<f32>; 3]> {
+    let [a, b] = ab;
+    let [lo, hi] = range;
+    // The boxes from level `pre.level` down to level 0 (pixel X of a level is the binomial
+    // over 2X − 2 ..= 2X + 2 of the one below), then the Gaussian's support.
+    let ([mut bx, mut by], mut bn) = (origin, n);
+    for _ in 0..pre.level {
+        (bx, by, bn) = (2.0 * bx - 2.0, 2.0 * by - 2.0, 2 * (bn - 1) + 5);
+    }
+    let rr = pre.kernel.len().saturating_sub(1);
+    let pn = bn + 2 * rr;
+    let mut v = vec![0f32; pn * pn];
+    let (x0, y0) = (bx - rr as f64, by - rr as f64);
+    if !fill_bilinear(pre.img, x0, y0, pn, pn, pn, &mut v) {
+        // The support crosses the border: the pyramid's reflect-101 border, per sample.
+        let (fx, fy) = (x0.floor(), y0.floor());
+        let limit = 4.0 * (pre.img.width() + pre.img.height()) as f64;
+        if !(fx.abs() < limit && fy.abs() < limit) {
+            return None;
+        }
+        let (tx, ty) = ((x0 - fx) as f32, (y0 - fy) as f32);
+        let (w, h, data) = (pre.img.width(), pre.img.height(), pre.img.data());
+        let px = |x: isize, y: isize| data[reflect101(y, h) * w + reflect101(x, w)];
+        for (y, row) in v.chunks_exact_mut(pn).enumerate() {
+            let yi = fy as isize + y as isize;
+            for (x, o) in row.iter_mut().enumerate() {
+                let xi = fx as isize + x as isize;
+                let top = px(xi, yi) + tx * (px(xi + 1, yi) - px(xi, yi));
+                let bottom = px(xi, yi + 1) + tx * (px(xi + 1, yi + 1) - px(xi, yi + 1));
+                *o = top + ty * (bottom - top);
+            }
+        }
+    }
+    let mut f = [
+        vec![0f32; pn * pn],
+        vec![0f32; pn * pn],
+        vec![0f32; pn * pn],
+    ];
+    for (k, &x) in v.iter().enumerate() {
+        let q = a * x + b;
+        let inside = q > lo && q < hi;
+        f[0][k] = q.clamp(lo, hi);
+        f[1][k] = if inside { x } else { 0.0 };
+        f[2][k] = if inside { 1.0 } else { 0.0 };
+    }
+    let gauss: Vec<f32> = (0..=2 * rr).map(|k| pre.kernel[k.abs_diff(rr)]).collect();
+    let binomial = [1.0 / 16.0, 4.0 / 16.0, 6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
+    let mut f = f.map(|v| filter_down(&v, pn, &gauss, 1));
+    let mut side = bn;
+    for _ in 0..pre.level {
+        f = f.map(|v| filter_down(&v, side, &binomial, 2));
+        side = (side - 5) / 2 + 1;
+    }
+    (side == n).then_some(f)
+}
+
+/// Separable valid convolution of the `side × side` field `src` with `taps`, keeping every
+/// `step`-th output: `out[y][x] = Σ taps[k] taps[l] src[step·y + l][step·x + k]`.
+fn filter_down(src: &[f32], side: usize, taps: &[f32], step: usize) -> Vec<f32> {
+    let m = taps.len();
+    if side < m {
+        return Vec::new();
+    }
+    let out = (side - m) / step + 1;
+    let mut rows = vec![0f32; side * out];
+    for y in 0..side {
+        let r = &src[y * side..(y + 1) * side];
+        for x in 0..out {
+            rows[y * out + x] = taps.iter().zip(&r[step * x..]).map(|(t, v)| t * v).sum();
+        }
+    }
+    let mut res = vec![0f32; out * out];
+    for y in 0..out {
+        for x in 0..out {
+            res[y * out + x] = (0..m)
+                .map(|l| taps[l] * rows[(step * y + l) * out + x])
+                .sum();
+        }
+    }
+    res
+}
 
 /// Lanes per accumulation step.
 const LANES: usize = 4;
@@ -24,8 +135,10 @@ pub(super) struct Normal {
     pub b: [f64; 4],
     /// `Σ ρ²`.
     pub ssd: f64,
-    /// Pixels used.
+    /// Pixels in the window: used, or censored (they agree with the model, eq. 5.6).
     pub count: usize,
+    /// Pixels used, `Σ w` (the censored ones left out).
+    pub used: f64,
     /// Template pixels whose live samples left the image.
     pub outside: usize,
     /// `Σ I`, `Σ I²` over the pixels used.
@@ -57,6 +170,16 @@ pub(super) struct Window {
     /// Whether the live samples leave every template pixel usable (then `w` is stale and
     /// `tw` holds the weights, see [`Window::weights`]).
     live_all: bool,
+    /// Whether the camera's clipping reaches the live samples (see `clip`); then `range`
+    /// holds the clip levels.
+    clip_any: bool,
+    range: [f32; 2],
+    /// Whether the last [`Window::accumulate`] used the clipped prediction (eq. 5.6): then
+    /// `p` holds the prediction and `pa`, `pb` its derivatives in `a` and `b`.
+    clip_model: bool,
+    p: Vec<f32>,
+    pa: Vec<f32>,
+    pb: Vec<f32>,
     pub count: usize,
     pub outside: usize,
 }
@@ -79,6 +202,12 @@ impl Window {
             w: vec![0.0; side * pw],
             tw_full: false,
             live_all: false,
+            clip_any: false,
+            range: [0.0, 0.0],
+            clip_model: false,
+            p: vec![0.0; side * pw],
+            pa: vec![0.0; side * pw],
+            pb: vec![0.0; side * pw],
             count: 0,
             outside: 0,
         }
@@ -155,8 +284,51 @@ impl Window {
 
     /// The live samples for the window centred on `(cx, cy)` (the template grid plus the
     /// displacement), and which pixels they leave usable: those valid in the template whose
-    /// five samples are inside the image.
-    pub fn sample_live(&mut self, img: &GrayF32, cx: f64, cy: f64) {
+    /// five samples are inside the image. `clip`: the level's clip map (see
+    /// [`Window::clip_reach`]).
+    pub fn sample_live(&mut self, img: &GrayF32, clip: Option<&ClipLevel>, cx: f64, cy: f64) {
+        self.fill_live(img, cx, cy);
+        self.clip_any = false;
+        if let Some(c) = clip {
+            self.clip_reach(c, cx, cy);
+        }
+    }
+
+    /// Whether the camera's clipping reaches any of the window's live samples: a flagged
+    /// pixel among the four one interpolates. The block summary skips the windows far from
+    /// any clipping.
+    fn clip_reach(&mut self, clip: &ClipLevel, cx: f64, cy: f64) {
+        let (r, side) = (self.r as f64, self.side);
+        let (fx, fy) = ((cx - r).floor(), (cy - r).floor());
+        if !(fx.is_finite() && fy.is_finite()) {
+            return;
+        }
+        let (x1, y1) = (fx + side as f64, fy + side as f64);
+        if x1 < 0.0 || y1 < 0.0 {
+            return;
+        }
+        let lo = |v: f64| v.max(0.0) as usize;
+        if !clip.any_in(lo(fx), lo(fy), x1 as usize, y1 as usize) {
+            return;
+        }
+        let at = |x: f64, y: f64| {
+            if x < 0.0 || y < 0.0 {
+                0
+            } else {
+                clip.get(x as usize, y as usize)
+            }
+        };
+        let hit = |j: usize, i: usize| {
+            let (x, y) = (fx + i as f64, fy + j as f64);
+            at(x, y) | at(x + 1.0, y) | at(x, y + 1.0) | at(x + 1.0, y + 1.0) != 0
+        };
+        if (0..side).any(|j| (0..side).any(|i| hit(j, i))) {
+            self.clip_any = true;
+            self.range = clip.range();
+        }
+    }
+
+    fn fill_live(&mut self, img: &GrayF32, cx: f64, cy: f64) {
         let (r, side, pw, es) = (self.r as f64, self.side, self.pw, self.es);
         let (ox, oy) = (cx - r - 1.0, cy - r - 1.0);
         if fill_bilinear(img, ox, oy, side + 2, side + 2, es, &mut self.ext) {
@@ -208,13 +380,22 @@ impl Window {
 
     /// Accumulates the normal equations for `α = [d₁, d₂, a, b]`, the residual
     /// `ρ = J(m + d) − a I(m) − b` (docs/VISION.md §5; the module documentation of `klt`
-    /// says why the residual is in live-image units).
-    pub fn accumulate(&self, a: f64, b: f64) -> Normal {
+    /// says why the residual is in live-image units). Where the camera's clipping reaches the
+    /// window and the prediction passes a clip level, the prediction is clipped (eq. 5.6, see
+    /// [`Window::clipped_prediction`]; `pre` as there).
+    pub fn accumulate(&mut self, a: f64, b: f64, pre: Option<Pre<'_>>) -> Normal {
         let (side, pw, es) = (self.side, self.pw, self.es);
         let (av, bv) = (f32x4::splat(a as f32), f32x4::splat(b as f32));
         let half = f32x4::splat(0.5);
         // Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ, gy ρ, I ρ, ρ, ρ².
         let mut s = [f32x4::ZERO; 15];
+        self.clip_model = match pre {
+            Some(pre) if self.clip_any => self.clipped_prediction(a, b, pre),
+            _ => false,
+        };
+        if self.clip_model {
+            return self.accumulate_clipped();
+        }
         let weights = self.weights();
         for j in 0..side {
             let e0 = (j + 1) * es + 1;
@@ -257,9 +438,117 @@ impl Window {
             b: [-v[10], -v[11], v[12], v[13]],
             ssd: v[14],
             count: self.count,
+            used: v[9],
             outside: self.outside,
             sum_i: v[8],
             sum_i2: v[7],
+        }
+    }
+
+    /// Whether the last [`Window::accumulate`] used the clipped prediction.
+    pub fn clip_model(&self) -> bool {
+        self.clip_model
+    }
+
+    /// The derivatives of the prediction in `a` and `b` at pixel `k`: `(I, 1)`, or those of
+    /// the clipped prediction (eq. 5.6) if the last [`Window::accumulate`] used it.
+    #[inline]
+    pub fn ab_jacobian(&self, k: usize) -> (f32, f32) {
+        if self.clip_model {
+            (self.pa[k], self.pb[k])
+        } else {
+            (self.t[k], 1.0)
+        }
+    }
+
+    /// The clipped prediction `P = D G ⊛ clip(a I₀ + b)` of eq. 5.6 in `p` with its
+    /// derivatives `pa = D G ⊛ (I₀ · 1[inside])`, `pb = D G ⊛ 1[inside]` (`clipped_fields`),
+    /// when it differs from `a I + b`: the prediction passes a clip level by more than one
+    /// quantisation step (the template window's extremes, eq. 5.7). `I₀` is the template
+    /// before its smoothing `G` (`pre`).
+    fn clipped_prediction(&mut self, a: f64, b: f64, pre: Pre<'_>) -> bool {
+        let (side, pw) = (self.side, self.pw);
+        let [lo, hi] = self.range;
+        let (af, bf) = (a as f32, b as f32);
+        let (mut tmin, mut tmax) = (f32::INFINITY, f32::NEG_INFINITY);
+        for (&t, &w) in self.t.iter().zip(&self.tw) {
+            if w > 0.0 {
+                tmin = tmin.min(t);
+                tmax = tmax.max(t);
+            }
+        }
+        if !(af * tmax + bf > hi + 1.0 || af * tmin + bf < lo - 1.0) {
+            return false;
+        }
+        let origin = [pre.gx - self.r as f64, pre.gy - self.r as f64];
+        let Some(f) = clipped_fields(&pre, origin, side, [af, bf], self.range) else {
+            return false;
+        };
+        for (field, out) in f.iter().zip([&mut self.p, &mut self.pa, &mut self.pb]) {
+            for (src, dst) in field.chunks_exact(side).zip(out.chunks_exact_mut(pw)) {
+                dst[..side].copy_from_slice(src);
+            }
+        }
+        true
+    }
+
+    /// [`Window::accumulate`] with the clipped prediction `p` and its derivatives `pa`, `pb`
+    /// (eq. 5.6): `g = [∂ₓJ, ∂ᵧJ, −pa, −pb]`, `ρ = J − p`.
+    fn accumulate_clipped(&self) -> Normal {
+        let (side, pw, es) = (self.side, self.pw, self.es);
+        let half = f32x4::splat(0.5);
+        // Σ gx², gx gy, gx pa, gx pb, gy², gy pa, gy pb, pa², pa pb, pb², gx ρ, gy ρ, pa ρ,
+        // pb ρ, ρ², n, I, I².
+        let mut s = [f32x4::ZERO; 18];
+        let weights = self.weights();
+        for j in 0..side {
+            let e0 = (j + 1) * es + 1;
+            for c in (0..pw).step_by(LANES) {
+                let at = |r: &[f32], o: usize| v4(&r[o + c..o + c + LANES]);
+                let o = j * pw;
+                let wv = at(weights, o);
+                let gx = (at(&self.ext, e0 + 1) - at(&self.ext, e0 - 1)) * half * wv;
+                let gy = (at(&self.ext, e0 + es) - at(&self.ext, e0 - es)) * half * wv;
+                let res = (at(&self.ext, e0) - at(&self.p, o)) * wv;
+                let (pa, pb) = (at(&self.pa, o), at(&self.pb, o));
+                let (paw, pbw) = (pa * wv, pb * wv);
+                let iw = at(&self.t, o) * wv;
+                s[0] += gx * gx;
+                s[1] += gx * gy;
+                s[2] += gx * paw;
+                s[3] += gx * pbw;
+                s[4] += gy * gy;
+                s[5] += gy * paw;
+                s[6] += gy * pbw;
+                s[7] += paw * pa;
+                s[8] += paw * pb;
+                s[9] += pbw * pb;
+                s[10] += gx * res;
+                s[11] += gy * res;
+                s[12] += paw * res;
+                s[13] += pbw * res;
+                s[14] += res * res;
+                s[15] += wv;
+                s[16] += iw;
+                s[17] += iw * at(&self.t, o);
+            }
+        }
+        let v = s.map(sum);
+        let h = [
+            [v[0], v[1], -v[2], -v[3]],
+            [v[1], v[4], -v[5], -v[6]],
+            [-v[2], -v[5], v[7], v[8]],
+            [-v[3], -v[6], v[8], v[9]],
+        ];
+        Normal {
+            h,
+            b: [-v[10], -v[11], v[12], v[13]],
+            ssd: v[14],
+            count: self.count,
+            used: v[15],
+            outside: self.outside,
+            sum_i: v[16],
+            sum_i2: v[17],
         }
     }
 
