@@ -94,7 +94,10 @@ pub struct KltConfig {
     /// Estimated parameters.
     pub model: KltModel,
     /// The live camera's clip levels `[lo, hi]` (gray levels): a raw live pixel exactly at
-    /// one is censored (docs/VISION.md §5, eq. 5.6). `None`: the live image never clips.
+    /// one is censored (docs/VISION.md §5, eq. 5.6). `None` (the default): no clip map is
+    /// built. The clipped prediction also needs a template that keeps its unsmoothed image
+    /// (`Pyramid::build_keeping_unsmoothed`), which the tracker's templates do not yet, so the
+    /// tracker leaves it off rather than build a map per frame that nothing reads.
     pub saturation: Option<[f32; 2]>,
 }
 
@@ -152,7 +155,7 @@ impl Default for KltConfig {
             min_eigenvalue: 0.05,
             smoothing: 1.0,
             model: KltModel::Photometric,
-            saturation: Some([0.0, 255.0]),
+            saturation: None,
         }
     }
 }
