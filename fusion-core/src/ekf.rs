@@ -364,14 +364,19 @@ mod tests {
     use approx::assert_relative_eq;
     use nalgebra::SMatrix;
 
-    fn random_spd(seed: u64) -> Cov<f64> {
+    /// Uniform values in [−0.5, 0.5) from a linear congruential generator.
+    fn uniform(seed: u64) -> impl FnMut() -> f64 {
         let mut s = seed;
-        let mut next = || {
+        move || {
             s = s
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
+        }
+    }
+
+    fn random_spd(seed: u64) -> Cov<f64> {
+        let mut next = uniform(seed);
         let a = Cov::<f64>::from_fn(|_, _| next());
         a * a.transpose() + Cov::identity() * 0.1
     }
@@ -420,13 +425,8 @@ mod tests {
     /// The grouped downdate against the entry-by-entry formula, bit for bit, for both
     /// measurement sizes and every active block size (lead columns and groups alike).
     fn downdate_is_the_entrywise_formula<const M: usize>(seed: u64) {
-        let mut s = seed;
-        let mut next = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f32 / (1u64 << 53) as f32) - 0.5
-        };
+        let mut uniform = uniform(seed);
+        let mut next = || uniform() as f32;
         let ldl = Ldl::<f32, M> {
             l: [[0.0; M]; M],
             d_inv: core::array::from_fn(|_| next() + 1.0),
