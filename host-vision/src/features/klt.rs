@@ -333,6 +333,14 @@ pub fn register(
             gy: g[1],
         })
     };
+    // Where the live image's clipping reaches a level; eq. 5.6 needs the template before its
+    // smoothing, so without it there is no clip work.
+    let jclip = |level: usize| {
+        target
+            .clip()
+            .filter(|_| template.unsmoothed().is_some())
+            .and_then(|c| c.level(level))
+    };
     let mut final_anchor = None;
     for level in (0..levels).rev() {
         let scale = (1u32 << level) as f64;
@@ -340,11 +348,7 @@ pub fn register(
             continue;
         };
         let tmask = mask.and_then(|m| m.level(level));
-        // Eq. 5.6 needs the template before its smoothing; without it, no cost.
-        let jclip = target
-            .clip()
-            .filter(|_| template.unsmoothed().is_some())
-            .and_then(|c| c.level(level));
+        let jl = jclip(level);
         let (cx, cy) = (position[0] / scale, position[1] / scale);
         let mut dl = [d[0] / scale, d[1] / scale];
         // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
@@ -376,7 +380,7 @@ pub fn register(
                 g = g_new;
                 win.sample_template(ti, tmask, g[0], g[1]);
             }
-            win.sample_live(ji, jclip, g[0] + dl[0], g[1] + dl[1]);
+            win.sample_live(ji, jl, g[0] + dl[0], g[1] + dl[1]);
             if !locked {
                 // The paper's initialisation of λ, δ from the windows' means and standard
                 // deviations, repeated while the position is far off: there the windows hardly
@@ -468,15 +472,7 @@ pub fn register(
     ];
     let tmask = mask.and_then(|m| m.level(0));
     win.sample_template(t0, tmask, g[0], g[1]);
-    win.sample_live(
-        j0,
-        target
-            .clip()
-            .filter(|_| template.unsmoothed().is_some())
-            .and_then(|c| c.level(0)),
-        g[0] + d[0],
-        g[1] + d[1],
-    );
+    win.sample_live(j0, jclip(0), g[0] + d[0], g[1] + d[1]);
     let n = win.accumulate(a, b, pre(0, g));
     if n.count < needed {
         return Err(n.shortfall(needed));

@@ -426,23 +426,8 @@ impl Window {
             }
         }
         let v = s.map(sum);
-        // g = [gx, gy, −I, −1].
-        let h = [
-            [v[0], v[1], -v[2], -v[3]],
-            [v[1], v[4], -v[5], -v[6]],
-            [-v[2], -v[5], v[7], v[8]],
-            [-v[3], -v[6], v[8], v[9]],
-        ];
-        Normal {
-            h,
-            b: [-v[10], -v[11], v[12], v[13]],
-            ssd: v[14],
-            count: self.count,
-            used: v[9],
-            outside: self.outside,
-            sum_i: v[8],
-            sum_i2: v[7],
-        }
+        // Every pixel used: Σ w, Σ I and Σ I² are the Jacobian's own sums.
+        self.normal(&v, v[9], v[8], v[7])
     }
 
     /// Whether the last [`Window::accumulate`] used the clipped prediction.
@@ -534,21 +519,27 @@ impl Window {
             }
         }
         let v = s.map(sum);
-        let h = [
-            [v[0], v[1], -v[2], -v[3]],
-            [v[1], v[4], -v[5], -v[6]],
-            [-v[2], -v[5], v[7], v[8]],
-            [-v[3], -v[6], v[8], v[9]],
-        ];
+        self.normal(&v, v[15], v[16], v[17])
+    }
+
+    /// The normal equations from the window's sums `v` (`Σ g gᵀ` in `v[0..10]`, `−Σ g ρ` in
+    /// `v[10..14]`, `Σ ρ²` in `v[14]`; `g = [gx, gy, −I, −1]`, whose last two entries the
+    /// clipped prediction replaces, eq. 5.6) and the pixels used with their `Σ I`, `Σ I²`.
+    fn normal(&self, v: &[f64], used: f64, sum_i: f64, sum_i2: f64) -> Normal {
         Normal {
-            h,
+            h: [
+                [v[0], v[1], -v[2], -v[3]],
+                [v[1], v[4], -v[5], -v[6]],
+                [-v[2], -v[5], v[7], v[8]],
+                [-v[3], -v[6], v[8], v[9]],
+            ],
             b: [-v[10], -v[11], v[12], v[13]],
             ssd: v[14],
             count: self.count,
-            used: v[15],
+            used,
             outside: self.outside,
-            sum_i: v[16],
-            sum_i2: v[17],
+            sum_i,
+            sum_i2,
         }
     }
 
