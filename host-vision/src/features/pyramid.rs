@@ -512,10 +512,12 @@ impl TemplatePyramid {
         } else {
             0
         };
-        Ok(Self {
-            image: Pyramid::build(antialias(rendered, blur_sigma), levels),
-            mask: MaskPyramid::build(erode(&mask, reach), levels),
-        })
+        // Image and mask are independent: built side by side (rayon).
+        let (image, mask) = rayon::join(
+            || Pyramid::build(antialias(rendered, blur_sigma), levels),
+            || MaskPyramid::build(erode(&mask, reach), levels),
+        );
+        Ok(Self { image, mask })
     }
 }
 

@@ -84,12 +84,20 @@ fn depth_row(bits: &[u8], near: f64, far: f64, z: &mut [f32], mask: &mut [u8]) {
     }
 }
 
+/// ITU-R BT.601 luma of an RGBA8 pixel read as a little-endian word, in 16.16 fixed point.
+#[inline]
+fn luma(p: u32) -> u8 {
+    ((19595 * (p & 0xff) + 38470 * ((p >> 8) & 0xff) + 7471 * ((p >> 16) & 0xff) + 32768) >> 16)
+        as u8
+}
+
 /// One rendered frame, all images row-major with the top row first.
 #[derive(Debug, Clone)]
 pub struct Frame {
     /// The view this was rendered from.
     pub view: RenderView,
-    /// Colour (RGBA8; alpha 0 on background).
+    /// Colour (RGBA8; alpha 0 on background); empty in a frame made by
+    /// [`Frame::empty_without_colour`].
     pub rgba: RgbaImage,
     /// Grayscale, ITU-R BT.601 luma of `rgba`.
     pub gray: GrayImage,
@@ -97,6 +105,8 @@ pub struct Frame {
     pub depth: Gray32FImage,
     /// 255 where the model was rendered, 0 on background.
     pub mask: GrayImage,
+    /// Whether the read-back fills `rgba` (see [`Frame::empty_without_colour`]).
+    colour: bool,
 }
 
 impl Frame {
@@ -109,6 +119,16 @@ impl Frame {
             gray: GrayImage::new(0, 0),
             depth: Gray32FImage::new(0, 0),
             mask: GrayImage::new(0, 0),
+            colour: true,
+        }
+    }
+
+    /// As [`Frame::empty`] for a reader of `gray`, `depth` and `mask` only (the tracker):
+    /// `rgba` stays empty, which spares copying 4 bytes a pixel out of the read-back.
+    pub fn empty_without_colour(view: RenderView) -> Self {
+        Self {
+            colour: false,
+            ..Self::empty(view)
         }
     }
 
@@ -130,46 +150,54 @@ impl Frame {
         if stride < 4 * w || colour.len() < stride * h || depth_bits.len() < stride * h {
             return Err(size_err());
         }
-        let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
         let mut gray = std::mem::replace(&mut self.gray, GrayImage::new(0, 0)).into_raw();
         let mut z = std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw();
         let mut mask = std::mem::replace(&mut self.mask, GrayImage::new(0, 0)).into_raw();
         // Same length as last frame: no-ops, every value is overwritten below.
-        rgba.resize(4 * n, 0);
         gray.resize(n, 0);
         z.resize(n, 0.0);
         mask.resize(n, 0);
         let (near, far) = (view.near, view.far);
-        rgba.par_chunks_mut(4 * w * BAND_ROWS)
-            .zip(gray.par_chunks_mut(w * BAND_ROWS))
+        gray.par_chunks_mut(w * BAND_ROWS)
             .zip(z.par_chunks_mut(w * BAND_ROWS))
             .zip(mask.par_chunks_mut(w * BAND_ROWS))
             .enumerate()
-            .for_each(|(band, (((rgba, gray), z), mask))| {
+            .for_each(|(band, ((gray, z), mask))| {
                 let first = band * BAND_ROWS;
-                for (k, (((rgba, gray), z), mask)) in rgba
-                    .chunks_exact_mut(4 * w)
-                    .zip(gray.chunks_exact_mut(w))
+                for (k, ((gray, z), mask)) in gray
+                    .chunks_exact_mut(w)
                     .zip(z.chunks_exact_mut(w))
                     .zip(mask.chunks_exact_mut(w))
                     .enumerate()
                 {
                     let at = (first + k) * stride;
                     let colour = &colour[at..at + 4 * w];
-                    rgba.copy_from_slice(colour);
-                    // BT.601 luma in 16.16 fixed point.
-                    for (g, p) in gray.iter_mut().zip(colour.chunks_exact(4)) {
-                        *g = ((19595 * p[0] as u32
-                            + 38470 * p[1] as u32
-                            + 7471 * p[2] as u32
-                            + 32768)
-                            >> 16) as u8;
+                    // Each pixel as one little-endian word: over a slice of words (the
+                    // mapped rows are aligned) the compiler vectorises the loop.
+                    match bytemuck::try_cast_slice::<u8, u32>(colour) {
+                        Ok(words) => {
+                            for (g, &p) in gray.iter_mut().zip(words) {
+                                *g = luma(u32::from_le(p));
+                            }
+                        }
+                        Err(_) => {
+                            for (g, p) in gray.iter_mut().zip(colour.chunks_exact(4)) {
+                                *g = luma(u32::from_le_bytes([p[0], p[1], p[2], p[3]]));
+                            }
+                        }
                     }
                     depth_row(&depth_bits[at..at + 4 * w], near, far, z, mask);
                 }
             });
+        if self.colour {
+            let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
+            rgba.resize(4 * n, 0);
+            rgba.par_chunks_mut(4 * w)
+                .zip(colour.par_chunks(stride))
+                .for_each(|(row, src)| row.copy_from_slice(&src[..4 * w]));
+            self.rgba = RgbaImage::from_raw(width, height, rgba).ok_or_else(size_err)?;
+        }
         self.view = view;
-        self.rgba = RgbaImage::from_raw(width, height, rgba).ok_or_else(size_err)?;
         self.gray = GrayImage::from_raw(width, height, gray).ok_or_else(size_err)?;
         self.depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
         self.mask = GrayImage::from_raw(width, height, mask).ok_or_else(size_err)?;
@@ -178,7 +206,7 @@ impl Frame {
 
     /// Image size `(width, height)`.
     pub fn size(&self) -> (u32, u32) {
-        self.rgba.dimensions()
+        self.gray.dimensions()
     }
 
     /// Depth `z` (m) at pixel `(u, v)` where the model was rendered.

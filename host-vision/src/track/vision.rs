@@ -220,7 +220,7 @@ fn render_at(
         near: clip.0,
         far: clip.1,
     };
-    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty(view));
+    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty_without_colour(view));
     renderer.render_into(&view, &mut frame)?;
     Ok(frame)
 }
@@ -461,18 +461,24 @@ impl Vision {
         let submitted = t.elapsed();
         let live = self.undistort.remap_gray(&raw)?;
         times.load = (t0.elapsed() - submitted).as_secs_f64();
+        // The live pyramid needs no rendering: built while the driver still rasterises (a
+        // frame with no feature to register wastes it, but in the rendering's shadow).
+        let t = Instant::now();
+        let klt = &self.options.klt;
+        let target = klt.target_pyramid(GrayF32::from_gray8(&live)?);
+        times.pyramids = t.elapsed().as_secs_f64();
         let t = Instant::now();
         // The previous frame's buffers, refilled (no fresh pages to fault in).
         let mut rendering = self
             .rendering
             .take()
-            .unwrap_or_else(|| crate::render::Frame::empty(view));
+            .unwrap_or_else(|| crate::render::Frame::empty_without_colour(view));
         self.renderer.finish_into(&mut rendering)?;
         times.render = (submitted + t.elapsed()).as_secs_f64();
         let (w, h) = (self.camera.width, self.camera.height);
         let frame_index = job.index as u64;
-        let model_coverage =
-            rendering.mask.pixels().filter(|p| p.0[0] > 0).count() as f64 / (w as f64 * h as f64);
+        let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
+            / (w as f64 * h as f64);
 
         let t = Instant::now();
         let mut visible = self
@@ -510,21 +516,13 @@ impl Vision {
         let mut error_count = 0usize;
         if !selected.is_empty() {
             let t = Instant::now();
-            let klt = &self.options.klt;
-            // The two pyramids are independent: built side by side.
-            let (template, target) = rayon::join(
-                || -> Result<TemplatePyramid, TrackError> {
-                    Ok(TemplatePyramid::build(
-                        &GrayF32::from_gray8(&rendering.gray)?,
-                        Mask::from_gray8(&rendering.mask)?,
-                        klt.levels,
-                        klt.template_sigma(self.options.blur_sigma),
-                    )?)
-                },
-                || -> Result<_, TrackError> { Ok(klt.target_pyramid(GrayF32::from_gray8(&live)?)) },
-            );
-            let (template, target) = (template?, target?);
-            times.pyramids = t.elapsed().as_secs_f64();
+            let template = TemplatePyramid::build(
+                &GrayF32::from_gray8(&rendering.gray)?,
+                Mask::from_gray8(&rendering.mask)?,
+                klt.levels,
+                klt.template_sigma(self.options.blur_sigma),
+            )?;
+            times.pyramids += t.elapsed().as_secs_f64();
 
             let t = Instant::now();
             // Register until `wanted` succeeded; then judge the successes together. The

@@ -260,6 +260,10 @@ impl Window {
         }
         self.tw_full = false;
         self.tcount = 0;
+        if let (true, Some(m)) = (inside, mask) {
+            self.mask_rows(m, ox, oy);
+            return;
+        }
         for j in 0..side {
             for i in 0..pw {
                 let k = j * pw + i;
@@ -278,6 +282,42 @@ impl Window {
                     self.tw[k] = 0.0;
                     self.t[k] = 0.0;
                 }
+            }
+        }
+    }
+
+    /// The template weights of a window inside the image that the mask covers only in part
+    /// (origin `(ox, oy)`): a sample is valid where every pixel it interpolates is
+    /// (`Mask::valid_bilinear`), read from whole rows of the mask rather than per sample.
+    fn mask_rows(&mut self, m: &Mask, ox: f64, oy: f64) {
+        let (side, pw) = (self.side, self.pw);
+        let (x0, y0) = (ox.floor(), oy.floor());
+        // The right and lower neighbours count only with a fractional offset (`ceil`).
+        let (dx, dy) = (usize::from(ox > x0), usize::from(oy > y0));
+        let (x0, y0, w) = (x0 as usize, y0 as usize, m.width());
+        let data = m.data();
+        for (j, (t, tw)) in self
+            .t
+            .chunks_exact_mut(pw)
+            .zip(self.tw.chunks_exact_mut(pw))
+            .take(side)
+            .enumerate()
+        {
+            // `fill_bilinear` succeeded: rows `y0 ..= y0 + side` and columns
+            // `x0 ..= x0 + side` are inside the image, and the mask has its size.
+            let row = |y: usize| data.get(y * w + x0..y * w + x0 + side + dx);
+            let (Some(top), Some(bottom)) = (row(y0 + j), row(y0 + j + dy)) else {
+                t.fill(0.0);
+                tw.fill(0.0);
+                continue;
+            };
+            for (i, (t, tw)) in t.iter_mut().zip(tw.iter_mut()).enumerate() {
+                let valid = i < side && top[i] && top[i + dx] && bottom[i] && bottom[i + dx];
+                *tw = if valid { 1.0 } else { 0.0 };
+                if !valid {
+                    *t = 0.0;
+                }
+                self.tcount += usize::from(valid);
             }
         }
     }
@@ -696,4 +736,47 @@ fn mask_all_valid(m: &Mask, ox: f64, oy: f64, cols: usize, rows: usize) -> bool 
     }
     let w = m.width();
     (y0..=y1).all(|y| m.data()[y * w + x0..=y * w + x1].iter().all(|&v| v))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A window inside the image that the mask covers in part takes its weights from whole
+    /// mask rows: the same verdicts as `Mask::valid_bilinear` per sample, at integer and
+    /// fractional origins, and the samples of the valid pixels kept.
+    #[test]
+    fn partly_masked_template_weights_match_per_sample_validity() {
+        let (w, h) = (40, 30);
+        let img = GrayF32::new(w, h, (0..w * h).map(|k| (k % 17) as f32).collect()).unwrap();
+        // Valid below a diagonal, so that every window here is cut by it.
+        let mask = Mask::new(w, h, (0..w * h).map(|k| k % w + k / w < 35).collect()).unwrap();
+        let mut win = Window::new(7);
+        for (gx, gy) in [(15.0, 12.0), (15.25, 12.0), (15.0, 12.5), (16.3, 11.7)] {
+            win.sample_template(&img, Some(&mask), gx, gy);
+            let (ox, oy) = (gx - 7.0, gy - 7.0);
+            let mut count = 0;
+            for j in 0..win.side {
+                for i in 0..win.pw {
+                    let k = j * win.pw + i;
+                    let (x, y) = (ox + i as f64, oy + j as f64);
+                    let valid = i < win.side && mask.valid_bilinear(x, y);
+                    assert_eq!(
+                        win.tw[k],
+                        f32::from(u8::from(valid)),
+                        "({gx}, {gy}) at {i}, {j}"
+                    );
+                    if valid {
+                        count += 1;
+                        let v = img.sample(x, y).unwrap();
+                        assert!((win.t[k] - v).abs() < 1e-4, "({gx}, {gy}) at {i}, {j}");
+                    } else {
+                        assert_eq!(win.t[k], 0.0);
+                    }
+                }
+            }
+            assert_eq!(win.tcount, count);
+            assert!(count > 0 && count < win.side * win.side);
+        }
+    }
 }
