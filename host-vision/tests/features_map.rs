@@ -41,13 +41,7 @@ fn frame(model_right: u32) -> Frame {
         let g = gray.get_pixel(x, y).0[0];
         image::Rgba([g, g, g, if x < model_right { 255 } else { 0 }])
     });
-    Frame {
-        view: view(),
-        rgba,
-        gray,
-        depth,
-        mask,
-    }
+    Frame::from_images(view(), rgba, gray, depth, mask).expect("images of one size")
 }
 
 fn config() -> MapConfig {

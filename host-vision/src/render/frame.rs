@@ -123,6 +123,35 @@ impl Frame {
         }
     }
 
+    /// A frame of given images (a rendering made elsewhere, a test's), all of one size.
+    pub fn from_images(
+        view: RenderView,
+        rgba: RgbaImage,
+        gray: GrayImage,
+        depth: Gray32FImage,
+        mask: GrayImage,
+    ) -> Result<Self, RenderError> {
+        let sizes = [
+            rgba.dimensions(),
+            gray.dimensions(),
+            depth.dimensions(),
+            mask.dimensions(),
+        ];
+        if sizes.iter().any(|s| *s != sizes[0]) {
+            return Err(RenderError::FrameSizes(format!(
+                "rgba, gray, depth, mask: {sizes:?}"
+            )));
+        }
+        Ok(Self {
+            view,
+            rgba,
+            gray,
+            depth,
+            mask,
+            colour: true,
+        })
+    }
+
     /// As [`Frame::empty`] for a reader of `gray`, `depth` and `mask` only (the tracker):
     /// `rgba` stays empty, which spares copying 4 bytes a pixel out of the read-back.
     pub fn empty_without_colour(view: RenderView) -> Self {
@@ -258,5 +287,30 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A frame of images that disagree in size is refused with the sizes named.
+    #[test]
+    fn from_images_refuses_images_of_different_sizes() {
+        let view = RenderView {
+            pinhole: Pinhole::new(100.0, 100.0, 15.5, 11.5),
+            pose: CameraPose::from_wxyz([1.0, 0.0, 0.0, 0.0], nalgebra::Vector3::zeros()).unwrap(),
+            near: 0.1,
+            far: 10.0,
+        };
+        let images = |w: u32| {
+            (
+                RgbaImage::new(32, 24),
+                GrayImage::new(32, 24),
+                Gray32FImage::new(w, 24),
+                GrayImage::new(32, 24),
+            )
+        };
+        let (rgba, gray, depth, mask) = images(32);
+        let frame = Frame::from_images(view, rgba, gray, depth, mask).unwrap();
+        assert_eq!(frame.size(), (32, 24));
+        let (rgba, gray, depth, mask) = images(31);
+        let err = Frame::from_images(view, rgba, gray, depth, mask).unwrap_err();
+        assert!(err.to_string().contains("(31, 24)"), "{err}");
     }
 }

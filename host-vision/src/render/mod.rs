@@ -73,6 +73,9 @@ pub enum RenderError {
         /// Device limit.
         max: u32,
     },
+    /// A frame's images disagree in size (`Frame::from_images`).
+    #[error("frame images of different sizes: {0}")]
+    FrameSizes(String),
     /// Too much geometry for one buffer.
     #[error("model too large: {0} exceeds the device limits")]
     TooLarge(&'static str),
