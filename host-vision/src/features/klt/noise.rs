@@ -87,18 +87,17 @@ pub(super) fn interpolated(
             }
         }
     }
+    let mut rows = [f32x4::ZERO; 4];
     if kernel.len() > 1 {
-        // u ⊛ G, separably: rows, then (transposed) columns; M does not depend on the order.
+        // u ⊛ G, separably: rows into (transposed) columns, then the columns, each value of
+        // u' added into M as it is made (M does not depend on the order).
         let k32: Vec<f32> = kernel.iter().map(|&v| v as f32).collect();
         let columns = convolve_lines_transposed(&u, us, &k32);
-        u = convolve_lines_transposed(&columns, us + kernel.len() - 1, &k32);
-    }
-    let mut rows = [f32x4::ZERO; 4];
-    for v in &u {
-        let a = v.to_array();
-        for (row, &ak) in rows.iter_mut().zip(&a) {
-            *row += *v * f32x4::splat(ak);
-        }
+        convolve_lines(&columns, us + kernel.len() - 1, &k32, |v| {
+            outer_add(&mut rows, v)
+        });
+    } else {
+        u.iter().for_each(|&v| outer_add(&mut rows, v));
     }
     let mut m = Matrix4::zeros();
     for (r, row) in rows.iter().enumerate() {
@@ -109,22 +108,53 @@ pub(super) fn interpolated(
     (c, m)
 }
 
+/// `rows += v vᵀ` (`M`'s sum, one row of it per lane).
+#[inline]
+fn outer_add(rows: &mut [f32x4; 4], v: f32x4) {
+    let a = v.to_array();
+    for (row, &ak) in rows.iter_mut().zip(&a) {
+        *row += v * f32x4::splat(ak);
+    }
+}
+
+/// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel`,
+/// handing every value to `each` (in no particular order) instead of storing it.
+fn convolve_lines(src: &[f32x4], lines: usize, kernel: &[f32], mut each: impl FnMut(f32x4)) {
+    match <[f32; 7]>::try_from(kernel) {
+        Ok(k) => convolve_fixed(src, lines, k, |_, _, v| each(v)),
+        Err(_) => convolve_any(src, lines, kernel).into_iter().for_each(each),
+    }
+}
+
 /// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel` and
 /// returns the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes
 /// convolve a field along both axes and restore its orientation.
 fn convolve_lines_transposed(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
     // The default smoothing (σ = 1 px) has 7 taps: a copy with them unrolled.
     match <[f32; 7]>::try_from(kernel) {
-        Ok(k) => convolve_fixed(src, lines, k),
+        Ok(k) => {
+            let len = src.len() / lines.max(1);
+            let mut out = vec![f32x4::ZERO; (len + k.len() - 1) * lines];
+            convolve_fixed(src, lines, k, |l, o, v| {
+                if let Some(slot) = out.get_mut(o * lines + l) {
+                    *slot = v;
+                }
+            });
+            out
+        }
         Err(_) => convolve_any(src, lines, kernel),
     }
 }
 
-/// [`convolve_lines_transposed`] for a kernel of `N` taps.
-fn convolve_fixed<const N: usize>(src: &[f32x4], lines: usize, kernel: [f32; N]) -> Vec<f32x4> {
+/// Each line `l` of `src` (`lines` of them) convolved with the `N` taps of `kernel`: the value
+/// at position `o` (`0 .. len + N − 1`) is handed to `each(l, o, value)`.
+fn convolve_fixed<const N: usize>(
+    src: &[f32x4],
+    lines: usize,
+    kernel: [f32; N],
+    mut each: impl FnMut(usize, usize, f32x4),
+) {
     let len = src.len() / lines.max(1);
-    let out_len = len + N - 1;
-    let mut out = vec![f32x4::ZERO; out_len * lines];
     let taps = kernel.map(f32x4::splat);
     let mut padded = vec![f32x4::ZERO; len + 2 * (N - 1)];
     for (l, line) in src.chunks_exact(len.max(1)).enumerate() {
@@ -138,12 +168,9 @@ fn convolve_fixed<const N: usize>(src: &[f32x4], lines: usize, kernel: [f32; N])
             for k in 0..N {
                 acc += win[k] * taps[k];
             }
-            if let Some(v) = out.get_mut(o * lines + l) {
-                *v = acc;
-            }
+            each(l, o, acc);
         }
     }
-    out
 }
 
 /// [`convolve_lines_transposed`] for any kernel length.
