@@ -1,5 +1,7 @@
 //! Render + readback time (colour, gray, depth, mask on the CPU) at 320×240 and 640×480, for
-//! the test scene and a procedural 131k-triangle textured terrain. The adapter is printed
+//! the test scene and a procedural 131k-triangle textured terrain: a fresh frame each time, and
+//! as the tracker renders (`/tracker`: into kept buffers, without the RGBA copy); and with
+//! nothing in view, the floor of submission, clears, copies and read-back. The adapter is printed
 //! first; choose it with `WGPU_BACKEND=vulkan|gl`.
 
 use std::sync::Arc;
@@ -8,7 +10,7 @@ use std::time::Duration;
 use criterion::{Criterion, criterion_group, criterion_main};
 use host_vision::camera::{CameraPose, Pinhole};
 use host_vision::model::procedural;
-use host_vision::render::{RenderView, Renderer};
+use host_vision::render::{Frame, RenderView, Renderer};
 use nalgebra::Vector3;
 
 fn view(width: u32, height: u32, eye: [f64; 3], target: [f64; 3]) -> RenderView {
@@ -60,9 +62,31 @@ fn render(c: &mut Criterion) {
                 "{name} ({} triangles)/{width}x{height}",
                 renderer.triangle_count()
             );
-            group.bench_function(id, |b| {
+            group.bench_function(id.clone(), |b| {
                 b.iter(|| renderer.render(&v).unwrap_or_else(|e| panic!("{e}")))
             });
+            // As the tracker renders: into the last frame's buffers, without the RGBA copy.
+            let mut frame = Frame::empty_without_colour(v);
+            group.bench_function(format!("{id}/tracker"), |b| {
+                b.iter(|| {
+                    renderer
+                        .render_into(&v, &mut frame)
+                        .unwrap_or_else(|e| panic!("{e}"))
+                })
+            });
+            if *name == "test_scene" {
+                // The floor: nothing in view (looking away from the test scene), so the time
+                // is the submission, the clears, the copies and the read-back alone.
+                let away = view(width, height, [0.0, -5.0, 1.0], [0.0, -10.0, 1.0]);
+                let mut frame = Frame::empty_without_colour(away);
+                group.bench_function(format!("nothing in view/{width}x{height}/tracker"), |b| {
+                    b.iter(|| {
+                        renderer
+                            .render_into(&away, &mut frame)
+                            .unwrap_or_else(|e| panic!("{e}"))
+                    })
+                });
+            }
         }
     }
     group.finish();
