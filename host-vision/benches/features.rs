@@ -114,7 +114,7 @@ fn features(c: &mut Criterion) {
     c.bench_function("template_prepare_752x480_blur1_4_levels", |b| {
         b.iter(|| {
             TemplatePyramid::build(
-                black_box(&base),
+                black_box(base.clone()),
                 mask.clone(),
                 cfg.levels,
                 cfg.template_sigma(1.0),
@@ -138,7 +138,8 @@ fn features(c: &mut Criterion) {
         })
         .collect();
     let target = cfg.target_pyramid(GrayF32::new(w, h, live).unwrap());
-    let tmpl = TemplatePyramid::build(&base, mask, cfg.levels, cfg.template_sigma(1.0)).unwrap();
+    let tmpl =
+        TemplatePyramid::build(base.clone(), mask, cfg.levels, cfg.template_sigma(1.0)).unwrap();
     let points: Vec<[f64; 2]> = grid::extract(
         &img,
         None,

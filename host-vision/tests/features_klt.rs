@@ -611,7 +611,8 @@ fn converges_with_half_the_window_masked() {
         let j = live(&s, d, lambda, delta, 2.0, 99);
         // The product's path: no extra blur here (S is already smooth), mask from "depth".
         let tmpl =
-            TemplatePyramid::build(&rendered, mask, cfg.levels, cfg.template_sigma(0.0)).unwrap();
+            TemplatePyramid::build(rendered.clone(), mask, cfg.levels, cfg.template_sigma(0.0))
+                .unwrap();
         let (st_m, res) = run_case(
             &tmpl.image,
             Some(&tmpl.mask),

@@ -494,7 +494,7 @@ pub struct TemplatePyramid {
 impl TemplatePyramid {
     /// Blurs `rendered` with `blur_sigma` and builds `levels` levels of image and mask.
     pub fn build(
-        rendered: &GrayF32,
+        rendered: GrayF32,
         mask: Mask,
         levels: usize,
         blur_sigma: f32,
@@ -512,9 +512,14 @@ impl TemplatePyramid {
         } else {
             0
         };
-        // Image and mask are independent: built side by side (rayon).
+        // Image and mask are independent: built side by side (rayon). The rendering is
+        // blurred in place (`antialias` without its copy).
         let (image, mask) = rayon::join(
-            || Pyramid::build(antialias(rendered, blur_sigma), levels),
+            || {
+                let mut rendered = rendered;
+                blur_image_in_place(&mut rendered, blur_sigma);
+                Pyramid::build(rendered, levels)
+            },
             || MaskPyramid::build(erode(&mask, reach), levels),
         );
         Ok(Self { image, mask })
@@ -813,7 +818,8 @@ mod tests {
                 .collect(),
         )
         .unwrap();
-        let t = TemplatePyramid::build(&img, mask.clone(), 4, std::f32::consts::SQRT_2).unwrap();
+        let t =
+            TemplatePyramid::build(img.clone(), mask.clone(), 4, std::f32::consts::SQRT_2).unwrap();
         let mut m = reference::erode(&mask, 3);
         assert_eq!(t.mask.level(0).unwrap().data(), m.data());
         for k in 1..4 {

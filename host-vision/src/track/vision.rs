@@ -517,7 +517,7 @@ impl Vision {
         if !selected.is_empty() {
             let t = Instant::now();
             let template = TemplatePyramid::build(
-                &GrayF32::from_gray8(&rendering.gray)?,
+                GrayF32::from_gray8(&rendering.gray)?,
                 Mask::from_gray8(&rendering.mask)?,
                 klt.levels,
                 klt.template_sigma(self.options.blur_sigma),
