@@ -965,7 +965,9 @@ fn typed_failure_reasons() {
 /// (its script's table); the photometric model is meant for exactly these. The fast path and
 /// the reference implementation are run side by side. Where the targets clip (1.8J − 30 and
 /// 2.5J − 60 saturate much of the frame) the fast path predicts the clipping (eq. 5.6; the
-/// reference does not): 2.5J − 60 fails on 5.6 %, not yet issue 16's goal (≤ 5 %).
+/// reference does not) wherever `a I₀ + b` leaves the range over the window's support (eq. 5.7):
+/// 2.5J − 60 fails on 0.0 % (issue 16 asks for ≤ 5 %; 5.6 % when eq. 5.7 looked at the
+/// smoothed template window, whose extremes fall short of `I₀`'s).
 #[test]
 fn registers_opencvs_cases_under_illumination_changes() {
     let Some(cases) = klt_cases::load() else {
@@ -1030,7 +1032,7 @@ fn registers_opencvs_cases_under_illumination_changes() {
         let (max_share, max_median) = match name {
             "none" => (0.5, 0.02),
             "c1.8b-30" => (2.0, 0.03),
-            "c2.5b-60" => (6.0, 0.03),
+            "c2.5b-60" => (5.0, 0.03),
             _ => (1.0, 0.03),
         };
         assert!(
