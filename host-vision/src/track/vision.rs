@@ -118,9 +118,10 @@ pub struct StageTimes {
     pub load: f64,
     /// Rendering and read-back.
     pub render: f64,
-    /// Feature extraction (FAST) when the map needed more.
+    /// Visibility prediction, and feature extraction (FAST) when the map needed more.
     pub extract: f64,
-    /// Template and live pyramids.
+    /// Template and live pyramids. The live one is built while the rendering is in flight
+    /// and the template beside the extraction, so these times overlap `render` and `extract`.
     pub pyramids: f64,
     /// Registration of all selected features.
     pub klt: f64,
@@ -484,20 +485,46 @@ impl Vision {
         let mut visible = self
             .map
             .predict_visible(&view, w, h, Some(&rendering.depth));
-        let mut added = 0;
-        if self.map.needs_features(&visible) && model_coverage > 0.0 {
-            let occupied: Vec<[f64; 2]> = visible.iter().map(|p| [p.pixel.x, p.pixel.y]).collect();
-            added = self
+        let predicted = t.elapsed().as_secs_f64();
+        // FAST on demand and the template pyramid both read only the rendering: built side by
+        // side (rayon), the template whenever the model is in view.
+        let extract = self.map.needs_features(&visible) && model_coverage > 0.0;
+        let blur = klt.template_sigma(self.options.blur_sigma);
+        let map = &mut self.map;
+        let (extraction, template) = rayon::join(
+            || -> Result<(usize, f64), TrackError> {
+                let t = Instant::now();
+                if !extract {
+                    return Ok((0, 0.0));
+                }
+                let occupied: Vec<[f64; 2]> =
+                    visible.iter().map(|p| [p.pixel.x, p.pixel.y]).collect();
+                let added = map
+                    .add_from_rendering(&rendering, &occupied, frame_index)?
+                    .len();
+                Ok((added, t.elapsed().as_secs_f64()))
+            },
+            || -> Result<Option<(TemplatePyramid, f64)>, TrackError> {
+                if model_coverage == 0.0 {
+                    return Ok(None);
+                }
+                let t = Instant::now();
+                let template = build_template(&rendering, klt.levels, blur)?;
+                Ok(Some((template, t.elapsed().as_secs_f64())))
+            },
+        );
+        let (added, extracting) = extraction?;
+        let mut template = template?.map(|(template, took)| {
+            times.pyramids += took;
+            template
+        });
+        let t = Instant::now();
+        if added > 0 {
+            visible = self
                 .map
-                .add_from_rendering(&rendering, &occupied, frame_index)?
-                .len();
-            if added > 0 {
-                visible = self
-                    .map
-                    .predict_visible(&view, w, h, Some(&rendering.depth));
-            }
+                .predict_visible(&view, w, h, Some(&rendering.depth));
         }
-        times.extract = t.elapsed().as_secs_f64();
+        times.extract = predicted + extracting + t.elapsed().as_secs_f64();
         // Candidates in registration order; registration stops once `subset_size` succeeded
         // (a failing feature does not cost the frame a correspondence).
         let cfg = self.map.config();
@@ -516,12 +543,10 @@ impl Vision {
         let mut error_count = 0usize;
         if !selected.is_empty() {
             let t = Instant::now();
-            let template = TemplatePyramid::build(
-                GrayF32::from_gray8(&rendering.gray)?,
-                Mask::from_gray8(&rendering.mask)?,
-                klt.levels,
-                klt.template_sigma(self.options.blur_sigma),
-            )?;
+            let template = match template.take() {
+                Some(template) => template,
+                None => build_template(&rendering, klt.levels, blur)?,
+            };
             times.pyramids += t.elapsed().as_secs_f64();
 
             let t = Instant::now();
@@ -648,6 +673,21 @@ impl Vision {
             job,
         })
     }
+}
+
+/// The rendering `frame` prepared for registration: blurred by `blur` (σ, px), `levels`
+/// levels of image and mask.
+fn build_template(
+    frame: &crate::render::Frame,
+    levels: usize,
+    blur: f32,
+) -> Result<TemplatePyramid, TrackError> {
+    Ok(TemplatePyramid::build(
+        GrayF32::from_gray8(&frame.gray)?,
+        Mask::from_gray8(&frame.mask)?,
+        levels,
+        blur,
+    )?)
 }
 
 /// Mask pixels with a 4-neighbour outside the mask (or on the image border).
