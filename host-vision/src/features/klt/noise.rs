@@ -164,11 +164,9 @@ fn convolve_fixed<const N: usize>(
                 Ok(w) => w,
                 Err(_) => continue,
             };
-            // The kernel is symmetric (odd `N`): mirrored taps share one product.
-            let c = N / 2;
-            let mut acc = win[c] * taps[c];
-            for k in 0..c {
-                acc += (win[k] + win[N - 1 - k]) * taps[k];
+            let mut acc = f32x4::ZERO;
+            for k in 0..N {
+                acc += win[k] * taps[k];
             }
             each(l, o, acc);
         }
