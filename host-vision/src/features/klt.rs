@@ -241,13 +241,6 @@ pub(crate) fn anchor(d: f64, k: f64) -> f64 {
     if (d - k).abs() > 0.75 { d.round() } else { k }
 }
 
-/// `|v|` by `sqrt`, which compiles to one instruction where `hypot` is a library call
-/// (the values here are pixels, far from `hypot`'s overflow concerns).
-#[inline]
-fn norm(v: [f64; 2]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1]).sqrt()
-}
-
 impl Normal {
     /// Why a window with fewer than `needed` usable pixels cannot be registered: it left the
     /// image, or the mask and image leave too little of it.
@@ -435,7 +428,7 @@ pub fn register(
             if !(dl[0].is_finite() && dl[1].is_finite() && a.is_finite() && b.is_finite())
                 || a < a_range.0
                 || a > a_range.1
-                || norm(total) > cfg.max_displacement
+                || total[0].hypot(total[1]) > cfg.max_displacement
             {
                 if level == 0 {
                     return Err(KltFailure::Diverged);
@@ -445,7 +438,7 @@ pub fn register(
                 (dl, a, b, locked) = start;
                 break;
             }
-            let step_norm = norm([step[0], step[1]]);
+            let step_norm = step[0].hypot(step[1]);
             if !locked {
                 locked = step_norm < LOCK_STEP;
                 continue;

@@ -90,12 +90,10 @@ pub(super) fn interpolated(
     let mut rows = [f32x4::ZERO; 4];
     if kernel.len() > 1 {
         // u ⊛ G, separably: rows into (transposed) columns, then the columns, each value of
-        // u' added into M as it is made (M does not depend on the order).
+        // u' added into M as it is made.
         let k32: Vec<f32> = kernel.iter().map(|&v| v as f32).collect();
         let columns = convolve_lines_transposed(&u, us, &k32);
-        convolve_lines(&columns, us + kernel.len() - 1, &k32, |v| {
-            outer_add(&mut rows, v)
-        });
+        outer_of_convolved(&columns, us + kernel.len() - 1, &k32, &mut rows);
     } else {
         u.iter().for_each(|&v| outer_add(&mut rows, v));
     }
@@ -117,12 +115,26 @@ fn outer_add(rows: &mut [f32x4; 4], v: f32x4) {
     }
 }
 
-/// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel`,
-/// handing every value to `each` (in no particular order) instead of storing it.
-fn convolve_lines(src: &[f32x4], lines: usize, kernel: &[f32], mut each: impl FnMut(f32x4)) {
-    match <[f32; 7]>::try_from(kernel) {
-        Ok(k) => convolve_fixed(src, lines, k, |_, _, v| each(v)),
-        Err(_) => convolve_any(src, lines, kernel).into_iter().for_each(each),
+/// `rows += Σ v vᵀ` over the values `v` of each of the `lines` equal lines of `src` convolved
+/// with the full 1-D `kernel`, without storing them: position by position, line by line, the
+/// order in which [`convolve_lines_transposed`] would have laid them out, and each value the
+/// same sum in the same order (the zero padding's terms, which add exactly nothing, left
+/// out), so `M` is the same to the last bit.
+fn outer_of_convolved(src: &[f32x4], lines: usize, kernel: &[f32], rows: &mut [f32x4; 4]) {
+    let len = src.len() / lines.max(1);
+    let n = kernel.len();
+    let taps: Vec<f32x4> = kernel.iter().map(|&k| f32x4::splat(k)).collect();
+    for o in 0..len + n - 1 {
+        // Taps `k` that fall inside a line at output `o`: line index `o + k − (n − 1)`.
+        let k0 = (n - 1).saturating_sub(o);
+        let k1 = n.min(len + n - 1 - o);
+        for line in src.chunks_exact(len.max(1)) {
+            let mut acc = f32x4::ZERO;
+            for (k, tap) in taps.iter().enumerate().take(k1).skip(k0) {
+                acc += line[o + k - (n - 1)] * *tap;
+            }
+            outer_add(rows, acc);
+        }
     }
 }
 
@@ -185,4 +197,42 @@ fn convolve_any(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `M` summed as the values are made equals, bit for bit, `M` summed over the stored
+    /// field of the second pass, for the default 7-tap kernel and for another length.
+    #[test]
+    fn outer_of_convolved_equals_the_stored_field_s_sum() {
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            ((seed >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+        };
+        let us = 16;
+        let u: Vec<f32x4> = (0..us * us)
+            .map(|_| f32x4::new([next(), next(), next(), next()]))
+            .collect();
+        for sigma in [1.0f32, 1.6] {
+            let half = crate::features::pyramid::gaussian_kernel(sigma).unwrap();
+            let rr = half.len() - 1;
+            let k: Vec<f32> = (0..=2 * rr).map(|i| half[i.abs_diff(rr)]).collect();
+            let columns = convolve_lines_transposed(&u, us, &k);
+            let field = convolve_lines_transposed(&columns, us + k.len() - 1, &k);
+            let mut stored = [f32x4::ZERO; 4];
+            field.iter().for_each(|&v| outer_add(&mut stored, v));
+            let mut fused = [f32x4::ZERO; 4];
+            outer_of_convolved(&columns, us + k.len() - 1, &k, &mut fused);
+            for (a, b) in stored.iter().zip(&fused) {
+                let (a, b) = (
+                    a.to_array().map(f32::to_bits),
+                    b.to_array().map(f32::to_bits),
+                );
+                assert_eq!(a, b, "σ = {sigma}");
+            }
+        }
+    }
 }

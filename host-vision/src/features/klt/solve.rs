@@ -54,10 +54,7 @@ impl Factor {
             l[2][2] * l[3][2],
             l[3][2] * l[3][2] + l[3][3] * l[3][3],
         );
-        // `sqrt` rather than `hypot` (a library call): sums of squared gray gradients stay far
-        // from overflow.
-        let (d, e) = (s11 - s22, 2.0 * s12);
-        let min_eig = 0.5 * (s11 + s22 - (d * d + e * e).sqrt());
+        let min_eig = 0.5 * (s11 + s22 - (s11 - s22).hypot(2.0 * s12));
         if !min_eig.is_finite() || min_eig < min_eigenvalue * n.used {
             return None;
         }
