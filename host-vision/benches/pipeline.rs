@@ -87,6 +87,7 @@ fn pipeline(c: &mut Criterion) {
         let mut sum = StageTimes::default();
         let mut n = 0usize;
         let mut registered = 0usize;
+        let mut coverage = 0.0;
         c.bench_function(&format!("host_frame_{w}x{h}_40_features"), |b| {
             b.iter(|| {
                 let job = jobs[k % jobs.len()].clone();
@@ -100,6 +101,7 @@ fn pipeline(c: &mut Criterion) {
                 sum.klt += t.klt;
                 sum.total += t.total;
                 registered += r.correspondences.len();
+                coverage += r.model_coverage;
                 n += 1;
                 black_box(r.correspondences.len())
             })
@@ -109,7 +111,7 @@ fn pipeline(c: &mut Criterion) {
             continue;
         }
         println!(
-            "{w}x{h} per frame over {n} frames ({} threads): undistort {:.2} ms, render {:.2} ms, FAST on demand {:.2} ms, pyramids {:.2} ms, KLT {:.2} ms ({:.1} registered), total {:.2} ms",
+            "{w}x{h} per frame over {n} frames ({} threads): undistort {:.2} ms, render {:.2} ms, FAST on demand {:.2} ms, pyramids {:.2} ms, KLT {:.2} ms ({:.1} registered), total {:.2} ms; model on {:.0} % of the image",
             rayon::current_num_threads(),
             ms(sum.load),
             ms(sum.render),
@@ -117,7 +119,8 @@ fn pipeline(c: &mut Criterion) {
             ms(sum.pyramids),
             ms(sum.klt),
             registered as f64 / n as f64,
-            ms(sum.total)
+            ms(sum.total),
+            100.0 * coverage / n as f64
         );
     }
 }

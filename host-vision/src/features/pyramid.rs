@@ -11,6 +11,9 @@ use super::gray::{GrayF32, ImageError, Mask};
 use super::klt::clip::ClipMap;
 
 pub mod reference;
+mod support;
+
+use support::{Rect, blur_within, erode_within, image_support, mask_support};
 
 /// No level smaller than this on either side is built (a registration window would not fit).
 pub const MIN_LEVEL_SIDE: usize = 8;
@@ -362,6 +365,17 @@ impl Pyramid {
         if smoothing > 0.0 {
             blur_image_in_place(&mut base, smoothing);
         }
+        let whole = Rect::whole(base.width(), base.height());
+        Self {
+            smoothing,
+            ..Self::build_within(base, levels, whole)
+        }
+    }
+
+    /// As [`Pyramid::build`] for a base that is zero outside `support`: each level is
+    /// computed only where it can be nonzero ([`support`]), with the same values.
+    fn build_within(base: GrayF32, levels: usize, support: Option<Rect>) -> Self {
+        let mut support = support;
         let mut out = vec![base];
         while out.len() < levels.max(1) {
             let last = &out[out.len() - 1];
@@ -370,12 +384,13 @@ impl Pyramid {
             {
                 break;
             }
-            let next = pyr_down(last);
+            let (next, below) = support::pyr_down_within(last, support);
+            support = below;
             out.push(next);
         }
         Self {
             levels: out,
-            smoothing,
+            smoothing: 0.0,
             clip: None,
             unsmoothed: None,
         }
@@ -449,6 +464,14 @@ pub struct MaskPyramid {
 impl MaskPyramid {
     /// Builds `levels` levels (at least 1) with the sizes [`Pyramid::build`] gives.
     pub fn build(base: Mask, levels: usize) -> Self {
+        let whole = Rect::whole(base.width(), base.height());
+        Self::build_within(base, levels, whole)
+    }
+
+    /// As [`MaskPyramid::build`] for a base that is invalid outside `support`, each level
+    /// computed only where it can be valid ([`support`]).
+    fn build_within(base: Mask, levels: usize, support: Option<Rect>) -> Self {
+        let mut support = support;
         let mut out = vec![base];
         while out.len() < levels.max(1) {
             let last = &out[out.len() - 1];
@@ -457,8 +480,11 @@ impl MaskPyramid {
             if w2 < MIN_LEVEL_SIDE || h2 < MIN_LEVEL_SIDE {
                 break;
             }
-            match mask_pyr_down(last) {
-                Some(m) => out.push(m),
+            match support::mask_pyr_down_within(last, support) {
+                Some((m, below)) => {
+                    support = below;
+                    out.push(m);
+                }
                 None => break,
             }
         }
@@ -513,14 +539,20 @@ impl TemplatePyramid {
             0
         };
         // Image and mask are independent: built side by side (rayon). The rendering is
-        // blurred in place (`antialias` without its copy).
+        // blurred in place (`antialias` without its copy). Both are zero where the model is
+        // not (16 % of the pipeline bench's image is model), so every pass runs only over the
+        // model's rectangle and the kernels' reach around it ([`support`]).
         let (image, mask) = rayon::join(
             || {
                 let mut rendered = rendered;
-                blur_image_in_place(&mut rendered, blur_sigma);
-                Pyramid::build(rendered, levels)
+                let support = image_support(&rendered);
+                let support = blur_within(&mut rendered, blur_sigma, support);
+                Pyramid::build_within(rendered, levels, support)
             },
-            || MaskPyramid::build(erode(&mask, reach), levels),
+            || {
+                let support = mask_support(&mask);
+                MaskPyramid::build_within(erode_within(&mask, reach, support), levels, support)
+            },
         );
         Ok(Self { image, mask })
     }
