@@ -66,7 +66,7 @@ fn render(c: &mut Criterion) {
                 b.iter(|| renderer.render(&v).unwrap_or_else(|e| panic!("{e}")))
             });
             // As the tracker renders: into the last frame's buffers, without the RGBA copy.
-            let mut frame = Frame::empty_without_colour(v);
+            let mut frame = Frame::empty_for_tracker(v);
             group.bench_function(format!("{id}/tracker"), |b| {
                 b.iter(|| {
                     renderer
@@ -78,7 +78,7 @@ fn render(c: &mut Criterion) {
                 // The floor: nothing in view (looking away from the test scene), so the time
                 // is the submission, the clears, the copies and the read-back alone.
                 let away = view(width, height, [0.0, -5.0, 1.0], [0.0, -10.0, 1.0]);
-                let mut frame = Frame::empty_without_colour(away);
+                let mut frame = Frame::empty_for_tracker(away);
                 group.bench_function(format!("nothing in view/{width}x{height}/tracker"), |b| {
                     b.iter(|| {
                         renderer

@@ -56,7 +56,7 @@ fn config() -> MapConfig {
 fn adds_features_on_demand_in_free_model_cells() {
     let f = frame(240);
     let mut map = FeatureMap::new(config());
-    let visible = map.predict_visible(&f.view, W, H, Some(&f.depth));
+    let visible = map.predict_visible(&f.view, W, H, Some(&f));
     assert!(visible.is_empty() && map.needs_features(&visible));
     let ids = map.add_from_rendering(&f, &[], 0).unwrap();
     println!("added {} features", ids.len());
@@ -75,7 +75,7 @@ fn adds_features_on_demand_in_free_model_cells() {
         assert!((px.x - px.x.round()).abs() < 1e-6 && (px.y - px.y.round()).abs() < 1e-6);
         assert!(feat.cov_w.symmetric_eigenvalues().iter().all(|&e| e > 0.0));
     }
-    let visible = map.predict_visible(&f.view, W, H, Some(&f.depth));
+    let visible = map.predict_visible(&f.view, W, H, Some(&f));
     assert_eq!(visible.len(), ids.len());
     assert!(!map.needs_features(&visible));
     // Every model cell holds a tracked feature now: nothing more to add there.
@@ -114,7 +114,7 @@ fn occluded_and_out_of_view_points_are_not_visible() {
     let outside = map.insert(Vector3::new(5.0, 0.0, 0.0), Matrix3::identity() * 1e-6, 0);
     let behind = map.insert(Vector3::new(0.0, 0.0, 3.0), Matrix3::identity() * 1e-6, 0);
     let with_depth: Vec<u64> = map
-        .predict_visible(&f.view, W, H, Some(&f.depth))
+        .predict_visible(&f.view, W, H, Some(&f))
         .iter()
         .map(|p| p.id)
         .collect();

@@ -16,7 +16,6 @@ use super::gray::{ImageError, Mask};
 use super::grid::{self, GridConfig};
 use super::klt::KltFailure;
 use crate::backproject::backproject;
-use crate::camera::Gray32FImage;
 use crate::render::{Frame, RenderView};
 
 /// Smallest extraction cell [px]: the registration window is 15 px wide, and features closer
@@ -199,14 +198,14 @@ impl FeatureMap {
     }
 
     /// Features whose model point projects into a `width × height` image of `view`, at least
-    /// `margin` inside, in front of the camera, and — with a depth buffer rendered from the
-    /// same view — not occluded.
+    /// `margin` inside, in front of the camera, and — with the model rendered from the same
+    /// view — not occluded.
     pub fn predict_visible(
         &self,
         view: &RenderView,
         width: u32,
         height: u32,
-        depth: Option<&Gray32FImage>,
+        depth: Option<&Frame>,
     ) -> Vec<Predicted> {
         let m = self.config.margin;
         let (wf, hf) = (width as f64, height as f64);
@@ -228,9 +227,9 @@ impl FeatureMap {
                 if !inside {
                     return None;
                 }
-                if let Some(d) = depth {
+                if let Some(frame) = depth {
                     let (u, v) = (pixel.x.round() as u32, pixel.y.round() as u32);
-                    let z = d.get_pixel_checked(u, v)?.0[0] as f64;
+                    let z = frame.depth_at(u, v)?;
                     if !(z > 0.0 && (z - p_c.z).abs() <= self.config.depth_tolerance * p_c.z) {
                         return None;
                     }

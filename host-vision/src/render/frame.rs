@@ -84,6 +84,50 @@ fn depth_row(bits: &[u8], near: f64, far: f64, z: &mut [f32], mask: &mut [u8]) {
     }
 }
 
+/// Whether, for clip distances `near` and `far`, the mask's test `z > 0` (in `f32`) is the
+/// depth value's being positive and finite: `z` falls as the depth value grows, so it is when
+/// the largest finite value still gives a positive `z`. True for any sensible clip distances
+/// (0.05 and 50 m give 1.5e-40 there).
+fn positive_depth_is_foreground(near: f64, far: f64) -> bool {
+    depth_to_z(f32::MAX, near, far).is_some_and(|z| z as f32 > 0.0)
+}
+
+/// One row of depth bits (`f32`, native byte order) copied into `buffer`, and the mask (255
+/// where `z > 0`, as [`depth_row`]'s): from the bits alone when `bits_decide`
+/// ([`positive_depth_is_foreground`]), which vectorises; else through [`depth_to_z`].
+fn buffer_row(
+    bits: &[u8],
+    near: f64,
+    far: f64,
+    bits_decide: bool,
+    buffer: &mut [f32],
+    mask: &mut [u8],
+) {
+    match bytemuck::try_cast_slice::<u8, f32>(bits) {
+        Ok(values) => buffer.copy_from_slice(values),
+        Err(_) => {
+            for (d, b) in buffer.iter_mut().zip(bits.chunks_exact(4)) {
+                *d = f32::from_ne_bytes([b[0], b[1], b[2], b[3]]);
+            }
+        }
+    }
+    if bits_decide {
+        // Positive finite values are the bit patterns 1 ..= 0x7f7f_ffff.
+        for (m, d) in mask.iter_mut().zip(buffer.iter()) {
+            *m = if d.to_bits().wrapping_sub(1) < 0x7f7f_ffff {
+                255
+            } else {
+                0
+            };
+        }
+    } else {
+        for (m, &d) in mask.iter_mut().zip(buffer.iter()) {
+            let z = depth_to_z(d, near, far).unwrap_or(0.0) as f32;
+            *m = if z > 0.0 { 255 } else { 0 };
+        }
+    }
+}
+
 /// ITU-R BT.601 luma of an RGBA8 pixel read as a little-endian word, in 16.16 fixed point.
 #[inline]
 fn luma(p: u32) -> u8 {
@@ -97,16 +141,21 @@ pub struct Frame {
     /// The view this was rendered from.
     pub view: RenderView,
     /// Colour (RGBA8; alpha 0 on background); empty in a frame made by
-    /// [`Frame::empty_without_colour`].
+    /// [`Frame::empty_for_tracker`].
     pub rgba: RgbaImage,
     /// Grayscale, ITU-R BT.601 luma of `rgba`.
     pub gray: GrayImage,
     /// Camera-frame depth `z` in metres (along the optical axis, not the ray); 0 on background.
+    /// Empty in a frame made by [`Frame::empty_for_tracker`]: [`Frame::depth_at`] reads it
+    /// from the depth buffer's values there.
     pub depth: Gray32FImage,
     /// 255 where the model was rendered, 0 on background.
     pub mask: GrayImage,
-    /// Whether the read-back fills `rgba` (see [`Frame::empty_without_colour`]).
-    colour: bool,
+    /// The depth buffer's values (reversed depth, `render/projection.rs`), row-major, kept
+    /// instead of `depth` by a tracker's frame.
+    buffer: Vec<f32>,
+    /// Whether the read-back fills `rgba` and `depth` (see [`Frame::empty_for_tracker`]).
+    full: bool,
 }
 
 impl Frame {
@@ -119,7 +168,8 @@ impl Frame {
             gray: GrayImage::new(0, 0),
             depth: Gray32FImage::new(0, 0),
             mask: GrayImage::new(0, 0),
-            colour: true,
+            buffer: Vec::new(),
+            full: true,
         }
     }
 
@@ -148,15 +198,18 @@ impl Frame {
             gray,
             depth,
             mask,
-            colour: true,
+            buffer: Vec::new(),
+            full: true,
         })
     }
 
-    /// As [`Frame::empty`] for a reader of `gray`, `depth` and `mask` only (the tracker):
-    /// `rgba` stays empty, which spares copying 4 bytes a pixel out of the read-back.
-    pub fn empty_without_colour(view: RenderView) -> Self {
+    /// As [`Frame::empty`] for a reader of `gray`, `mask` and [`Frame::depth_at`] only (the
+    /// tracker): `rgba` stays empty, which spares copying 4 bytes a pixel out of the
+    /// read-back, and so does `depth`: the depth buffer's values are kept as they are and
+    /// converted to `z` only at the pixels asked for, which spares a division per pixel.
+    pub fn empty_for_tracker(view: RenderView) -> Self {
         Self {
-            colour: false,
+            full: false,
             ..Self::empty(view)
         }
     }
@@ -180,13 +233,20 @@ impl Frame {
             return Err(size_err());
         }
         let mut gray = std::mem::replace(&mut self.gray, GrayImage::new(0, 0)).into_raw();
-        let mut z = std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw();
+        // A full frame's `z`, or a tracker's copy of the depth buffer.
+        let mut z = if self.full {
+            std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw()
+        } else {
+            std::mem::take(&mut self.buffer)
+        };
         let mut mask = std::mem::replace(&mut self.mask, GrayImage::new(0, 0)).into_raw();
         // Same length as last frame: no-ops, every value is overwritten below.
         gray.resize(n, 0);
         z.resize(n, 0.0);
         mask.resize(n, 0);
         let (near, far) = (view.near, view.far);
+        let full = self.full;
+        let bits_decide = positive_depth_is_foreground(near, far);
         gray.par_chunks_mut(w * BAND_ROWS)
             .zip(z.par_chunks_mut(w * BAND_ROWS))
             .zip(mask.par_chunks_mut(w * BAND_ROWS))
@@ -215,10 +275,15 @@ impl Frame {
                             }
                         }
                     }
-                    depth_row(&depth_bits[at..at + 4 * w], near, far, z, mask);
+                    let bits = &depth_bits[at..at + 4 * w];
+                    if full {
+                        depth_row(bits, near, far, z, mask);
+                    } else {
+                        buffer_row(bits, near, far, bits_decide, z, mask);
+                    }
                 }
             });
-        if self.colour {
+        if self.full {
             let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
             rgba.resize(4 * n, 0);
             rgba.par_chunks_mut(4 * w)
@@ -228,7 +293,11 @@ impl Frame {
         }
         self.view = view;
         self.gray = GrayImage::from_raw(width, height, gray).ok_or_else(size_err)?;
-        self.depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
+        if self.full {
+            self.depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
+        } else {
+            self.buffer = z;
+        }
         self.mask = GrayImage::from_raw(width, height, mask).ok_or_else(size_err)?;
         Ok(())
     }
@@ -238,9 +307,19 @@ impl Frame {
         self.gray.dimensions()
     }
 
-    /// Depth `z` (m) at pixel `(u, v)` where the model was rendered.
+    /// Depth `z` (m) at pixel `(u, v)` where the model was rendered: the same value in a full
+    /// frame and a tracker's.
     pub fn depth_at(&self, u: u32, v: u32) -> Option<f64> {
-        let z = self.depth.get_pixel_checked(u, v)?.0[0];
+        let z = if self.full {
+            self.depth.get_pixel_checked(u, v)?.0[0]
+        } else {
+            let (w, h) = self.size();
+            if u >= w || v >= h {
+                return None;
+            }
+            let d = *self.buffer.get(v as usize * w as usize + u as usize)?;
+            depth_to_z(d, self.view.near, self.view.far).unwrap_or(0.0) as f32
+        };
         (z > 0.0).then_some(z as f64)
     }
 }
@@ -284,6 +363,65 @@ mod tests {
                     let want = depth_to_z(d, near, far).unwrap_or(0.0) as f32;
                     assert_eq!(z.to_bits(), want.to_bits(), "d = {d:e}");
                     assert_eq!(m, if want > 0.0 { 255 } else { 0 }, "d = {d:e}");
+                }
+            }
+        }
+    }
+
+    /// A tracker's frame, filled from the same read-back as a full frame, has the same grey
+    /// and mask and the same `z` at every pixel, to the last bit: with the usual clip
+    /// distances (the mask from the bits alone) and with ones where the largest depth values
+    /// give `z = 0` in `f32` (the mask through `depth_to_z`).
+    #[test]
+    fn tracker_frames_agree_with_full_frames() {
+        let (w, h) = (37u32, 5u32);
+        let stride = 4 * w as usize + 12;
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 32) as u32
+        };
+        let special = [0.0f32, -0.0, 1.0, 0.5, f32::MAX, f32::INFINITY, f32::NAN, -1.0, 1e-40];
+        let mut colour = vec![0u8; stride * h as usize];
+        let mut depth = vec![0u8; stride * h as usize];
+        for (i, (c, d)) in colour
+            .chunks_exact_mut(4)
+            .zip(depth.chunks_exact_mut(4))
+            .enumerate()
+        {
+            c.copy_from_slice(&next().to_le_bytes());
+            let v = match special.get(i % 50) {
+                Some(&v) => v,
+                None if i % 3 == 0 => f32::from_bits(next()),
+                None => (next() >> 8) as f32 / (1u32 << 24) as f32,
+            };
+            d.copy_from_slice(&v.to_ne_bytes());
+        }
+        for (near, far, bits_decide) in [(0.05, 50.0, true), (1e-30, 1e30, false)] {
+            assert_eq!(positive_depth_is_foreground(near, far), bits_decide);
+            let view = RenderView {
+                pinhole: Pinhole::new(40.0, 40.0, 18.0, 2.0),
+                pose: CameraPose::from_wxyz([1.0, 0.0, 0.0, 0.0], nalgebra::Vector3::zeros())
+                    .unwrap(),
+                near,
+                far,
+            };
+            let mut full = Frame::empty(view);
+            let mut tracker = Frame::empty_for_tracker(view);
+            for f in [&mut full, &mut tracker] {
+                f.fill_from_mapped(view, (w, h), &colour, &depth, stride)
+                    .unwrap();
+            }
+            assert_eq!(tracker.gray, full.gray);
+            assert_eq!(tracker.mask, full.mask);
+            assert!(tracker.rgba.is_empty() && tracker.depth.is_empty());
+            assert!(full.mask.iter().any(|&m| m > 0) && full.mask.iter().any(|&m| m == 0));
+            for v in 0..h + 1 {
+                for u in 0..w + 1 {
+                    let (a, b) = (tracker.depth_at(u, v), full.depth_at(u, v));
+                    assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "({u}, {v})");
                 }
             }
         }

@@ -221,7 +221,7 @@ fn render_at(
         near: clip.0,
         far: clip.1,
     };
-    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty_without_colour(view));
+    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty_for_tracker(view));
     renderer.render_into(&view, &mut frame)?;
     Ok(frame)
 }
@@ -473,7 +473,7 @@ impl Vision {
         let mut rendering = self
             .rendering
             .take()
-            .unwrap_or_else(|| crate::render::Frame::empty_without_colour(view));
+            .unwrap_or_else(|| crate::render::Frame::empty_for_tracker(view));
         self.renderer.finish_into(&mut rendering)?;
         times.render = (submitted + t.elapsed()).as_secs_f64();
         let (w, h) = (self.camera.width, self.camera.height);
@@ -484,7 +484,7 @@ impl Vision {
         let t = Instant::now();
         let mut visible = self
             .map
-            .predict_visible(&view, w, h, Some(&rendering.depth));
+            .predict_visible(&view, w, h, Some(&rendering));
         let predicted = t.elapsed().as_secs_f64();
         // FAST on demand and the template pyramid both read only the rendering: built side by
         // side (rayon), the template whenever the model is in view.
@@ -522,7 +522,7 @@ impl Vision {
         if added > 0 {
             visible = self
                 .map
-                .predict_visible(&view, w, h, Some(&rendering.depth));
+                .predict_visible(&view, w, h, Some(&rendering));
         }
         times.extract = predicted + extracting + t.elapsed().as_secs_f64();
         // Candidates in registration order; registration stops once `subset_size` succeeded
