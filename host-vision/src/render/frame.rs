@@ -383,7 +383,17 @@ mod tests {
                 .wrapping_add(1);
             (state >> 32) as u32
         };
-        let special = [0.0f32, -0.0, 1.0, 0.5, f32::MAX, f32::INFINITY, f32::NAN, -1.0, 1e-40];
+        let special = [
+            0.0f32,
+            -0.0,
+            1.0,
+            0.5,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NAN,
+            -1.0,
+            1e-40,
+        ];
         let mut colour = vec![0u8; stride * h as usize];
         let mut depth = vec![0u8; stride * h as usize];
         for (i, (c, d)) in colour

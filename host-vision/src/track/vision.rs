@@ -482,9 +482,7 @@ impl Vision {
             / (w as f64 * h as f64);
 
         let t = Instant::now();
-        let mut visible = self
-            .map
-            .predict_visible(&view, w, h, Some(&rendering));
+        let mut visible = self.map.predict_visible(&view, w, h, Some(&rendering));
         let predicted = t.elapsed().as_secs_f64();
         // FAST on demand and the template pyramid both read only the rendering: built side by
         // side (rayon), the template whenever the model is in view.
@@ -520,9 +518,7 @@ impl Vision {
         });
         let t = Instant::now();
         if added > 0 {
-            visible = self
-                .map
-                .predict_visible(&view, w, h, Some(&rendering));
+            visible = self.map.predict_visible(&view, w, h, Some(&rendering));
         }
         times.extract = predicted + extracting + t.elapsed().as_secs_f64();
         // Candidates in registration order; registration stops once `subset_size` succeeded

@@ -198,7 +198,13 @@ pub(crate) fn pyr_down_within(img: &GrayF32, support: Option<Rect>) -> (GrayF32,
     };
     let down = pyr_down(&part);
     let mut out = vec![0.0; w2 * h2];
-    paste(down.data(), down.width(), &mut out, w2, (c.x0 / 2, c.y0 / 2));
+    paste(
+        down.data(),
+        down.width(),
+        &mut out,
+        w2,
+        (c.x0 / 2, c.y0 / 2),
+    );
     let out = GrayF32::new(w2, h2, out).unwrap_or_else(|_| pyr_down(img));
     (out, Some(next))
 }
@@ -244,7 +250,13 @@ pub(crate) fn mask_pyr_down_within(
     let part = Mask::new(c.x1 - c.x0, c.y1 - c.y0, crop(mask.data(), w, c)).ok()?;
     let down = mask_pyr_down(&part)?;
     let mut out = vec![false; w2 * h2];
-    paste(down.data(), down.width(), &mut out, w2, (c.x0 / 2, c.y0 / 2));
+    paste(
+        down.data(),
+        down.width(),
+        &mut out,
+        w2,
+        (c.x0 / 2, c.y0 / 2),
+    );
     Some((Mask::new(w2, h2, out).ok()?, Some(next)))
 }
 
@@ -293,7 +305,11 @@ mod tests {
     fn same_bits(a: &GrayF32, b: &GrayF32, what: &str) {
         assert_eq!((a.width(), a.height()), (b.width(), b.height()), "{what}");
         for (i, (x, y)) in a.data().iter().zip(b.data()).enumerate() {
-            assert_eq!(x.to_bits(), y.to_bits(), "{what}: pixel {i}: {x} against {y}");
+            assert_eq!(
+                x.to_bits(),
+                y.to_bits(),
+                "{what}: pixel {i}: {x} against {y}"
+            );
         }
     }
 
@@ -332,7 +348,15 @@ mod tests {
     #[test]
     fn passes_within_the_support_equal_the_whole_image_passes() {
         let mut seed = 11;
-        for (w, h) in [(1, 1), (3, 2), (8, 8), (9, 17), (23, 40), (64, 48), (75, 61)] {
+        for (w, h) in [
+            (1, 1),
+            (3, 2),
+            (8, 8),
+            (9, 17),
+            (23, 40),
+            (64, 48),
+            (75, 61),
+        ] {
             for _ in 0..12 {
                 let (img, mask) = case(&mut seed, w, h);
                 for sigma in [0.0, 0.7, 1.0, std::f32::consts::SQRT_2, 2.5, 6.0] {
