@@ -427,7 +427,7 @@ mod tests {
             assert_eq!(tracker.gray, full.gray);
             assert_eq!(tracker.mask, full.mask);
             assert!(tracker.rgba.is_empty() && tracker.depth.is_empty());
-            assert!(full.mask.iter().any(|&m| m > 0) && full.mask.iter().any(|&m| m == 0));
+            assert!(full.mask.iter().any(|&m| m > 0) && full.mask.contains(&0));
             for v in 0..h + 1 {
                 for u in 0..w + 1 {
                     let (a, b) = (tracker.depth_at(u, v), full.depth_at(u, v));

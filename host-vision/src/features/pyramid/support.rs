@@ -150,6 +150,18 @@ fn paste<T: Copy>(src: &[T], cw: usize, data: &mut [T], w: usize, (x0, y0): (usi
     }
 }
 
+/// A `w × h` image of zeros (`false`) with `part` (`pw` wide) written at `at`.
+fn placed<T: Copy + Default>(
+    part: &[T],
+    pw: usize,
+    (w, h): (usize, usize),
+    at: (usize, usize),
+) -> Vec<T> {
+    let mut out = vec![T::default(); w * h];
+    paste(part, pw, &mut out, w, at);
+    out
+}
+
 /// [`super::gaussian_blur`] in place of an image that is zero outside `support`; returns where
 /// the result can be nonzero.
 pub(crate) fn blur_within(img: &mut GrayF32, sigma: f32, support: Option<Rect>) -> Option<Rect> {
@@ -197,14 +209,7 @@ pub(crate) fn pyr_down_within(img: &GrayF32, support: Option<Rect>) -> (GrayF32,
         return (pyr_down(img), Some(next));
     };
     let down = pyr_down(&part);
-    let mut out = vec![0.0; w2 * h2];
-    paste(
-        down.data(),
-        down.width(),
-        &mut out,
-        w2,
-        (c.x0 / 2, c.y0 / 2),
-    );
+    let out = placed(down.data(), down.width(), (w2, h2), (c.x0 / 2, c.y0 / 2));
     let out = GrayF32::new(w2, h2, out).unwrap_or_else(|_| pyr_down(img));
     (out, Some(next))
 }
@@ -225,8 +230,7 @@ pub(crate) fn erode_within(mask: &Mask, r: usize, support: Option<Rect>) -> Mask
         return erode(mask, r);
     };
     let eroded = erode(&part, r);
-    let mut out = vec![false; w * h];
-    paste(eroded.data(), cw, &mut out, w, (c.x0, c.y0));
+    let out = placed(eroded.data(), cw, (w, h), (c.x0, c.y0));
     Mask::new(w, h, out).unwrap_or_else(|_| erode(mask, r))
 }
 
@@ -249,14 +253,7 @@ pub(crate) fn mask_pyr_down_within(
     }
     let part = Mask::new(c.x1 - c.x0, c.y1 - c.y0, crop(mask.data(), w, c)).ok()?;
     let down = mask_pyr_down(&part)?;
-    let mut out = vec![false; w2 * h2];
-    paste(
-        down.data(),
-        down.width(),
-        &mut out,
-        w2,
-        (c.x0 / 2, c.y0 / 2),
-    );
+    let out = placed(down.data(), down.width(), (w2, h2), (c.x0 / 2, c.y0 / 2));
     Some((Mask::new(w2, h2, out).ok()?, Some(next)))
 }
 
@@ -282,7 +279,7 @@ mod tests {
         let (x0, x1) = (a.min(b), a.max(b));
         let (y0, y1) = (c.min(d), c.max(d));
         // Half the masks are wholly valid inside: their coarse levels reach the support's edge.
-        let dense = lcg(seed) % 2 == 0;
+        let dense = lcg(seed).is_multiple_of(2);
         let mut data = vec![0f32; w * h];
         let mut valid = vec![false; w * h];
         for y in y0..y1 {
@@ -293,7 +290,7 @@ mod tests {
                     1 => 0.0,
                     _ => (v % 2560) as f32 / 10.0,
                 };
-                valid[y * w + x] = dense || v % 7 != 0;
+                valid[y * w + x] = dense || !v.is_multiple_of(7);
             }
         }
         (
