@@ -205,7 +205,7 @@ impl FeatureMap {
         view: &RenderView,
         width: u32,
         height: u32,
-        depth: Option<&Frame>,
+        rendering: Option<&Frame>,
     ) -> Vec<Predicted> {
         let m = self.config.margin;
         let (wf, hf) = (width as f64, height as f64);
@@ -227,7 +227,7 @@ impl FeatureMap {
                 if !inside {
                     return None;
                 }
-                if let Some(frame) = depth {
+                if let Some(frame) = rendering {
                     let (u, v) = (pixel.x.round() as u32, pixel.y.round() as u32);
                     let z = frame.depth_at(u, v)?;
                     if !(z > 0.0 && (z - p_c.z).abs() <= self.config.depth_tolerance * p_c.z) {

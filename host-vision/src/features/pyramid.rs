@@ -660,7 +660,8 @@ mod tests {
     //! the kernels (every border case).
     use super::*;
 
-    fn lcg(seed: &mut u64) -> u64 {
+    /// A small deterministic generator for the random images (also `support`'s tests).
+    pub(super) fn lcg(seed: &mut u64) -> u64 {
         *seed = seed
             .wrapping_mul(6_364_136_223_846_793_005)
             .wrapping_add(1_442_695_040_888_963_407);

@@ -512,7 +512,7 @@ impl Vision {
             },
         );
         let (added, extracting) = extraction?;
-        let mut template = template?.map(|(template, took)| {
+        let template = template?.map(|(template, took)| {
             times.pyramids += took;
             template
         });
@@ -539,7 +539,7 @@ impl Vision {
         let mut error_count = 0usize;
         if !selected.is_empty() {
             let t = Instant::now();
-            let template = match template.take() {
+            let template = match template {
                 Some(template) => template,
                 None => build_template(&rendering, klt.levels, blur)?,
             };

@@ -259,15 +259,9 @@ pub(crate) fn mask_pyr_down_within(
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::lcg;
     use super::super::{MaskPyramid, Pyramid, blur_image_in_place};
     use super::*;
-
-    fn lcg(seed: &mut u64) -> u64 {
-        *seed = seed
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        *seed >> 33
-    }
 
     /// A `w × h` image, zero outside a random rectangle (sometimes touching the borders,
     /// sometimes empty), random values and a few `−0.0` inside; and its mask, valid only
