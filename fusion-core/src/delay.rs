@@ -182,13 +182,15 @@ impl<T: Scalar> DelayLine<T> {
     /// Re-propagates `frame_id`'s snapshot through the buffered samples after it into `live`
     /// (the filter at the present); later snapshots on the way are refreshed (their predicted
     /// means, already sent to the host, stay). Returns `None` if the frame has no snapshot
-    /// (then `live` is untouched). Copies go field by field, never through a stack temporary:
-    /// the firmware's stack is small.
+    /// (then `live` is untouched). The time updates it runs are added to `steps` (saturating):
+    /// at most [`IMU_BUFFER`] samples of [`crate::filter::MAX_STEPS_PER_SAMPLE`] each. Copies go
+    /// field by field, never through a stack temporary: the firmware's stack is small.
     pub fn repropagate(
         &mut self,
         frame_id: u32,
         prm: &Params<T>,
         live: &mut Filter<T>,
+        steps: &mut u32,
     ) -> Option<Result<(), StatusReason>>
     where
         T: StepKernel,
@@ -201,7 +203,7 @@ impl<T: Scalar> DelayLine<T> {
             s.seq
         };
         for rec in self.records.iter().filter(|r| before(seq, r.seq)) {
-            if let Err(reason) = live.imu_step(prm, &rec.sample) {
+            if let Err(reason) = live.imu_step_counted(prm, &rec.sample, steps) {
                 return Some(Err(reason));
             }
             if let Some(later) = self
@@ -285,7 +287,7 @@ mod tests {
         // u32::MAX - 11) through the 30 samples after it, across the sample numbers' wrap,
         // gives the present again.
         let mut again = Filter::new(State::zeroed(), 0);
-        let replayed = line.repropagate(u32::MAX, &prm, &mut again);
+        let replayed = line.repropagate(u32::MAX, &prm, &mut again, &mut 0);
         assert_eq!(replayed, Some(Ok(())));
         assert_eq!(again.t_us, live.t_us);
         assert_eq!(again.st.x, live.st.x);

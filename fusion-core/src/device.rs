@@ -12,7 +12,7 @@ use protocol::{
 
 use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing};
 use crate::divergence::Monitor;
-use crate::filter::{Filter, ImuSample};
+use crate::filter::{Filter, ImuSample, MAX_STEPS_PER_SAMPLE};
 use crate::init::{StillWindow, initialise};
 use crate::kernels::Kernels;
 use crate::models::correspondence::{self, Observation, Rejection};
@@ -22,8 +22,16 @@ use crate::scalar::Scalar;
 use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, State, VEL};
 
 /// Largest IMU interval integrated as dead reckoning [µs]; a longer jump, or a time stamp
-/// going backwards, is refused until the new clock is confirmed.
-pub const MAX_GAP_US: u64 = 1_000_000;
+/// going backwards, is refused until the new clock is confirmed. The filter refuses a longer
+/// interval too, whatever the device lets through ([`crate::filter::MAX_INTERVAL_US`]).
+pub const MAX_GAP_US: u64 = crate::filter::MAX_INTERVAL_US;
+
+/// Most time updates one message can cost, whatever its time stamps say: a sample's own
+/// ([`MAX_STEPS_PER_SAMPLE`]), and re-propagating every pending frame and the frame answered
+/// through the whole sample ring (each buffered sample was accepted within [`MAX_GAP_US`] of
+/// the one before it). `Counters::time_updates` counts them.
+pub const MAX_TIME_UPDATES_PER_MESSAGE: u32 =
+    MAX_STEPS_PER_SAMPLE * (1 + (MAX_PENDING_FRAMES as u32 + 1) * IMU_BUFFER as u32);
 
 /// Consecutive consistent samples on a new clock after which the core accepts a clock jump
 /// and re-initialises.
@@ -81,6 +89,9 @@ pub struct Counters {
     pub divergences: u32,
     /// Clock jumps accepted.
     pub clock_jumps: u32,
+    /// Time-update steps run, re-propagation included: the work the samples cost (at most
+    /// [`MAX_TIME_UPDATES_PER_MESSAGE`] per message).
+    pub time_updates: u32,
 }
 
 impl Counters {
@@ -100,6 +111,7 @@ impl Counters {
         withheld: 0,
         divergences: 0,
         clock_jumps: 0,
+        time_updates: 0,
     };
 
     /// Counts one event: saturating, so that no input can overflow a counter (a host can
@@ -284,7 +296,9 @@ impl<T: Kernels> Device<T> {
                     self.config.map_or(0, |c| c.session),
                     Self::capacities(),
                 );
-                self.greeted = matches!(answer, CoreToHost::HelloAck(_));
+                // A refused `Hello` (another major version) changes nothing: the core keeps
+                // its session for its own host (protocol/PROTOCOL.md §8).
+                self.greeted |= matches!(answer, CoreToHost::HelloAck(_));
                 out(answer);
             }
             _ if !self.greeted => {
@@ -409,6 +423,8 @@ impl<T: Kernels> Device<T> {
     /// (the first sample propagates it from there), with the initial covariance and the tilt
     /// σ about the vertical too, as a soft re-initialisation has. No still window: the device
     /// is moving, and gravity could not level it. The anchor is that state: it was tracked.
+    /// The core's clock is the state's time: the next sample must come after it, within
+    /// [`MAX_GAP_US`], as after any sample.
     fn resume(&mut self, r: &protocol::Resume, out: Out) {
         let Some(prm) = self.prm else {
             Counters::bump(&mut self.counters.out_of_order);
@@ -440,6 +456,8 @@ impl<T: Kernels> Device<T> {
         crate::init::reset_covariance(st, &prm, f(prm.init_sigma.tilt));
         self.filter.t_us = r.t_us;
         self.filter.quat_norm_error = T::zero();
+        self.last_t_us = Some(r.t_us);
+        self.clock_candidate = None;
         self.anchor = Anchor {
             position: v(&r.s_w),
             q_sw,
@@ -633,7 +651,10 @@ impl<T: Kernels> Device<T> {
             return;
         }
         let Some(prm) = &self.prm else { return };
-        if let Err(reason) = self.filter.imu_step(prm, sample) {
+        if let Err(reason) =
+            self.filter
+                .imu_step_counted(prm, sample, &mut self.counters.time_updates)
+        {
             let prm = *prm;
             self.diverged(reason, &prm, out);
             return;
@@ -658,11 +679,6 @@ impl<T: Kernels> Device<T> {
             .camera_period_us
             .saturating_mul(u64::from(NO_VISION_FRAMES));
         if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us {
-            // The residual monitor's memory ends with tracking: the frames before the gap
-            // judged the tracked state, the ones after it judge a dead-reckoned prediction
-            // (docs/FILTER.md §9 test 1; docs/notes/issue18-robustness.md). Two consecutive
-            // outlier frames after the gap still fire it.
-            self.monitor = Monitor::default();
             self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
         }
         let every = self.config.map_or(0, |c| c.state_every);
@@ -677,7 +693,8 @@ impl<T: Kernels> Device<T> {
 
     /// Propagates a dirty frame's update to the present; false if that diverged.
     fn flush(&mut self, frame_id: u32, prm: &Params<T>, out: Out) -> bool {
-        match self.delay.repropagate(frame_id, prm, &mut self.filter) {
+        let steps = &mut self.counters.time_updates;
+        match self.delay.repropagate(frame_id, prm, &mut self.filter, steps) {
             Some(Ok(())) => true,
             Some(Err(reason)) => {
                 self.diverged(reason, prm, out);
@@ -790,8 +807,17 @@ impl<T: Kernels> Device<T> {
             self.withheld_from.x.copy_from(&snap.filter.st.x);
             self.withheld_from.p.copy_from(&snap.filter.st.p);
         }
+        // Frames on either side of a gap are not consecutive looks at one state (§9 test 1).
+        if !c.items.is_empty() {
+            let gap_us = prm
+                .camera_period_us
+                .saturating_mul(u64::from(NO_VISION_FRAMES));
+            self.monitor.look(c.trigger_us, gap_us);
+        }
+        // Test 3 judges the part's whole step from here (§9): the covariance's tangent plane
+        // is this quaternion's until the part ends.
+        let q_start = snap.filter.st.q();
         let mut gated = 0u32;
-        let mut radial_diverged = false;
         let mut diverged = None;
         let mut error_sum = T::zero();
         let mut error_count = 0u32;
@@ -805,10 +831,9 @@ impl<T: Kernels> Device<T> {
             // Capacity equals the message's, so this cannot fail.
             let _ = report.residuals.push(s_i.to_wire());
             match result {
-                Ok(radial) => {
+                Ok(()) => {
                     report.accepted += 1;
                     Counters::bump(&mut self.counters.accepted);
-                    radial_diverged |= radial > prm.quat_norm_threshold;
                 }
                 Err(why) => {
                     report.rejected += 1;
@@ -839,11 +864,15 @@ impl<T: Kernels> Device<T> {
                 .saturating_sub(u32::from(report.accepted));
             report.rejected += report.accepted;
             report.accepted = 0;
-            radial_diverged = false;
         }
-        // An applied update that broke the quaternion's norm asks for the full restart.
-        if radial_diverged {
-            diverged = Some(StatusReason::QuaternionNorm);
+        if report.accepted > 0 {
+            // Applied updates that moved the quaternion off the sphere ask for the full
+            // restart; correct ones end with it normalised, and its covariance with it.
+            if crate::ekf::radial_step(&q_start, &snap.filter.st.q()) > prm.quat_norm_threshold {
+                diverged = Some(StatusReason::QuaternionNorm);
+            }
+            let radial = T::c(crate::init::QUAT_RADIAL_SIGMA * crate::init::QUAT_RADIAL_SIGMA);
+            crate::ekf::normalise_quaternion(&mut snap.filter.st, prm.n, radial);
         }
         crate::ekf::condition(&mut snap.filter.st.p, prm.n);
         snap.parts_done |= 1 << c.part;
@@ -1027,7 +1056,7 @@ mod tests {
             Counters::bump(std::hint::black_box(&mut c.decode_errors));
         }
         assert_eq!(c.decode_errors, u32::MAX);
-        let fields: [fn(&mut Counters) -> &mut u32; 14] = [
+        let fields: [fn(&mut Counters) -> &mut u32; 16] = [
             |c| &mut c.decode_errors,
             |c| &mut c.invalid_messages,
             |c| &mut c.out_of_order,
@@ -1040,8 +1069,10 @@ mod tests {
             |c| &mut c.gated,
             |c| &mut c.behind_camera,
             |c| &mut c.singular,
+            |c| &mut c.withheld,
             |c| &mut c.divergences,
             |c| &mut c.clock_jumps,
+            |c| &mut c.time_updates,
         ];
         for field in fields {
             let mut c = Counters::default();

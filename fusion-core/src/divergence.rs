@@ -10,15 +10,17 @@
 //!    (`λτ/2 + (1−λ)c = τ`), two consecutive frames of nothing but outliers always do
 //!    (`(1−λ)(1+λ)c = τ(1 + λ(1−λ)/2) > τ`), and so does a sustained share of outliers above
 //!    `τ/c = 2(1−λ)/(2−λ)` (a third at λ = 0.8). The frame that fires is not applied: its
-//!    snapshot is dropped with the re-initialisation. The device restarts the monitor when
-//!    tracking ends (dead reckoning, [`crate::device::NO_VISION_FRAMES`] camera periods without
-//!    accepted vision): frames on either side of a gap are not consecutive looks at one state;
+//!    snapshot is dropped with the re-initialisation. The monitor restarts at every gap of
+//!    [`crate::device::NO_VISION_FRAMES`] camera periods or more between the frames it judges
+//!    ([`Monitor::look`]): frames on either side of a gap are not consecutive looks at one state;
 //! 2. the Frobenius norm of the state covariance exceeds a threshold (catches the unbounded
 //!    uncertainty growth of dead reckoning without vision);
 //! 3. a measurement update moves the quaternion off the sphere: the radial part of its step
 //!    exceeds a threshold ([`crate::ekf::radial_step`]; a correct update's step is tangential
 //!    and only grows the norm by `θ²/8`, which the normalisation before each time update
-//!    removes).
+//!    removes). An IMU sample's update is judged alone; a part of a frame's correspondences
+//!    as a whole, from the quaternion it started at, and it ends with the quaternion and its
+//!    covariance normalised ([`crate::ekf::normalise_quaternion`]).
 
 use protocol::StatusReason;
 
@@ -37,6 +39,8 @@ pub struct Monitor<T: Scalar> {
     sum: T,
     /// How many.
     count: u32,
+    /// Trigger time [µs] of the last frame whose residuals it took, if any.
+    last_look_us: Option<u64>,
 }
 
 impl<T: Scalar> Monitor<T> {
@@ -47,7 +51,22 @@ impl<T: Scalar> Monitor<T> {
             frame: None,
             sum: T::ZERO,
             count: 0,
+            last_look_us: None,
         }
+    }
+
+    /// A frame triggered at `t_us` brings residuals: if `gap_us` or more passed since the last
+    /// frame that did, the monitor restarts first. Frames on either side of a gap are not
+    /// consecutive looks at one state (the ones after it judge a dead-reckoned prediction), so
+    /// its memory ends at every gap, in whatever mode (issue 32: it ended only when tracking
+    /// did, and frames before and after a second gap were joined).
+    pub fn look(&mut self, t_us: u64, gap_us: u64) {
+        if let Some(last) = self.last_look_us
+            && t_us.saturating_sub(last) >= gap_us
+        {
+            *self = Self::new();
+        }
+        self.last_look_us = Some(t_us);
     }
 
     /// Adds one normalised residual of `frame_id`, capped (gated outliers and non-finite ones

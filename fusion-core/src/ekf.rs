@@ -5,7 +5,7 @@
 use nalgebra::SVector;
 
 use crate::scalar::Scalar;
-use crate::state::{Cov, N, State};
+use crate::state::{Cov, N, QUAT, State};
 
 /// Most non-zero entries of one measurement-Jacobian row (accelerometer: 4 + 3 + 1).
 pub const ROW_NNZ: usize = 8;
@@ -332,6 +332,59 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
     } else {
         T::zero()
     }
+}
+
+/// Puts the quaternion back on the unit sphere at the end of a part's correspondence updates,
+/// and its covariance with it: `q ← q/‖q‖` and `P ← J P Jᵀ` with the normalisation's Jacobian
+/// `J = (I − q̂q̂ᵀ)/‖q‖` on the quaternion's rows (`q̂ = q/‖q‖`), plus `radial_var · q̂q̂ᵀ`, the
+/// tiny variance along the quaternion that a fresh covariance has (docs/FILTER.md §3).
+///
+/// Each correct update steps perpendicular to the quaternion the covariance's tangent plane
+/// belongs to. After a large correction `θ` that plane is no longer the quaternion's own, and a
+/// correct update measured against the moved quaternion has a radial part of about `θ/2` times
+/// its own step: the quaternion test fired on correct updates (issue 32). `J` turns the
+/// plane with the quaternion, so the next part starts tangent again. A non-finite or zero
+/// quaternion is left alone: the divergence monitor reports it.
+pub fn normalise_quaternion<T: Scalar>(st: &mut State<T>, n: usize, radial_var: T) {
+    let q = st.q();
+    let norm = q.norm();
+    if !(norm > T::zero() && norm.is_finite()) {
+        return;
+    }
+    let u = q / norm;
+    let inv = T::one() / norm;
+    let n = n.min(N);
+    let p = &mut st.p;
+    // r = P q̂, one entry per active column, from the column's quaternion rows.
+    let mut r = [T::zero(); N];
+    for (j, rj) in r.iter_mut().enumerate().take(n) {
+        for k in 0..4 {
+            *rj += p[(QUAT + k, j)] * u[k];
+        }
+    }
+    let s = (0..4).fold(T::zero(), |a, k| a + u[k] * r[QUAT + k]);
+    // Cross terms: (J P)_kj = (P_kj − q̂_k r_j)/‖q‖ for the other columns, mirrored.
+    for (j, &rj) in r.iter().enumerate().take(n) {
+        if (QUAT..QUAT + 4).contains(&j) {
+            continue;
+        }
+        for k in 0..4 {
+            let v = (p[(QUAT + k, j)] - u[k] * rj) * inv;
+            p[(QUAT + k, j)] = v;
+            p[(j, QUAT + k)] = v;
+        }
+    }
+    // The block: (P − q̂rᵀ − rq̂ᵀ + s q̂q̂ᵀ)/‖q‖² + radial_var q̂q̂ᵀ, upper triangle mirrored.
+    let inv2 = inv * inv;
+    for l in 0..4 {
+        for k in 0..=l {
+            let a = p[(QUAT + k, QUAT + l)] - u[k] * r[QUAT + l] - r[QUAT + k] * u[l];
+            let v = (a + s * u[k] * u[l]) * inv2 + radial_var * u[k] * u[l];
+            p[(QUAT + k, QUAT + l)] = v;
+            p[(QUAT + l, QUAT + k)] = v;
+        }
+    }
+    st.set_q(&u);
 }
 
 /// Ends a batch of updates: mirrors the upper triangle of the active block into the lower one

@@ -15,6 +15,15 @@ use crate::state::{ACC, ACC_BIAS, GYRO_BIAS, N, OMEGA, QUAT, State};
 /// quaternion increment and the Q discretisation stay accurate).
 pub const MAX_STEP_US: u64 = 20_000;
 
+/// Longest interval one sample may integrate [µs] (the device's largest accepted gap,
+/// [`crate::device::MAX_GAP_US`]). A sample further from the filter's time, or before it, is
+/// refused whatever its time stamp says, so one sample costs at most
+/// [`MAX_STEPS_PER_SAMPLE`] time updates.
+pub const MAX_INTERVAL_US: u64 = 1_000_000;
+
+/// Most time updates one sample runs: [`MAX_INTERVAL_US`] in steps of [`MAX_STEP_US`].
+pub const MAX_STEPS_PER_SAMPLE: u32 = MAX_INTERVAL_US.div_ceil(MAX_STEP_US) as u32;
+
 /// One IMU sample in the filter's scalar.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImuSample<T: Scalar> {
@@ -78,25 +87,45 @@ impl<T: Scalar> Filter<T> {
         }
     }
 
-    /// Applies one IMU sample (its time stamp must be after the filter's). Returns the reason
-    /// if the state diverged.
+    /// Applies one IMU sample. Returns the reason if the state diverged, or
+    /// `StatusReason::TimeJump` (the filter unchanged) if the sample is before the filter's
+    /// time or more than [`MAX_INTERVAL_US`] after it.
     pub fn imu_step(&mut self, prm: &Params<T>, s: &ImuSample<T>) -> Result<(), StatusReason>
     where
         T: StepKernel,
     {
-        T::imu_step(self, prm, s)
+        self.imu_step_counted(prm, s, &mut 0)
     }
 
-    /// [`Self::imu_step`], instantiated through [`StepKernel`].
+    /// [`Self::imu_step`], adding the time updates it ran to `steps` (saturating): the work a
+    /// sample costs, at most [`MAX_STEPS_PER_SAMPLE`].
+    pub fn imu_step_counted(
+        &mut self,
+        prm: &Params<T>,
+        s: &ImuSample<T>,
+        steps: &mut u32,
+    ) -> Result<(), StatusReason>
+    where
+        T: StepKernel,
+    {
+        T::imu_step(self, prm, s, steps)
+    }
+
+    /// [`Self::imu_step_counted`], instantiated through [`StepKernel`].
     pub(crate) fn imu_step_generic(
         &mut self,
         prm: &Params<T>,
         s: &ImuSample<T>,
+        steps: &mut u32,
     ) -> Result<(), StatusReason> {
-        let mut remaining = s.t_us.saturating_sub(self.t_us);
+        let mut remaining = match s.t_us.checked_sub(self.t_us) {
+            Some(dt) if dt <= MAX_INTERVAL_US => dt,
+            _ => return Err(StatusReason::TimeJump),
+        };
         while remaining > 0 {
             let step = remaining.min(MAX_STEP_US);
             remaining -= step;
+            *steps = steps.saturating_add(1);
             motion::normalise_quaternion(&mut self.st);
             // `step` ≤ MAX_STEP_US is exact in an f32: no double arithmetic on the MCU.
             motion::time_update(
@@ -124,11 +153,12 @@ impl<T: Scalar> Filter<T> {
 
 /// [`Filter::imu_step`], compiled in this crate for each scalar (why: [`crate::kernels`]).
 pub trait StepKernel: Scalar {
-    /// [`Filter::imu_step`] (every IMU sample).
+    /// [`Filter::imu_step_counted`] (every IMU sample).
     fn imu_step(
         f: &mut Filter<Self>,
         prm: &Params<Self>,
         s: &ImuSample<Self>,
+        steps: &mut u32,
     ) -> Result<(), StatusReason>;
 }
 
@@ -140,8 +170,9 @@ macro_rules! step_kernel {
                 f: &mut Filter<Self>,
                 prm: &Params<Self>,
                 s: &ImuSample<Self>,
+                steps: &mut u32,
             ) -> Result<(), StatusReason> {
-                f.imu_step_generic(prm, s)
+                f.imu_step_generic(prm, s, steps)
             }
         }
     };

@@ -5,6 +5,12 @@ use protocol::{Config, ModelKind};
 use crate::scalar::Scalar;
 use crate::state::HandEye;
 
+/// Largest cap on a residual fed to the monitor ([`Params::residual_cap_of`]): half of
+/// `f32::MAX` shared by the most correspondences a frame holds (the half leaves the sum's
+/// rounding room), the same for both scalars.
+pub const RESIDUAL_CAP_MAX: f64 =
+    f32::MAX as f64 / (2 * protocol::MAX_CORRESPONDENCES_PER_FRAME) as f64;
+
 /// Everything the filter needs from `Configure`, in the filter's scalar.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Params<T: Scalar> {
@@ -50,9 +56,15 @@ pub struct Params<T: Scalar> {
 
 impl<T: Scalar> Params<T> {
     /// The residual monitor's cap `c = τ(2−λ) / (2(1−λ))` for threshold `τ` and low-pass `λ`
-    /// (see [`crate::divergence`]).
+    /// (see [`crate::divergence`]), at most [`RESIDUAL_CAP_MAX`]: a frame's sum of capped
+    /// residuals then stays finite in `f32`, so that `g` never exceeds the largest `τ`, and
+    /// `τ = f32::MAX` switches the test off. (Unbounded, that `τ` made the cap infinite, and one
+    /// frame with a single point behind the camera fired the test.) Below the bound the
+    /// monitor's promises hold as stated; a bounded cap only weakens what a frame can add.
     pub fn residual_cap_of(threshold: T, lowpass: T) -> T {
-        threshold * (T::c(2.0) - lowpass) / (T::c(2.0) * (T::one() - lowpass))
+        let cap = threshold * (T::c(2.0) - lowpass) / (T::c(2.0) * (T::one() - lowpass));
+        let max = T::c(RESIDUAL_CAP_MAX);
+        if cap < max { cap } else { max }
     }
 
     /// From a validated `Config`.

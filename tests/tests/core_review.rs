@@ -7,8 +7,8 @@ use fusion_core::state::QUAT;
 use fusion_core::{Device, quat};
 use nalgebra::{Rotation3, Vector3};
 use protocol::{
-    Config, CoreToHost, Correspondences, ErrorCode, HostToCore, InitAttitude, InvalidField, Mode,
-    ModelKind, StatusReason, UpdateOutcome, samples,
+    Config, CoreToHost, Correspondence, Correspondences, ErrorCode, HostToCore, InitAttitude,
+    InvalidField, Mode, ModelKind, PosePrediction, StatusReason, UpdateOutcome, samples,
 };
 use tests::harness::{Driver, Outcome, Scenario, count_outcome, errors, run, scenes};
 
@@ -690,4 +690,374 @@ fn issue_17_configure_and_init_while_tracking_restart_safely() {
     assert_eq!(fresh.device.mode(), Mode::Tracking);
     assert_eq!(d.out.errors.len(), errors_before);
     assert!(fresh.out.errors.is_empty(), "{:?}", fresh.out.errors);
+}
+
+// Issue 32: the second review's five defects, one test each, in the reviewer's scenarios.
+
+/// A core of `model` that has said `Hello` and been configured with the standard scene's
+/// configuration (no `Init`).
+fn configured(config: Config) -> Device<f32> {
+    let mut d = Device::<f32>::new();
+    for msg in [
+        HostToCore::Hello(protocol::Hello {
+            version: protocol::PROTOCOL_VERSION,
+        }),
+        HostToCore::Configure(config),
+    ] {
+        d.handle(&msg, &mut |_| {});
+    }
+    d
+}
+
+/// Sends one message; returns the answers.
+fn send(d: &mut Device<f32>, msg: HostToCore) -> Vec<CoreToHost> {
+    let mut got = Vec::new();
+    d.handle(&msg, &mut |a| got.push(a));
+    got
+}
+
+/// A level, resting state at `t_us` to resume from.
+fn resume_at(t_us: u64) -> HostToCore {
+    HostToCore::Resume(protocol::Resume {
+        t_us,
+        s_w: [0.0, 0.0, 1.0],
+        q_sw: [1.0, 0.0, 0.0, 0.0],
+        v_w: [0.0; 3],
+        a_w: [0.0; 3],
+        omega_s: [0.0; 3],
+        gyro_bias: [0.0; 3],
+        accel_bias: [0.0; 3],
+    })
+}
+
+/// A resting IMU sample at `t_us`.
+fn rest(t_us: u64) -> HostToCore {
+    HostToCore::Imu(protocol::ImuSample {
+        t_us,
+        gyro: [0.0; 3],
+        accel: [0.0, 0.0, 9.81],
+        trigger: false,
+    })
+}
+
+/// The time-stamp error among `answers`, if any.
+fn time_error(answers: &[CoreToHost]) -> Option<ErrorCode> {
+    answers.iter().find_map(|a| match a {
+        CoreToHost::Error(e) => match e.code {
+            c @ (ErrorCode::TimestampGap { .. } | ErrorCode::TimestampNotIncreasing { .. }) => {
+                Some(c)
+            }
+            _ => None,
+        },
+        _ => None,
+    })
+}
+
+/// Issue 32, defect 1: `Resume` did not set the core's clock. After `Resume { t_us: 0 }` a
+/// sample at 10¹⁰ µs was accepted with no gap check and integrated in 5·10⁵ steps of 20 ms
+/// (`u64::MAX` never finished); a running core resumed at 0 integrated 10 s at its next
+/// sample; a sample before the resumed time was accepted and moved the filter's clock back;
+/// and `Query` reported the old time. `Resume` now sets the clock: the next sample must be
+/// later and within `MAX_GAP_US`, and `Query` reports the resumed time.
+#[test]
+fn issue_32_defect_1_resume_sets_the_clock() {
+    let config = scenes::config(ModelKind::Acc, 200.0, 2.0);
+    // Resumed at 0: a sample 10⁴ s later is a gap, refused, and changes nothing.
+    let mut d = configured(config);
+    send(&mut d, resume_at(0));
+    let before = d.filter().clone();
+    let got = send(&mut d, rest(10_000_000_000));
+    assert!(
+        matches!(
+            time_error(&got),
+            Some(ErrorCode::TimestampGap {
+                last_us: 0,
+                got_us: 10_000_000_000
+            })
+        ),
+        "{got:?}"
+    );
+    assert_eq!(d.filter(), &before, "the refused sample moved the filter");
+    // A running core at 10.005 s resumed at 0: its next sample (10.010 s) is a gap.
+    let mut d = configured(config);
+    send(&mut d, resume_at(10_000_000));
+    send(&mut d, rest(10_005_000));
+    assert_eq!(d.filter().t_us, 10_005_000);
+    send(&mut d, resume_at(0));
+    let got = send(&mut d, rest(10_010_000));
+    assert!(
+        matches!(time_error(&got), Some(ErrorCode::TimestampGap { .. })),
+        "{got:?}"
+    );
+    assert_eq!(d.filter().t_us, 0);
+    // Resumed at 10 s: a sample at 1 s is in the past, refused; the filter's clock stays.
+    let mut d = configured(config);
+    send(&mut d, resume_at(10_000_000));
+    let got = send(&mut d, rest(1_000_000));
+    assert!(
+        matches!(
+            time_error(&got),
+            Some(ErrorCode::TimestampNotIncreasing { .. })
+        ),
+        "{got:?}"
+    );
+    assert!(
+        !got.iter()
+            .any(|a| matches!(a, CoreToHost::PosePrediction(_))),
+        "{got:?}"
+    );
+    assert_eq!(d.filter().t_us, 10_000_000);
+    // Query after `Resume { 7 s }` reports 7 s in both its answers, and the next sample after
+    // it is applied.
+    let mut d = configured(config);
+    send(&mut d, resume_at(7_000_000));
+    match &send(&mut d, HostToCore::Query)[..] {
+        [CoreToHost::Status(st), CoreToHost::State(s)] => {
+            assert_eq!((st.t_us, s.t_us), (7_000_000, 7_000_000));
+        }
+        other => panic!("{other:?}"),
+    }
+    let got = send(&mut d, rest(7_005_000));
+    assert_eq!(time_error(&got), None, "{got:?}");
+    assert_eq!(d.filter().t_us, 7_005_000);
+    assert_eq!(d.mode(), Mode::DeadReckoning);
+}
+
+/// The still scene: the device rests for the whole run at true yaw `yaw0`, the wall turned
+/// with it; `Init` gives gravity only (yaw 0), with the yaw σ `sigma`.
+fn still_at_yaw(yaw0: f64, sigma: f32, length: f64, seed: u64) -> Scenario {
+    let mut sc = turned(
+        scenes::standard(ModelKind::Acc, length, 2.0, seed),
+        yaw0,
+        length,
+    );
+    sc.trajectory = Box::new(Harmonic {
+        attitude0: [yaw0, 0.0, 0.0],
+        ..scenes::handheld(length, length, 2.0)
+    });
+    sc.max_correspondences = 16;
+    sc.latency_samples = 3;
+    sc.init.attitude = InitAttitude::Gravity;
+    sc.config.init_sigma.yaw = sigma;
+    sc
+}
+
+/// Issue 32, defect 2: the quaternion-norm test judged each correspondence's step against the
+/// quaternion as the previous correspondences had left it, while the covariance's tangent
+/// plane was still the one before them. After one large correct correction the next correct
+/// one had a radial part of about half the first correction's angle times its own step: at
+/// true yaw 0.5 rad (1σ) the still device diverged 66 times in 20 s and never tracked. The test
+/// now judges a part's whole step against the quaternion it started from, and the part ends
+/// with the quaternion normalised together with its covariance. Swept from 0 to 3σ at σ 0.5
+/// and 1.0: no quaternion-norm divergence, and tracking at the end wherever the first frame's
+/// correspondences pass the gate.
+#[test]
+fn issue_32_defect_2_large_corrections_never_trip_the_quaternion_test() {
+    let mut tripped = Vec::new();
+    let mut not_tracking = Vec::new();
+    for sigma in [0.5f32, 1.0] {
+        for step in 0..=6 {
+            let yaw0 = f64::from(sigma) * 0.5 * f64::from(step);
+            let sc = still_at_yaw(yaw0, sigma, 10.0, 32);
+            let mut last = (Mode::Unconfigured, f64::NAN);
+            let out = run::<f32>(&sc, |d, k, _| last = (d.mode(), errors::attitude(d, k)));
+            let norm = out
+                .statuses
+                .iter()
+                .filter(|s| s.reason == StatusReason::QuaternionNorm)
+                .count();
+            let reasons: Vec<_> = out
+                .statuses
+                .iter()
+                .filter(|s| s.mode == Mode::Diverged)
+                .map(|s| (s.t_us / 1000, s.reason))
+                .collect();
+            println!(
+                "σ {sigma}, true yaw {yaw0:.2} rad ({:.1}σ): {} divergences ({norm} quaternion \
+                 norm), ends {:?} with {:.2}° of attitude error; {reasons:?}",
+                yaw0 / f64::from(sigma),
+                divergences(&out),
+                last.0,
+                last.1.to_degrees()
+            );
+            if norm > 0 {
+                tripped.push((sigma, yaw0, norm));
+            }
+            // Up to 1 rad the first frame's correspondences pass the gate and tracking follows
+            // (after one residual divergence from 0.5 rad on: single-point corrections that far
+            // from the linearisation point leave the first frame's state overconfident). Past
+            // it every one of them fails the gate (s_i 36 to 160 against 30 at 1.25 rad): no
+            // update is applied, and the residual monitor's re-initialisations are right.
+            if yaw0 <= 1.0 && (last.0 != Mode::Tracking || last.1.to_degrees() > 1.0) {
+                not_tracking.push((sigma, yaw0));
+            }
+        }
+    }
+    assert!(
+        tripped.is_empty(),
+        "quaternion-norm divergences: {tripped:?}"
+    );
+    assert!(
+        not_tracking.is_empty(),
+        "not tracking at the end: {not_tracking:?}"
+    );
+}
+
+/// A model point 1 m behind the predicted camera: rejected whatever the covariance, with an
+/// infinite normalised residual, which the residual monitor counts at its cap.
+fn behind(p: &PosePrediction) -> [f32; 3] {
+    let q_cw = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        p.q_cw[0], p.q_cw[1], p.q_cw[2], p.q_cw[3],
+    ));
+    let axis = q_cw.inverse() * Vector3::z();
+    [p.c_w[0] - axis[0], p.c_w[1] - axis[1], p.c_w[2] - axis[2]]
+}
+
+/// Sends samples up to the next prediction and answers it at once with the frame's
+/// correspondences, `edit`ed.
+fn answer_one_frame(d: &mut Driver<f32>, edit: impl Fn(&PosePrediction, &mut [Correspondence])) {
+    loop {
+        let msg = d.next_imu();
+        let truth = d.last.unwrap().0;
+        for a in d.send(&msg) {
+            if let CoreToHost::PosePrediction(p) = a {
+                let mut corrs = d.observe(&truth);
+                edit(&p, &mut corrs);
+                let parts: Vec<_> = Correspondences::split(p.frame_id, p.t_us, &corrs)
+                    .unwrap()
+                    .collect();
+                for part in parts {
+                    d.send(&HostToCore::Correspondences(part));
+                }
+                return;
+            }
+        }
+    }
+}
+
+/// A frame whose every model point is behind the camera: nothing but outliers.
+fn outlier_frame(d: &mut Driver<f32>) {
+    answer_one_frame(d, |p, corrs| {
+        for c in corrs {
+            c.m_w = behind(p);
+        }
+    });
+}
+
+/// Issue 32, defect 3: the residual monitor restarted only when tracking ended, so frames on
+/// either side of a second gap, taken while already dead reckoning, were joined: an outlier
+/// frame, a 250 ms gap, an outlier frame, a 2 s gap and a third outlier frame fired it (and a
+/// full re-initialisation with a still window while the device moved). It now restarts at
+/// every gap between the frames it judges, so the third frame is judged alone; two outlier
+/// frames in a row still fire it.
+#[test]
+fn issue_32_defect_3_the_residual_monitor_restarts_at_every_gap() {
+    for lambda in [0.5, 0.8] {
+        let mut sc = scenes::standard(ModelKind::Acc, 20.0, 2.0, 8);
+        sc.config.divergence.residual_lowpass = lambda;
+        // The gaps are dead reckoning: room for 2 s of it.
+        sc.config.divergence.covariance_frobenius = 1e6;
+        let mut d = Driver::<f32>::new(&sc);
+        while (d.k as f64) < 5.0 * sc.imu_rate_hz {
+            step_answering(&mut d, false);
+        }
+        assert_eq!(d.device.mode(), Mode::Tracking);
+        for seconds in [0.25, 2.0] {
+            outlier_frame(&mut d);
+            for _ in 0..(seconds * sc.imu_rate_hz) as usize {
+                let msg = d.next_imu();
+                d.send(&msg);
+            }
+            assert_eq!(d.device.mode(), Mode::DeadReckoning, "λ {lambda}");
+        }
+        // The third outlier frame, after the second gap.
+        outlier_frame(&mut d);
+        assert_eq!(
+            divergences(&d.out),
+            0,
+            "λ {lambda}: fired across the second gap: {:?}",
+            d.out.statuses
+        );
+        // A fourth, right after it: two consecutive outlier frames fire it.
+        outlier_frame(&mut d);
+        let fired: Vec<_> = d
+            .out
+            .statuses
+            .iter()
+            .filter(|s| s.mode == Mode::Diverged)
+            .map(|s| s.reason)
+            .collect();
+        assert_eq!(fired, [StatusReason::ResidualLowpass], "λ {lambda}");
+    }
+}
+
+/// Issue 32, defect 5: a `Hello` of another major version un-greeted a running core: it
+/// answered `VersionMismatch`, and then its own host's next `Imu` and `Query` got
+/// `NoHandshake`. A refused `Hello` now changes nothing (protocol/PROTOCOL.md §8).
+#[test]
+fn issue_32_defect_5_a_refused_hello_changes_nothing() {
+    let sc = scenes::standard(ModelKind::Acc, 4.0, 2.0, 5);
+    let mut d = Driver::<f32>::new(&sc);
+    while (d.k as f64) < 3.0 * sc.imu_rate_hz {
+        d.step();
+    }
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    let other = protocol::Version {
+        major: protocol::PROTOCOL_VERSION.major + 1,
+        minor: 2,
+    };
+    let before = d.device.filter().clone();
+    let got = d.send(&HostToCore::Hello(protocol::Hello { version: other }));
+    assert!(
+        matches!(&got[..], [CoreToHost::Error(e)] if matches!(e.code, ErrorCode::VersionMismatch { .. })),
+        "{got:?}"
+    );
+    assert_eq!(d.device.filter(), &before);
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    let errors = d.out.errors.len();
+    let got = d.send(&HostToCore::Query);
+    assert!(
+        matches!(&got[..], [CoreToHost::Status(_), CoreToHost::State(_)]),
+        "{got:?}"
+    );
+    for _ in 0..sc.imu_rate_hz as usize {
+        d.step();
+    }
+    assert_eq!(d.out.errors.len(), errors, "{:?}", &d.out.errors[errors..]);
+    assert_eq!(d.device.mode(), Mode::Tracking);
+}
+
+/// Issue 32, defect 4: the residual cap `τ(2−λ)/(2(1−λ))` overflowed f32 for `τ = f32::MAX`,
+/// the obvious way to switch the test off, which validation accepts. The cap became infinite,
+/// and one frame in which 1 of 30 points was behind the camera fired `ResidualLowpass`. The cap
+/// is now bounded so that a frame's sum of residuals stays finite, and `τ = f32::MAX` switches
+/// the test off: that frame, and a second of nothing but outliers, fire nothing.
+#[test]
+fn issue_32_defect_4_the_largest_residual_threshold_switches_the_test_off() {
+    let mut sc = scenes::standard(ModelKind::Acc, 10.0, 2.0, 4);
+    sc.config.divergence.residual_threshold = f32::MAX;
+    assert_eq!(configure_error(sc.config), None);
+    let mut d = Driver::<f32>::new(&sc);
+    while (d.k as f64) < 4.0 * sc.imu_rate_hz {
+        step_answering(&mut d, false);
+    }
+    assert_eq!(d.device.mode(), Mode::Tracking);
+    // One frame with 1 of its 30 model points behind the camera.
+    answer_one_frame(&mut d, |p, corrs| corrs[0].m_w = behind(p));
+    for _ in 0..sc.imu_rate_hz as usize {
+        step_answering(&mut d, false);
+    }
+    assert!(d.device.counters().behind_camera >= 1);
+    assert_eq!(divergences(&d.out), 0, "{:?}", d.out.statuses);
+    // Switched off: a second of nothing but outliers does not fire it either.
+    for _ in 0..sc.imu_rate_hz as usize {
+        step_answering(&mut d, true);
+    }
+    let residual = d
+        .out
+        .statuses
+        .iter()
+        .filter(|s| s.reason == StatusReason::ResidualLowpass)
+        .count();
+    assert_eq!(residual, 0);
 }

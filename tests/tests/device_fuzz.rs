@@ -3,7 +3,8 @@
 //! happen to decode), then random bytes through the framed byte interface.
 
 use fusion_core::{Device, DeviceIo, Kernels};
-use protocol::{HostToCore, Mode, ModelKind};
+use proptest::test_runner::TestCaseError;
+use protocol::{CoreToHost, Correspondences, HostToCore, Mode, ModelKind};
 use tests::harness::{Driver, scenes};
 
 /// Small deterministic generator (xorshift64*).
@@ -91,4 +92,198 @@ fn random_bytes_into_the_framed_interface_never_panic() {
     );
     assert!(io.device.counters().decode_errors > 0);
     let _ = Device::<f64>::new();
+}
+
+/// One step of the work-bound property test.
+#[derive(Clone, Debug)]
+enum Op {
+    /// A sample (or tick) this long after the last one sent [µs].
+    After { dt_us: u64, trigger: bool },
+    /// A sample (or tick) at any time.
+    At { t_us: u64, trigger: bool },
+    /// `Resume` at any time.
+    Resume(u64),
+    /// `Resume` this long after the last sample sent [µs].
+    ResumeAfter(u64),
+    /// `Init` again.
+    Init,
+    /// Answers the `age`-th newest prediction with correspondences that agree with it, the
+    /// image points moved by `offset` (normalised units).
+    Answer { age: usize, offset: f32 },
+    /// `Query`.
+    Query,
+}
+
+fn op() -> impl proptest::strategy::Strategy<Value = Op> {
+    use proptest::prelude::*;
+    prop_oneof![
+        6 => (prop_oneof![3 => 1u64..20_000, 1 => 0u64..3_000_000], any::<bool>())
+            .prop_map(|(dt_us, trigger)| Op::After { dt_us, trigger }),
+        1 => (any::<u64>(), any::<bool>()).prop_map(|(t_us, trigger)| Op::At { t_us, trigger }),
+        1 => (u64::MAX - 10..=u64::MAX, any::<bool>())
+            .prop_map(|(t_us, trigger)| Op::At { t_us, trigger }),
+        1 => any::<u64>().prop_map(Op::Resume),
+        1 => (0u64..3_000_000).prop_map(Op::ResumeAfter),
+        1 => Just(Op::Init),
+        3 => (0usize..4, -0.001f32..0.001).prop_map(|(age, offset)| Op::Answer { age, offset }),
+        1 => Just(Op::Query),
+    ]
+}
+
+/// Correspondences of the wall's points in front of a predicted camera, at the predicted pose
+/// (image points moved by `offset`), at most 40.
+fn agreeing(p: &protocol::PosePrediction, offset: f32) -> Vec<protocol::Correspondence> {
+    use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+    let q_cw = UnitQuaternion::from_quaternion(Quaternion::new(
+        p.q_cw[0], p.q_cw[1], p.q_cw[2], p.q_cw[3],
+    ));
+    let c_w = Vector3::from(p.c_w);
+    scenes::wall()
+        .iter()
+        .filter_map(|m| {
+            let m_w = m.cast::<f32>();
+            let pc = q_cw * (m_w - c_w);
+            (pc[2] > 0.1).then(|| protocol::Correspondence {
+                m_n: [pc[0] / pc[2] + offset, pc[1] / pc[2] - offset],
+                cov_n: [1e-6, 0.0, 1e-6],
+                m_w: [m_w[0], m_w[1], m_w[2]],
+                cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+            })
+        })
+        .take(40)
+        .collect()
+}
+
+/// Issue 32, defect 1: one message's work is bounded whatever its time stamps say. A running
+/// core (each model's clock message, f32 and f64) gets random sequences of samples (some any
+/// `u64` time, some up to 3 s after the last), `Resume`s at any time, `Init`s, queries and
+/// answers to its predictions that it applies (so frames are re-propagated through the sample
+/// ring). No message runs more than `MAX_TIME_UPDATES_PER_MESSAGE` time updates. (Before the
+/// fix, `Resume { t_us: 0 }` and a sample at `u64::MAX` integrated 9.2·10¹⁴ steps.)
+#[test]
+fn no_message_costs_more_than_a_fixed_number_of_time_updates() {
+    use fusion_core::device::MAX_TIME_UPDATES_PER_MESSAGE;
+    use proptest::test_runner::{Config, TestRunner};
+    use std::cell::Cell;
+
+    /// The most time updates one message ran, all of them, messages sent, correspondences
+    /// applied.
+    type Tally = Cell<(u32, u64, u64, u64)>;
+
+    fn case<T: Kernels>(model: ModelKind, ops: &[Op], tally: &Tally) -> Result<(), String> {
+        let mut sc = scenes::standard(model, 2.0, 2.0, 1);
+        // A short still window, so that a sequence's `Init`s leave it running most of the time.
+        sc.config.still_samples = 5;
+        let mut d = Driver::<T>::new(&sc);
+        // Running: past the still window.
+        while d.k < 150 {
+            d.step();
+        }
+        let mut last = tests::harness::t_us(d.k - 1, sc.imu_rate_hz);
+        let warm = d.device.counters().accepted;
+        let mut predictions = Vec::new();
+        for op in ops {
+            let clock = |t_us: u64, trigger: bool| {
+                if model.has_imu() {
+                    HostToCore::Imu(protocol::ImuSample {
+                        t_us,
+                        gyro: [0.01, -0.02, 0.0],
+                        accel: [0.1, 0.0, 9.81],
+                        trigger,
+                    })
+                } else {
+                    HostToCore::Tick(protocol::Tick { t_us, trigger })
+                }
+            };
+            let msgs = match *op {
+                Op::After { dt_us, trigger } => {
+                    last = last.saturating_add(dt_us);
+                    vec![clock(last, trigger)]
+                }
+                Op::At { t_us, trigger } => {
+                    last = t_us;
+                    vec![clock(t_us, trigger)]
+                }
+                Op::Resume(t_us) | Op::ResumeAfter(t_us) => {
+                    // A host that resumes at any time goes on from there; one resumed after
+                    // its last sample goes on before the resumed time.
+                    let t_us = match op {
+                        Op::ResumeAfter(_) => last.saturating_add(t_us),
+                        _ => {
+                            last = t_us;
+                            t_us
+                        }
+                    };
+                    vec![HostToCore::Resume(protocol::Resume {
+                        t_us,
+                        s_w: sc.init.position,
+                        q_sw: [1.0, 0.0, 0.0, 0.0],
+                        v_w: [0.1, 0.0, 0.0],
+                        a_w: [0.0; 3],
+                        omega_s: [0.0; 3],
+                        gyro_bias: [0.0; 3],
+                        accel_bias: [0.0; 3],
+                    })]
+                }
+                Op::Init => vec![HostToCore::Init(sc.init)],
+                Op::Answer { age, offset } => match predictions.iter().rev().nth(age) {
+                    Some(p) => {
+                        let p: &protocol::PosePrediction = p;
+                        let corrs = agreeing(p, offset);
+                        Correspondences::split(p.frame_id, p.t_us, &corrs)
+                            .map_err(|e| format!("{e:?}"))?
+                            .map(HostToCore::Correspondences)
+                            .collect()
+                    }
+                    None => Vec::new(),
+                },
+                Op::Query => vec![HostToCore::Query],
+            };
+            for msg in msgs {
+                let before = d.device.counters().time_updates;
+                for a in d.send(&msg) {
+                    if let CoreToHost::PosePrediction(p) = a {
+                        predictions.push(p);
+                    }
+                }
+                let work = d.device.counters().time_updates - before;
+                if work > MAX_TIME_UPDATES_PER_MESSAGE {
+                    return Err(format!("{work} time updates for {msg:?}"));
+                }
+                let (max, total, sent, applied) = tally.get();
+                tally.set((max.max(work), total + u64::from(work), sent + 1, applied));
+            }
+        }
+        let (max, total, sent, applied) = tally.get();
+        let accepted = u64::from(d.device.counters().accepted - warm);
+        tally.set((max, total, sent, applied + accepted));
+        Ok(())
+    }
+
+    let tally = Tally::default();
+    let mut runner = TestRunner::new(Config {
+        cases: 64,
+        failure_persistence: None,
+        ..Config::default()
+    });
+    let strategy = proptest::collection::vec(op(), 1..200);
+    for model in [ModelKind::Acc, ModelKind::Vision] {
+        runner
+            .run(&strategy, |ops| {
+                case::<f32>(model, &ops, &tally).map_err(TestCaseError::fail)?;
+                case::<f64>(model, &ops, &tally).map_err(TestCaseError::fail)?;
+                Ok(())
+            })
+            .unwrap();
+    }
+    let (max, total, sent, applied) = tally.get();
+    println!(
+        "{sent} messages: at most {max} time updates for one (bound \
+         {MAX_TIME_UPDATES_PER_MESSAGE}), {total} in all; {applied} correspondences applied"
+    );
+    // The sequences reach the paths that do the work: integration and re-propagation.
+    assert!(
+        total > 1_000 && max >= 40 && applied > 1_000,
+        "{max}, {total}, {applied}"
+    );
 }

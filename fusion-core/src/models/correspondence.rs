@@ -132,15 +132,16 @@ pub fn linearise<T: Scalar>(
 }
 
 /// Applies one correspondence unless it is behind the camera, singular, or gated out.
-/// Returns the normalised residual `s_i = zᵀ S⁻¹ z` (infinite when it cannot be computed) and,
-/// when applied, the step's radial quaternion error ([`crate::ekf::radial_step`]).
+/// Returns the normalised residual `s_i = zᵀ S⁻¹ z` (infinite when it cannot be computed), and
+/// whether it was applied. (The quaternion test judges a whole part's step, not one
+/// correspondence's: docs/FILTER.md §9.)
 ///
 /// The covariance must be symmetric (every update and time update keeps it so).
 pub fn update<T: UpdateKernel>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
-) -> (T, Result<T, Rejection>) {
+) -> (T, Result<(), Rejection>) {
     T::correspondence_update(st, prm, obs)
 }
 
@@ -149,7 +150,7 @@ pub(crate) fn update_generic<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &Observation<T>,
-) -> (T, Result<T, Rejection>) {
+) -> (T, Result<(), Rejection>) {
     let (d_s, d_q, r, depth, h) = blocks(st, &prm.hand_eye, obs);
     // Written so that a NaN depth is rejected too.
     if depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
@@ -186,8 +187,8 @@ pub(crate) fn update_generic<T: Scalar>(
     if f.nis > prm.gate {
         return (f.nis, Err(Rejection::Gated));
     }
-    let radial = f.apply(st, prm.n, &mut u);
-    (f.nis, Ok(radial))
+    f.apply(st, prm.n, &mut u);
+    (f.nis, Ok(()))
 }
 
 /// [`update`], compiled in this crate for each scalar (why: [`crate::kernels`]).
@@ -197,7 +198,7 @@ pub trait UpdateKernel: Scalar {
         st: &mut State<Self>,
         prm: &Params<Self>,
         obs: &Observation<Self>,
-    ) -> (Self, Result<Self, Rejection>);
+    ) -> (Self, Result<(), Rejection>);
 }
 
 macro_rules! update_kernel {
@@ -208,7 +209,7 @@ macro_rules! update_kernel {
                 st: &mut State<Self>,
                 prm: &Params<Self>,
                 obs: &Observation<Self>,
-            ) -> (Self, Result<Self, Rejection>) {
+            ) -> (Self, Result<(), Rejection>) {
                 update_generic(st, prm, obs)
             }
         }
