@@ -694,7 +694,10 @@ impl<T: Kernels> Device<T> {
     /// Propagates a dirty frame's update to the present; false if that diverged.
     fn flush(&mut self, frame_id: u32, prm: &Params<T>, out: Out) -> bool {
         let steps = &mut self.counters.time_updates;
-        match self.delay.repropagate(frame_id, prm, &mut self.filter, steps) {
+        match self
+            .delay
+            .repropagate(frame_id, prm, &mut self.filter, steps)
+        {
             Some(Ok(())) => true,
             Some(Err(reason)) => {
                 self.diverged(reason, prm, out);

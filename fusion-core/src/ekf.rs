@@ -337,7 +337,8 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
 /// Puts the quaternion back on the unit sphere at the end of a part's correspondence updates,
 /// and its covariance with it: `q ← q/‖q‖` and `P ← J P Jᵀ` with the normalisation's Jacobian
 /// `J = (I − q̂q̂ᵀ)/‖q‖` on the quaternion's rows (`q̂ = q/‖q‖`), plus `radial_var · q̂q̂ᵀ`, the
-/// tiny variance along the quaternion that a fresh covariance has (docs/FILTER.md §3).
+/// tiny variance along the quaternion that a fresh covariance has (docs/FILTER.md §3). Call
+/// [`condition`] after it (the two passes round the block's two halves apart).
 ///
 /// Each correct update steps perpendicular to the quaternion the covariance's tangent plane
 /// belongs to. After a large correction `θ` that plane is no longer the quaternion's own, and a
@@ -346,45 +347,47 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
 /// plane with the quaternion, so the next part starts tangent again. A non-finite or zero
 /// quaternion is left alone: the divergence monitor reports it.
 pub fn normalise_quaternion<T: Scalar>(st: &mut State<T>, n: usize, radial_var: T) {
-    let q = st.q();
-    let norm = q.norm();
-    if !(norm > T::zero() && norm.is_finite()) {
+    // On the slices, scalar by scalar: the firmware's flash is tight (this is 0.3 KB there).
+    let Some(q) =
+        st.x.as_mut_slice()
+            .get_mut(QUAT..)
+            .and_then(|q| q.first_chunk_mut::<4>())
+    else {
+        return;
+    };
+    let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+    // Also false for a NaN or an infinite norm.
+    if !(n2 > T::zero() && n2 < T::c(1e30)) {
         return;
     }
-    let u = q / norm;
-    let inv = T::one() / norm;
+    let inv = T::one() / n2.sqrt();
+    let u: [T; 4] = core::array::from_fn(|k| q[k] * inv);
+    *q = u;
     let n = n.min(N);
-    let p = &mut st.p;
-    // r = P q̂, one entry per active column, from the column's quaternion rows.
-    let mut r = [T::zero(); N];
-    for (j, rj) in r.iter_mut().enumerate().take(n) {
-        for k in 0..4 {
-            *rj += p[(QUAT + k, j)] * u[k];
+    let p = st.p.as_mut_slice();
+    // J P: the quaternion rows of every active column (adjacent in a column), mirrored into
+    // the quaternion columns outside the block (P is symmetric, so that is P Jᵀ there).
+    for j in 0..n {
+        let col = j * N + QUAT;
+        let d = (0..4).fold(T::zero(), |a, k| a + u[k] * p[col + k]);
+        for (k, &uk) in u.iter().enumerate() {
+            let v = (p[col + k] - uk * d) * inv;
+            p[col + k] = v;
+            if !(QUAT..QUAT + 4).contains(&j) {
+                p[(QUAT + k) * N + j] = v;
+            }
         }
     }
-    let s = (0..4).fold(T::zero(), |a, k| a + u[k] * r[QUAT + k]);
-    // Cross terms: (J P)_kj = (P_kj − q̂_k r_j)/‖q‖ for the other columns, mirrored.
-    for (j, &rj) in r.iter().enumerate().take(n) {
-        if (QUAT..QUAT + 4).contains(&j) {
-            continue;
-        }
-        for k in 0..4 {
-            let v = (p[(QUAT + k, j)] - u[k] * rj) * inv;
-            p[(QUAT + k, j)] = v;
-            p[(j, QUAT + k)] = v;
+    // The block's rows times Jᵀ, plus the radial variance; [`condition`] then makes the
+    // rounding of its two halves symmetric.
+    for (r, &ur) in u.iter().enumerate() {
+        let row = QUAT + r;
+        let d = (0..4).fold(T::zero(), |a, k| a + u[k] * p[(QUAT + k) * N + row]);
+        for (k, &uk) in u.iter().enumerate() {
+            let at = (QUAT + k) * N + row;
+            p[at] = (p[at] - uk * d) * inv + radial_var * uk * ur;
         }
     }
-    // The block: (P − q̂rᵀ − rq̂ᵀ + s q̂q̂ᵀ)/‖q‖² + radial_var q̂q̂ᵀ, upper triangle mirrored.
-    let inv2 = inv * inv;
-    for l in 0..4 {
-        for k in 0..=l {
-            let a = p[(QUAT + k, QUAT + l)] - u[k] * r[QUAT + l] - r[QUAT + k] * u[l];
-            let v = (a + s * u[k] * u[l]) * inv2 + radial_var * u[k] * u[l];
-            p[(QUAT + k, QUAT + l)] = v;
-            p[(QUAT + l, QUAT + k)] = v;
-        }
-    }
-    st.set_q(&u);
 }
 
 /// Ends a batch of updates: mirrors the upper triangle of the active block into the lower one

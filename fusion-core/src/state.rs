@@ -65,7 +65,10 @@ impl<T: Scalar> State<T> {
 
     /// Orientation `q_sw`.
     pub fn q(&self) -> Quat<T> {
-        self.x.fixed_rows::<4>(QUAT).into_owned()
+        // Entry by entry: `fixed_rows().into_owned()` became a copy loop at every call site in
+        // the firmware (flash).
+        let x = &self.x;
+        Quat::new(x[QUAT], x[QUAT + 1], x[QUAT + 2], x[QUAT + 3])
     }
 
     /// Sets three entries from `at`.
