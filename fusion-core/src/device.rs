@@ -810,15 +810,16 @@ impl<T: Kernels> Device<T> {
             self.withheld_from.x.copy_from(&snap.filter.st.x);
             self.withheld_from.p.copy_from(&snap.filter.st.p);
         }
-        // Frames on either side of a gap are not consecutive looks at one state (§9 test 1).
+        // Frames on either side of a gap are not consecutive looks at one state
+        // (docs/FILTER.md §9, test 1).
         if !c.items.is_empty() {
             let gap_us = prm
                 .camera_period_us
                 .saturating_mul(u64::from(NO_VISION_FRAMES));
             self.monitor.look(c.trigger_us, gap_us);
         }
-        // Test 3 judges the part's whole step from here (§9): the covariance's tangent plane
-        // is this quaternion's until the part ends.
+        // Test 3 judges the part's whole step from here (docs/FILTER.md §6, §9): the
+        // covariance's tangent plane is this quaternion's until the part ends.
         let q_start = snap.filter.st.q();
         let mut gated = 0u32;
         let mut diverged = None;

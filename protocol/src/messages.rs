@@ -225,7 +225,8 @@ pub struct HandEye {
 pub struct DivergenceParams {
     /// Low-pass factor `λ` of `g ← λg + (1−λ)s_i`, in (0, 1).
     pub residual_lowpass: f32,
-    /// Divergence when the low-passed normalised residual `g` exceeds this.
+    /// Divergence when the low-passed normalised residual `g` exceeds this; `f32::MAX`
+    /// switches the test off (PROTOCOL.md §5, `DivergenceParams`).
     pub residual_threshold: f32,
     /// Divergence when the Frobenius norm of the state covariance exceeds this.
     pub covariance_frobenius: f32,
