@@ -537,4 +537,54 @@ mod tests {
         let f = Ldl::new(&[[f64::NAN]], &[1.0]);
         assert_eq!(f.rank, 0);
     }
+
+    /// The part's normalisation is `q ← q/‖q‖` and `P ← J P Jᵀ + r q̂q̂ᵀ`, `J = (I − q̂q̂ᵀ)/‖q‖`
+    /// on the quaternion's rows, as the dense product gives it; the new covariance is tangent
+    /// to the new quaternion but for `r`, and the rest of `P` is untouched.
+    #[test]
+    fn normalising_the_quaternion_turns_its_covariance_with_it() {
+        let n = 19;
+        let mut st = State::<f64> {
+            p: random_spd(11),
+            ..Default::default()
+        };
+        let q = nalgebra::Vector4::new(1.02, 0.1, -0.2, 0.15);
+        st.set_q(&q);
+        let before = st.clone();
+        let radial = 1e-6;
+        normalise_quaternion(&mut st, n, radial);
+        condition(&mut st.p, n);
+        let norm = q.norm();
+        let u = q / norm;
+        let mut j = Cov::<f64>::identity();
+        let jq = (nalgebra::Matrix4::identity() - u * u.transpose()) / norm;
+        j.fixed_view_mut::<4, 4>(QUAT, QUAT).copy_from(&jq);
+        let mut want = j * before.p * j.transpose();
+        let uu = u * u.transpose() * radial;
+        let mut block = want.fixed_view_mut::<4, 4>(QUAT, QUAT);
+        block += uu;
+        for r in 0..N {
+            for c in 0..N {
+                let expected = if r < n && c < n {
+                    want[(r, c)]
+                } else {
+                    before.p[(r, c)]
+                };
+                assert_relative_eq!(st.p[(r, c)], expected, epsilon = 1e-12);
+            }
+        }
+        assert_relative_eq!(st.q(), u, epsilon = 1e-15);
+        let pq = st.p.fixed_view::<4, 4>(QUAT, QUAT) * u;
+        assert_relative_eq!(pq, u * radial, epsilon = 1e-12);
+        // A zero or non-finite quaternion is left to the divergence monitor.
+        for bad in [
+            nalgebra::Vector4::zeros(),
+            nalgebra::Vector4::new(f64::NAN, 0.0, 0.0, 1.0),
+        ] {
+            st.set_q(&bad);
+            let kept = st.clone();
+            normalise_quaternion(&mut st, n, radial);
+            assert_eq!(st.p, kept.p);
+        }
+    }
 }
