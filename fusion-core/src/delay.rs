@@ -6,6 +6,7 @@ use heapless::Deque;
 
 use crate::filter::{Filter, ImuSample, StepKernel};
 use crate::params::Params;
+use crate::quat::Quat;
 use crate::scalar::Scalar;
 use crate::state::StateVec;
 use protocol::StatusReason;
@@ -45,6 +46,11 @@ pub struct Snapshot<T: Scalar> {
     pub filter: Filter<T>,
     /// The mean as predicted for the host (for the prediction error: before any update).
     pub predicted: StateVec<T>,
+    /// The quaternion before the frame's first part: the covariance's tangent plane is its
+    /// until the frame's updates end, so every correct update of the frame steps perpendicular
+    /// to it, and the quaternion test judges the frame's updates from it (docs/FILTER.md §6).
+    /// Set by the device at the first part.
+    pub q_ref: Quat<T>,
     /// Parts applied so far (bit per part).
     pub parts_done: u8,
     /// Applied parts whose effect has not yet been propagated to the present.
@@ -139,6 +145,7 @@ impl<T: Scalar> DelayLine<T> {
             seq: self.next_seq.wrapping_sub(1),
             filter: Filter::idle(),
             predicted: filter.st.x,
+            q_ref: filter.st.q(),
             parts_done: 0,
             dirty: false,
         };

@@ -818,9 +818,11 @@ impl<T: Kernels> Device<T> {
                 .saturating_mul(u64::from(NO_VISION_FRAMES));
             self.monitor.look(c.trigger_us, gap_us);
         }
-        // Test 3 judges the part's whole step from here (docs/FILTER.md §6, §9): the
-        // covariance's tangent plane is this quaternion's until the part ends.
-        let q_start = snap.filter.st.q();
+        // Test 3 judges the frame's updates from the quaternion they started at (docs/FILTER.md
+        // §6, §9).
+        if snap.parts_done == 0 {
+            snap.q_ref = snap.filter.st.q();
+        }
         let mut gated = 0u32;
         let mut diverged = None;
         let mut error_sum = T::zero();
@@ -869,14 +871,11 @@ impl<T: Kernels> Device<T> {
             report.rejected += report.accepted;
             report.accepted = 0;
         }
-        if report.accepted > 0 {
-            // Applied updates that moved the quaternion off the sphere ask for the full
-            // restart; correct ones end with it normalised, and its covariance with it.
-            if crate::ekf::radial_step(&q_start, &snap.filter.st.q()) > prm.quat_norm_threshold {
-                diverged = Some(StatusReason::QuaternionNorm);
-            }
-            let radial = T::c(crate::init::QUAT_RADIAL_SIGMA * crate::init::QUAT_RADIAL_SIGMA);
-            crate::ekf::normalise_quaternion(&mut snap.filter.st, prm.n, radial);
+        // Applied updates that moved the quaternion off the sphere ask for the full restart.
+        if report.accepted > 0
+            && crate::ekf::radial_step(&snap.q_ref, &snap.filter.st.q()) > prm.quat_norm_threshold
+        {
+            diverged = Some(StatusReason::QuaternionNorm);
         }
         crate::ekf::condition(&mut snap.filter.st.p, prm.n);
         snap.parts_done |= 1 << c.part;

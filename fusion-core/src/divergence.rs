@@ -18,9 +18,8 @@
 //! 3. a measurement update moves the quaternion off the sphere: the radial part of its step
 //!    exceeds a threshold ([`crate::ekf::radial_step`]; a correct update's step is tangential
 //!    and only grows the norm by `θ²/8`, which the normalisation before each time update
-//!    removes). An IMU sample's update is judged alone; a part of a frame's correspondences
-//!    as a whole, from the quaternion it started at, and it ends with the quaternion and its
-//!    covariance normalised ([`crate::ekf::normalise_quaternion`]).
+//!    removes). An IMU sample's update is judged alone; a frame's correspondences together,
+//!    from the quaternion before its first part ([`crate::delay::Snapshot::q_ref`]).
 
 use protocol::StatusReason;
 

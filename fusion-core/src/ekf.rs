@@ -5,7 +5,7 @@
 use nalgebra::SVector;
 
 use crate::scalar::Scalar;
-use crate::state::{Cov, N, QUAT, State};
+use crate::state::{Cov, N, State};
 
 /// Most non-zero entries of one measurement-Jacobian row (accelerometer: 4 + 3 + 1).
 pub const ROW_NNZ: usize = 8;
@@ -334,62 +334,6 @@ pub fn radial_step<T: Scalar>(q0: &crate::quat::Quat<T>, q: &crate::quat::Quat<T
     }
 }
 
-/// Puts the quaternion back on the unit sphere at the end of a part's correspondence updates,
-/// and its covariance with it: `q ← q/‖q‖` and `P ← J P Jᵀ` with the normalisation's Jacobian
-/// `J = (I − q̂q̂ᵀ)/‖q‖` on the quaternion's rows (`q̂ = q/‖q‖`), plus `radial_var · q̂q̂ᵀ`, the
-/// tiny variance along the quaternion that a fresh covariance has (docs/FILTER.md §3). Call
-/// [`condition`] after it (the two passes round the block's two halves apart).
-///
-/// Each correct update steps perpendicular to the quaternion the covariance's tangent plane
-/// belongs to. After a large correction `θ` that plane is no longer the quaternion's own, and a
-/// correct update measured against the moved quaternion has a radial part of about `θ/2` times
-/// its own step: the quaternion test fired on correct updates (issue 32). `J` turns the
-/// plane with the quaternion, so the next part starts tangent again. A non-finite or zero
-/// quaternion is left alone: the divergence monitor reports it.
-pub fn normalise_quaternion<T: Scalar>(st: &mut State<T>, n: usize, radial_var: T) {
-    // On the slices, scalar by scalar: the firmware's flash is tight (this is 0.3 KB there).
-    let Some(q) =
-        st.x.as_mut_slice()
-            .get_mut(QUAT..)
-            .and_then(|q| q.first_chunk_mut::<4>())
-    else {
-        return;
-    };
-    let n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-    // Also false for a NaN or an infinite norm.
-    if !(n2 > T::zero() && n2 < T::c(1e30)) {
-        return;
-    }
-    let inv = T::one() / n2.sqrt();
-    let u: [T; 4] = core::array::from_fn(|k| q[k] * inv);
-    *q = u;
-    let n = n.min(N);
-    let p = st.p.as_mut_slice();
-    // J P: the quaternion rows of every active column (adjacent in a column), mirrored into
-    // the quaternion columns outside the block (P is symmetric, so that is P Jᵀ there).
-    for j in 0..n {
-        let col = j * N + QUAT;
-        let d = (0..4).fold(T::zero(), |a, k| a + u[k] * p[col + k]);
-        for (k, &uk) in u.iter().enumerate() {
-            let v = (p[col + k] - uk * d) * inv;
-            p[col + k] = v;
-            if !(QUAT..QUAT + 4).contains(&j) {
-                p[(QUAT + k) * N + j] = v;
-            }
-        }
-    }
-    // The block's rows times Jᵀ, plus the radial variance; [`condition`] then makes the
-    // rounding of its two halves symmetric.
-    for (r, &ur) in u.iter().enumerate() {
-        let row = QUAT + r;
-        let d = (0..4).fold(T::zero(), |a, k| a + u[k] * p[(QUAT + k) * N + row]);
-        for (k, &uk) in u.iter().enumerate() {
-            let at = (QUAT + k) * N + row;
-            p[at] = (p[at] - uk * d) * inv + radial_var * uk * ur;
-        }
-    }
-}
-
 /// Ends a batch of updates: mirrors the upper triangle of the active block into the lower one
 /// (so the covariance is exactly symmetric) and keeps variances at or above the scalar's
 /// floor. [`Ldl::apply`] already does both as it goes; this is for covariances written by
@@ -536,55 +480,5 @@ mod tests {
         assert_eq!(st, before);
         let f = Ldl::new(&[[f64::NAN]], &[1.0]);
         assert_eq!(f.rank, 0);
-    }
-
-    /// The part's normalisation is `q ← q/‖q‖` and `P ← J P Jᵀ + r q̂q̂ᵀ`, `J = (I − q̂q̂ᵀ)/‖q‖`
-    /// on the quaternion's rows, as the dense product gives it; the new covariance is tangent
-    /// to the new quaternion but for `r`, and the rest of `P` is untouched.
-    #[test]
-    fn normalising_the_quaternion_turns_its_covariance_with_it() {
-        let n = 19;
-        let mut st = State::<f64> {
-            p: random_spd(11),
-            ..Default::default()
-        };
-        let q = nalgebra::Vector4::new(1.02, 0.1, -0.2, 0.15);
-        st.set_q(&q);
-        let before = st.clone();
-        let radial = 1e-6;
-        normalise_quaternion(&mut st, n, radial);
-        condition(&mut st.p, n);
-        let norm = q.norm();
-        let u = q / norm;
-        let mut j = Cov::<f64>::identity();
-        let jq = (nalgebra::Matrix4::identity() - u * u.transpose()) / norm;
-        j.fixed_view_mut::<4, 4>(QUAT, QUAT).copy_from(&jq);
-        let mut want = j * before.p * j.transpose();
-        let uu = u * u.transpose() * radial;
-        let mut block = want.fixed_view_mut::<4, 4>(QUAT, QUAT);
-        block += uu;
-        for r in 0..N {
-            for c in 0..N {
-                let expected = if r < n && c < n {
-                    want[(r, c)]
-                } else {
-                    before.p[(r, c)]
-                };
-                assert_relative_eq!(st.p[(r, c)], expected, epsilon = 1e-12);
-            }
-        }
-        assert_relative_eq!(st.q(), u, epsilon = 1e-15);
-        let pq = st.p.fixed_view::<4, 4>(QUAT, QUAT) * u;
-        assert_relative_eq!(pq, u * radial, epsilon = 1e-12);
-        // A zero or non-finite quaternion is left to the divergence monitor.
-        for bad in [
-            nalgebra::Vector4::zeros(),
-            nalgebra::Vector4::new(f64::NAN, 0.0, 0.0, 1.0),
-        ] {
-            st.set_q(&bad);
-            let kept = st.clone();
-            normalise_quaternion(&mut st, n, radial);
-            assert_eq!(st.p, kept.p);
-        }
     }
 }

@@ -825,7 +825,7 @@ fn issue_32_defect_1_resume_sets_the_clock() {
 
 /// The still scene: the device rests for the whole run at true yaw `yaw0`, the wall turned
 /// with it; `Init` gives gravity only (yaw 0), with the yaw σ `sigma`.
-fn still_at_yaw(yaw0: f64, sigma: f32, length: f64, seed: u64) -> Scenario {
+fn still_at_yaw(yaw0: f64, sigma: f32, per_frame: usize, length: f64, seed: u64) -> Scenario {
     let mut sc = turned(
         scenes::standard(ModelKind::Acc, length, 2.0, seed),
         yaw0,
@@ -835,7 +835,7 @@ fn still_at_yaw(yaw0: f64, sigma: f32, length: f64, seed: u64) -> Scenario {
         attitude0: [yaw0, 0.0, 0.0],
         ..scenes::handheld(length, length, 2.0)
     });
-    sc.max_correspondences = 16;
+    sc.max_correspondences = per_frame;
     sc.latency_samples = 3;
     sc.init.attitude = InitAttitude::Gravity;
     sc.config.init_sigma.yaw = sigma;
@@ -847,18 +847,18 @@ fn still_at_yaw(yaw0: f64, sigma: f32, length: f64, seed: u64) -> Scenario {
 /// plane was still the one before them. After one large correct correction the next correct
 /// one had a radial part of about half the first correction's angle times its own step: at
 /// true yaw 0.5 rad (1σ) the still device diverged 66 times in 20 s and never tracked. The test
-/// now judges a part's whole step against the quaternion it started from, and the part ends
-/// with the quaternion normalised together with its covariance. Swept from 0 to 3σ at σ 0.5
-/// and 1.0: no quaternion-norm divergence, and tracking at the end wherever the first frame's
+/// now judges the frame's updates together, against the quaternion before its first part.
+/// Swept from 0 to 3σ at σ 0.5 and 1.0, in one part per frame and in three: no
+/// quaternion-norm divergence, and tracking at the end wherever the first frame's
 /// correspondences pass the gate.
 #[test]
 fn issue_32_defect_2_large_corrections_never_trip_the_quaternion_test() {
     let mut tripped = Vec::new();
     let mut not_tracking = Vec::new();
-    for sigma in [0.5f32, 1.0] {
+    for (sigma, per_frame) in [(0.5f32, 16), (1.0, 16), (0.5, 48)] {
         for step in 0..=6 {
             let yaw0 = f64::from(sigma) * 0.5 * f64::from(step);
-            let sc = still_at_yaw(yaw0, sigma, 10.0, 32);
+            let sc = still_at_yaw(yaw0, sigma, per_frame, 10.0, 32);
             let mut last = (Mode::Unconfigured, f64::NAN);
             let out = run::<f32>(&sc, |d, k, _| last = (d.mode(), errors::attitude(d, k)));
             let norm = out
@@ -873,15 +873,15 @@ fn issue_32_defect_2_large_corrections_never_trip_the_quaternion_test() {
                 .map(|s| (s.t_us / 1000, s.reason))
                 .collect();
             println!(
-                "σ {sigma}, true yaw {yaw0:.2} rad ({:.1}σ): {} divergences ({norm} quaternion \
-                 norm), ends {:?} with {:.2}° of attitude error; {reasons:?}",
+                "σ {sigma}, {per_frame} per frame, true yaw {yaw0:.2} rad ({:.1}σ): {} divergences \
+                 ({norm} quaternion norm), ends {:?} with {:.2}° of attitude error; {reasons:?}",
                 yaw0 / f64::from(sigma),
                 divergences(&out),
                 last.0,
                 last.1.to_degrees()
             );
             if norm > 0 {
-                tripped.push((sigma, yaw0, norm));
+                tripped.push((sigma, per_frame, yaw0, norm));
             }
             // Up to 1 rad the first frame's correspondences pass the gate and tracking follows
             // (after one residual divergence from 0.5 rad on: single-point corrections that far
@@ -889,7 +889,7 @@ fn issue_32_defect_2_large_corrections_never_trip_the_quaternion_test() {
             // it every one of them fails the gate (s_i 36 to 160 against 30 at 1.25 rad): no
             // update is applied, and the residual monitor's re-initialisations are right.
             if yaw0 <= 1.0 && (last.0 != Mode::Tracking || last.1.to_degrees() > 1.0) {
-                not_tracking.push((sigma, yaw0));
+                not_tracking.push((sigma, per_frame, yaw0));
             }
         }
     }

@@ -256,10 +256,6 @@ fn run(model: ModelKind, seconds: f64, seed: u64, points: &[Vector3<f64>]) -> Ve
                     break;
                 }
             }
-            // The frame ends as the device ends a part: the quaternion normalised with its
-            // covariance.
-            let radial = fusion_core::init::QUAT_RADIAL_SIGMA.powi(2);
-            fusion_core::ekf::normalise_quaternion(&mut filter.st, n, radial);
             fusion_core::ekf::condition(&mut filter.st.p, n);
             out.push(nees(&filter.st, &truth, n));
         }
