@@ -38,6 +38,9 @@ pub struct BoardReport {
     pub resets: u32,
     /// The device's counters at the end (since the last reset).
     pub counters: Counters,
+    /// The model the core was configured with, if it was: the vision-only model's clock is
+    /// ticks, not IMU samples (`Counters::imu_applied` counts either).
+    pub model: Option<protocol::ModelKind>,
 }
 
 /// The board's reset line, for fault injection: each [`ResetPin::pulse`] power-cycles the
@@ -92,6 +95,7 @@ impl Board {
                 sessions: 0,
                 resets: 0,
                 counters: Counters::default(),
+                model: None,
             },
         };
         board.power_on(precision);
@@ -114,12 +118,13 @@ impl Board {
 
     /// What the board did so far.
     pub fn report(&self) -> BoardReport {
-        let counters = match &self.core {
-            Core::F32(io) => *io.device.counters(),
-            Core::F64(io) => *io.device.counters(),
+        let (counters, model) = match &self.core {
+            Core::F32(io) => (*io.device.counters(), io.device.params().map(|p| p.model)),
+            Core::F64(io) => (*io.device.counters(), io.device.params().map(|p| p.model)),
         };
         BoardReport {
             counters,
+            model,
             ..self.report
         }
     }

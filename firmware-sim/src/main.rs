@@ -89,8 +89,14 @@ fn main() -> anyhow::Result<()> {
             .serve(link)
             .with_context(|| format!("serving the host on {name}"))?;
         let report = board.report();
+        // The vision-only model's clock is the host's ticks (issue 33: "400 IMU samples
+        // applied" for a session without an IMU).
+        let clock = match report.model {
+            Some(protocol::ModelKind::Vision) => "vision ticks",
+            _ => "IMU samples",
+        };
         note!(
-            "board: session on {name} ended: {} bytes in, {} out, {} IMU samples applied, {} correspondences accepted, {} gated, {} divergences",
+            "board: session on {name} ended: {} bytes in, {} out, {} {clock} applied, {} correspondences accepted, {} gated, {} divergences",
             report.bytes_in,
             report.bytes_out,
             report.counters.imu_applied,

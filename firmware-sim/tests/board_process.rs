@@ -121,6 +121,60 @@ fn a_host_talks_to_the_board_process_over_its_pty_and_the_session_ends_with_it()
     assert!(again.is_err(), "a second host reached the ended session");
 }
 
+/// Issue 33, point 11: a vision-only session's report said "400 IMU samples applied": its
+/// clock is the host's ticks, and the report says so.
+#[test]
+fn a_vision_only_session_reports_ticks() {
+    let (mut child, line, rest) = start("pty");
+    let path = line
+        .rsplit_once("serial:")
+        .map(|(_, p)| p.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let link = transport::serial(&path, 921_600).expect("open the board's pty");
+    let mut w = FrameWriter::new(link.writer);
+    let mut config = protocol::samples::config();
+    config.model = protocol::ModelKind::Vision;
+    config.state_every = 0;
+    let mut msgs = vec![
+        HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }),
+        HostToCore::Configure(config),
+        HostToCore::Init(Init {
+            position: [0.0, 0.0, 1.0],
+            attitude: InitAttitude::Full([1.0, 0.0, 0.0, 0.0]),
+        }),
+    ];
+    msgs.extend((1..=7u64).map(|k| {
+        HostToCore::Tick(protocol::Tick {
+            t_us: k * 10_000,
+            trigger: false,
+        })
+    }));
+    msgs.push(HostToCore::Query);
+    for m in &msgs {
+        w.send(m).unwrap();
+    }
+    // Up to the query's answer, so that the board is done with the ticks before the line
+    // closes.
+    let mut r = FrameReader::new(link.reader);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        assert!(Instant::now() < deadline, "no answer from the board");
+        match r.recv::<CoreToHost>() {
+            Ok(CoreToHost::Status(s)) if s.reason == protocol::StatusReason::Queried => break,
+            Ok(_) => {}
+            Err(RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
+            Err(e) => panic!("{e:?}"),
+        }
+    }
+    drop((w, r));
+    let status = wait_for_exit(&mut child);
+    assert!(status.success(), "{status}");
+    let report = rest.join().unwrap();
+    assert!(report.contains(", 7 vision ticks applied,"), "{report}");
+}
+
 /// The README's `firmware-sim` commands name only flags its `--help` has.
 #[test]
 fn readme_names_only_real_flags() {

@@ -21,6 +21,9 @@ use crate::track::{self, CoreTuning, LinkSpec, Summary, TrackError, TrackOptions
 /// Why the evaluation failed.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
+    /// An option is out of range (checked before anything runs).
+    #[error("{0}")]
+    Option(String),
     /// Making a dataset.
     #[error("synthesising {scenario}: {source}")]
     Synth {
@@ -324,6 +327,15 @@ fn outputs() -> Vec<String> {
 /// `options.interrupt`, it writes them for the runs done and says so in
 /// [`EvalReport::interrupted`].
 pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, EvalError> {
+    // As `track` checks it: a run shorter than the core's still window never snaps on.
+    let still = crate::track::config::CoreTuning::default().still_seconds;
+    if let Some(d) = options.duration
+        && !(d.is_finite() && d > still)
+    {
+        return Err(EvalError::Option(format!(
+            "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
+        )));
+    }
     let mut out = OutFolder::prepare(&options.out, &outputs(), None, options.overwrite)?;
     let mut report = EvalReport::default();
     let stop = || options.interrupt.load(Ordering::Relaxed);

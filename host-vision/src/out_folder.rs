@@ -1,7 +1,8 @@
 //! The output folder of a run (`track`, `eval`, `demo`): checked before any work is done (a
-//! folder, or one that can be made; writable; not inside the input dataset), outputs of an
-//! earlier run refused unless asked to replace them (then removed first, so that runs never
-//! mix), and the folders made for a run that wrote nothing removed again.
+//! folder, or one that can be made; writable; not inside the input dataset), locked for the
+//! run (a second run into it is refused while the first one writes), outputs of an earlier
+//! run refused unless asked to replace them (then removed first, so that runs never mix), and
+//! the folders made for a run that wrote nothing removed again.
 
 use std::path::{Component, Path, PathBuf};
 
@@ -48,6 +49,11 @@ pub enum OutFolderError {
         /// The outputs found.
         found: Vec<String>,
     },
+    /// Another run is writing into it.
+    #[error(
+        "output folder {0}: another run is writing into it (it holds the lock {LOCK_FILE}); wait for that run or choose another folder"
+    )]
+    Busy(PathBuf),
     /// An earlier output could not be removed.
     #[error("{path}: cannot remove the earlier output: {source}")]
     Remove {
@@ -59,13 +65,20 @@ pub enum OutFolderError {
     },
 }
 
-/// A checked output folder. Dropped without [`OutFolder::keep`], it removes the folders it
-/// made (only while they are empty), so that a run that failed early leaves nothing behind.
+/// The lock file a run holds in its output folder (an advisory lock on it, released when the
+/// process ends, however it ends; the file is removed when the run is done).
+pub const LOCK_FILE: &str = ".host-vision.lock";
+
+/// A checked output folder, locked for the run. Dropped, it releases the lock and removes its
+/// file; without [`OutFolder::keep`], it also removes the folders it made (only while they are
+/// empty), so that a run that failed early leaves nothing behind.
 #[derive(Debug)]
 pub struct OutFolder {
     path: PathBuf,
     /// Folders made, outermost first.
     created: Vec<PathBuf>,
+    /// The lock held, once taken.
+    lock: Option<std::fs::File>,
     keep: bool,
 }
 
@@ -103,6 +116,7 @@ impl OutFolder {
         let mut folder = OutFolder {
             path: path.to_owned(),
             created: Vec::new(),
+            lock: None,
             keep: false,
         };
         for dir in missing {
@@ -117,14 +131,25 @@ impl OutFolder {
                 }
             }
         }
-        // Fail now, with the folder's name, rather than after the work.
-        let probe = path.join(".host-vision-write-test");
-        std::fs::write(&probe, b"")
-            .and_then(|_| std::fs::remove_file(&probe))
-            .map_err(|source| OutFolderError::NotWritable {
-                path: path.to_owned(),
-                source,
-            })?;
+        // The lock, before anything in the folder is looked at or removed; making its file
+        // also shows that the folder is writable, now rather than after the work.
+        let not_writable = |source| OutFolderError::NotWritable {
+            path: path.to_owned(),
+            source,
+        };
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(path.join(LOCK_FILE))
+            .map_err(not_writable)?;
+        match lock.try_lock() {
+            Ok(()) => folder.lock = Some(lock),
+            Err(std::fs::TryLockError::WouldBlock) => {
+                return Err(OutFolderError::Busy(path.to_owned()));
+            }
+            Err(std::fs::TryLockError::Error(e)) => return Err(not_writable(e)),
+        }
         let found: Vec<&String> = owned.iter().filter(|n| path.join(n).exists()).collect();
         if !found.is_empty() {
             if !overwrite {
@@ -159,6 +184,12 @@ impl OutFolder {
 
 impl Drop for OutFolder {
     fn drop(&mut self) {
+        // The file first (another run that opened it before still finds it locked), then the
+        // lock with the handle.
+        if let Some(lock) = self.lock.take() {
+            let _ = std::fs::remove_file(self.path.join(LOCK_FILE));
+            drop(lock);
+        }
         if !self.keep {
             // `remove_dir` only removes empty folders: nothing of the user's is lost.
             for dir in self.created.iter().rev() {
@@ -226,6 +257,34 @@ mod tests {
         assert_eq!(
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"
+        );
+    }
+
+    /// Issue 33, point 7: two runs could write into one folder at once. The second is
+    /// refused while the first holds the folder, by name; the lock's file goes with the first.
+    #[test]
+    fn a_second_run_into_a_held_folder_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let first = OutFolder::prepare(&out, &[], None, false).unwrap();
+        assert!(out.join(LOCK_FILE).exists());
+        for overwrite in [false, true] {
+            let err = OutFolder::prepare(&out, &[], None, overwrite).unwrap_err();
+            assert!(matches!(err, OutFolderError::Busy(_)), "{err}");
+            assert!(
+                err.to_string().contains("another run is writing into it"),
+                "{err}"
+            );
+        }
+        drop(first);
+        assert!(!out.join(LOCK_FILE).exists());
+        let mut again = OutFolder::prepare(&out, &[], None, false).unwrap();
+        again.keep();
+        drop(again);
+        assert_eq!(
+            std::fs::read_dir(&out).unwrap().count(),
+            0,
+            "nothing left behind"
         );
     }
 

@@ -90,11 +90,12 @@ pub fn run_over_pty(imu_samples: usize) -> anyhow::Result<Report> {
     let name = link.name().to_string();
     let result = exchange(&mut link, imu_samples);
     drop(link); // closes the host end: the board sees the end of the stream and returns
-    let log = board
+    let board = board
         .join()
-        .map_err(|_| anyhow::anyhow!("loop-back board thread panicked"))?
-        .context("loop-back board")?;
+        .map_err(|_| anyhow::anyhow!("loop-back board thread panicked"))?;
+    // The host's failure first: the board's is then its consequence (a closed line).
     let (mut report, sent) = result?;
+    let log = board.context("loop-back board")?;
     ensure!(
         log.received == sent,
         "the board received {} messages, expected {}; first difference at {:?}",
@@ -153,9 +154,11 @@ fn exchange(link: &mut Link, imu_samples: usize) -> anyhow::Result<(Report, Vec<
     // 4. IMU-rate traffic, then Reset, which makes the board send every core message kind.
     let start = Instant::now();
     for k in 0..imu_samples {
+        // A rate that stays in the protocol's range however many samples (issue 33: `0.01 k`
+        // left it at 10,000 samples, and the board's refusals filled the line back).
         let msg = HostToCore::Imu(ImuSample {
             t_us: k as u64 * 5_000,
-            gyro: [0.01 * k as f32, -0.02, 0.5],
+            gyro: [0.01 * (k % 1000) as f32, -0.02, 0.5],
             accel: [0.1, 0.0, 9.81],
             trigger: k.is_multiple_of(4),
         });

@@ -358,7 +358,12 @@ fn p07_a_run_that_never_starts_tracking_exits_3() {
         "{err}"
     );
     let (help, _) = expect(&["--help"], 0);
-    assert!(help.contains("3 tracking never started"), "{help}");
+    assert!(
+        help.contains(
+            "3 nothing found (track: the core accepted no correspondence, tracking never started"
+        ),
+        "{help}"
+    );
 }
 
 /// Point 8: A closed stdout (`| head -1`) is no panic: the run goes on and writes its files.
@@ -997,6 +1002,8 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
         se.contains("/nonexistent.mp4: no such file or folder"),
         "{se}"
     );
+    // Issue 33, point 11: a missing input is not first said to have no IMU.
+    assert!(!se.contains("no IMU"), "{se}");
     assert!(!out2.exists());
     // The frames themselves are readable.
     let (so, _) = expect(&["frames", "--images", s(&cam0)], 0);
@@ -1152,4 +1159,415 @@ fn p20_locate_finds_the_model_in_a_frame_and_names_bad_input() {
         1,
     );
     assert!(se.contains("p20-none.png"), "{se}");
+}
+
+// Issue 33: the second new-user walkthrough. One test per point done so far.
+
+/// Issue 33, point 3: a link that never came back before the input ended exited 0 with
+/// `stopped_early: false, error: null`: only 4.9–6.9 of 15 s were tracked. An unresolved
+/// outage is a failed run: exit 1, the error on stderr and in the summary, and what was
+/// tracked before it written.
+#[test]
+fn i33_p03_an_outage_the_input_outlasts_fails_the_run() {
+    let ds = dataset();
+    let out = tmp("i33-p03");
+    let (_, err) = expect(
+        &track_args(&ds, &out, &["--cut-link-at", "0.6", "--cut-seconds", "30"]),
+        1,
+    );
+    assert!(
+        err.starts_with("Error: core: link ")
+            && err.contains("the core was not reached again before the input ended"),
+        "{err}"
+    );
+    let sum = summary(&out);
+    assert_eq!(sum["stopped_early"], true, "{sum}");
+    assert!(
+        sum["error"]
+            .as_str()
+            .is_some_and(|e| e.contains("not reached again before the input ended")),
+        "{sum}"
+    );
+    assert_eq!(sum["outages"][0]["kind"], "unresolved", "{sum}");
+    // A cut the link comes back from still ends well.
+    let back = tmp("i33-p03-back");
+    expect(
+        &track_args(
+            &ds,
+            &back,
+            &["--cut-link-at", "0.6", "--cut-seconds", "0.2"],
+        ),
+        0,
+    );
+}
+
+/// Issue 33, point 5: `--features 100000000000` crashed on a 2.4 TB allocation (exit 134)
+/// and left an empty `--out`; `--features 100000000` ran at 2.4 GB. What one frame can send
+/// the core bounds it: beyond, exit 2 with the flag named, and nothing made.
+#[test]
+fn i33_p05_features_beyond_a_frame_are_refused() {
+    let ds = dataset();
+    for n in ["129", "100000000", "100000000000"] {
+        let out = tmp("i33-p05");
+        let (_, err) = expect(&track_args(&ds, &out, &["--features", n]), 2);
+        assert_eq!(
+            err,
+            format!(
+                "Error: --features must be at most 128 (the correspondences one frame can send to the core), got {n}\n"
+            )
+        );
+        assert!(!out.exists(), "--features {n}: {} was made", out.display());
+    }
+    let out = tmp("i33-p05-max");
+    expect(&track_args(&ds, &out, &["--features", "128"]), 0);
+}
+
+/// Issue 33, point 7: two runs into one `--out` both exited 0 and the folder held one run's
+/// results. The first run holds the folder; a second one is refused while it does (exit 1,
+/// the folder named), and the first one's results are whole.
+#[test]
+fn i33_p07_a_second_run_into_a_busy_folder_is_refused() {
+    let ds = dataset();
+    let out = tmp("i33-p07");
+    let args = track_args(&ds, &out, &["--pacing", "real-time"]);
+    let mut first = Command::new(HV)
+        .args(&args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let lock = out.join(".host-vision.lock");
+    let t0 = Instant::now();
+    while !lock.exists() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "the first run never took the folder"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let (_, err) = expect(&track_args(&ds, &out, &["--overwrite"]), 1);
+    assert_eq!(
+        err,
+        format!(
+            "Error: output folder {}: another run is writing into it (it holds the lock .host-vision.lock); wait for that run or choose another folder\n",
+            out.display()
+        )
+    );
+    let status = first.wait().unwrap();
+    let mut first_err = String::new();
+    std::io::Read::read_to_string(&mut first.stderr.take().unwrap(), &mut first_err).unwrap();
+    assert!(status.success(), "the first run: {first_err}");
+    assert!(summary(&out)["frames"].as_u64().unwrap() > 0);
+    assert!(!lock.exists(), "the lock's file went with the run");
+}
+
+/// Issue 33, point 9: an untextured model with a start pose ran for 0.5 s with nothing
+/// accepted, then failed with "cold start: …" though no cold start was asked for. It is
+/// refused before anything runs, with the reason that applies, and nothing is written.
+#[test]
+fn i33_p09_an_untextured_model_is_refused_up_front() {
+    let ds = dataset();
+    let model = tmp("i33-p09-model");
+    copy_dir(&ds.join("model"), &model, "");
+    let mtl = std::fs::read_to_string(model.join("scene.mtl")).unwrap();
+    let plain: String = mtl
+        .lines()
+        .filter(|l| !l.starts_with("map_Kd"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(model.join("scene.mtl"), plain).unwrap();
+    let obj = model.join("scene.obj");
+    let out = tmp("i33-p09");
+    let (_, err) = expect(&track_args(&ds, &out, &["--model", s(&obj)]), 1);
+    assert_eq!(
+        err,
+        format!(
+            "Error: {}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow\n",
+            obj.display()
+        )
+    );
+    assert!(!err.contains("cold start"));
+    assert!(!out.exists(), "nothing written");
+}
+
+/// Issue 33, point 11: values out of range are usage errors (exit 2) with the flag named,
+/// before anything runs, whichever input they come with: `--fps 0`, `1e9` and `NaN` exited 1
+/// from the image folder; `--latency -1` was accepted by a vision-only run; `eval --duration
+/// 0.2` ran every inertial run without ever snapping on, and exited 0.
+#[test]
+fn i33_p11_out_of_range_values_are_usage_errors_for_every_input() {
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let out = tmp("i33-p11");
+    for fps in ["0", "1e9", "NaN", "-3"] {
+        let (_, se) = expect(&["frames", "--images", s(&cam0), "--fps", fps], 2);
+        assert!(
+            se.contains(&format!(
+                "invalid value '{fps}' for '--fps <FPS>': a frame rate in (0, 10000] Hz, got {fps}"
+            )),
+            "{se}"
+        );
+        let (_, se) = expect(
+            &[
+                "track",
+                "--images",
+                s(&cam0),
+                "--fps",
+                fps,
+                "--out",
+                s(&out),
+            ],
+            2,
+        );
+        assert!(se.contains("for '--fps <FPS>'"), "{se}");
+    }
+    let camera = tmp("i33-p11-camera.json");
+    std::fs::write(
+        &camera,
+        r#"{"model": "pinhole", "width": 160, "height": 120, "fx": 100, "fy": 100, "cx": 80, "cy": 60, "distortion": "none"}"#,
+    )
+    .unwrap();
+    let pose = tmp("i33-p11-pose.json");
+    std::fs::write(
+        &pose,
+        r#"{"cMo": [[1,0,0,0],[0,1,0,0],[0,0,1,0.5],[0,0,0,1]]}"#,
+    )
+    .unwrap();
+    let model = ds.join("model/scene.obj");
+    let (_, se) = expect(
+        &[
+            "track",
+            "--images",
+            s(&cam0),
+            "--camera",
+            s(&camera),
+            "--model",
+            s(&model),
+            "--start-pose",
+            s(&pose),
+            "--latency",
+            "-1",
+            "--out",
+            s(&out),
+        ],
+        2,
+    );
+    assert_eq!(
+        se.lines().last().unwrap(),
+        "Error: --latency must be a non-negative number of seconds, got -1"
+    );
+    assert!(!out.exists());
+    let cache = tmp("i33-p11-cache");
+    let (_, se) = expect(
+        &[
+            "eval",
+            "--out",
+            s(&out),
+            "--cache",
+            s(&cache),
+            "--duration",
+            "NaN",
+        ],
+        2,
+    );
+    assert!(se.contains("for '--duration <DURATION>'"), "{se}");
+    for d in ["0.2", "0.3"] {
+        let (_, se) = expect(
+            &[
+                "eval",
+                "--out",
+                s(&out),
+                "--cache",
+                s(&cache),
+                "--duration",
+                d,
+            ],
+            2,
+        );
+        assert_eq!(
+            se,
+            format!(
+                "Error: --duration must be a number of seconds longer than the core's 0.30 s initialisation, got {d}\n"
+            )
+        );
+    }
+    assert!(
+        !cache.exists() && !out.exists(),
+        "nothing made before the refusal"
+    );
+}
+
+/// Issue 33, point 11: `locate` where the model is not in the image said "0 RANSAC inliers (0
+/// iterations)" of a search that ran, and exited 0 for "no pose found". It says what the
+/// search did and exits 3, as a `track` that never started does.
+#[test]
+fn i33_p11_locate_without_a_pose_says_why_and_exits_3() {
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let (calib, model) = (cam0.join("sensor.yaml"), ds.join("model/scene.obj"));
+    let cache = tmp("i33-p11-locate-cache");
+    // Texture without the model: a fixed pseudo-random pattern; and a flat image.
+    let mut state = 0x2545_F491_4F6C_DD1Du64;
+    let noise = image::GrayImage::from_fn(160, 120, |x, y| {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        image::Luma([if (x / 4 + y / 4) % 2 == 0 {
+            (state >> 56) as u8
+        } else {
+            128
+        }])
+    });
+    let flat = image::GrayImage::from_pixel(160, 120, image::Luma([90]));
+    for (name, img) in [("noise", noise), ("flat", flat)] {
+        let path = tmp(&format!("i33-p11-{name}.png"));
+        img.save(&path).unwrap();
+        let out = tmp(&format!("i33-p11-locate-{name}"));
+        let (so, _) = expect(
+            &[
+                "locate",
+                "--image",
+                s(&path),
+                "--calib",
+                s(&calib),
+                "--model",
+                s(&model),
+                "--cache",
+                s(&cache),
+                "--out",
+                s(&out),
+            ],
+            3,
+        );
+        assert!(
+            so.contains("pose         none found") || so.contains("pose         not accepted"),
+            "{name}: {so}"
+        );
+        assert!(!so.contains("(0 iterations)"), "{name}: {so}");
+        if name == "flat" {
+            assert!(so.contains("0 matches: too few for RANSAC"), "{so}");
+        }
+    }
+}
+
+/// Issue 33, point 11: `frames` with intrinsics that do not fit decoded every frame and
+/// printed its report before failing; a camera for another frame size exited 1 where `track`
+/// exits 2; a bad focal length was printed as a debug dump. The first frame is checked
+/// first, both are usage errors, and the wrong value is named.
+#[test]
+fn i33_p11_frames_checks_the_camera_first_and_names_the_value() {
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let (so, se) = expect(
+        &[
+            "frames",
+            "--images",
+            s(&cam0),
+            "--intrinsics",
+            "600,600,700,240",
+        ],
+        2,
+    );
+    assert_eq!(so, "", "no report before the refusal");
+    assert_eq!(
+        se,
+        "Error: --intrinsics: invalid intrinsics: principal point (700, 240) outside the 160x120 image\n"
+    );
+    let (_, se) = expect(
+        &[
+            "frames",
+            "--images",
+            s(&cam0),
+            "--intrinsics",
+            "0,600,80,60",
+        ],
+        2,
+    );
+    assert!(
+        se.contains("invalid intrinsics: the focal length fx must be positive [px], got 0"),
+        "{se}"
+    );
+    assert!(!se.contains("Pinhole {"), "{se}");
+    let camera = tmp("i33-p11-frames-camera.json");
+    std::fs::write(
+        &camera,
+        r#"{"model": "pinhole", "width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 320, "cy": 240, "distortion": "none"}"#,
+    )
+    .unwrap();
+    let (so, se) = expect(&["frames", "--images", s(&cam0), "--camera", s(&camera)], 2);
+    assert_eq!(so, "");
+    assert!(
+        se.contains("the calibration is for 640x480 images, the frames are 160x120"),
+        "{se}"
+    );
+}
+
+/// Issue 33, point 2: a vision-only `trajectory.tum` alternated the prediction and the
+/// estimate, 1 µs apart (jumps of 5.4 mm median, 62 mm max; a path length of 21.4 m where the
+/// estimates alone make 14.8 m). It holds the estimates alone: one row per frame, a frame
+/// period apart.
+#[test]
+fn i33_p02_a_vision_only_trajectory_holds_the_estimates_alone() {
+    let ds = dataset();
+    let no_imu = tmp("i33-p02-no-imu");
+    copy_dir(&ds, &no_imu, "imu0");
+    let out = tmp("i33-p02");
+    expect(&track_args(&no_imu, &out, &["--overlay-every", "0"]), 0);
+    let tum = std::fs::read_to_string(out.join("trajectory.tum")).unwrap();
+    let stamps: Vec<f64> = tum
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| l.split_whitespace().next().unwrap().parse().unwrap())
+        .collect();
+    let frames = summary(&out)["frames"].as_u64().unwrap() as usize;
+    assert!(
+        stamps.len() > frames / 2 && stamps.len() <= frames,
+        "{} rows, {frames} frames",
+        stamps.len()
+    );
+    let closest = stamps
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .fold(f64::INFINITY, f64::min);
+    assert!(closest > 0.01, "rows {closest} s apart");
+}
+
+/// Issue 33, point 10: `selftest --imu-samples` failed from 11,000 samples up ("loop-back
+/// board: Broken pipe", then "Operation timed out"): its synthetic gyro rate, `0.01 k`, left
+/// the protocol's range there, the board refused every sample after, and its refusals filled
+/// the line back while the host was still writing; the board's consequent error was reported
+/// instead of the host's. The rate now stays in range, 30,000 samples pass, and the flag's
+/// bound (what both ends keep to compare) is a usage error.
+#[test]
+fn i33_p10_selftest_streams_many_samples() {
+    let (so, _) = expect(&["selftest", "--imu-samples", "30000"], 0);
+    assert!(so.contains("30000 IMU samples at"), "{so}");
+    for n in ["0", "100001"] {
+        let (_, se) = expect(&["selftest", "--imu-samples", n], 2);
+        assert!(se.contains("for '--imu-samples <IMU_SAMPLES>'"), "{se}");
+    }
+}
+
+/// Issue 33, point 4: a vision-only run over a serial link ended 0.09 s after the board was
+/// killed ("write failed: Broken pipe", `outages: []`): only runs with an IMU reconnect. A
+/// vision-only run is refused the links it could lose (serial, TCP) up front, with the reason.
+#[test]
+fn i33_p04_a_vision_only_run_is_refused_a_link_it_cannot_recover() {
+    let ds = dataset();
+    let no_imu = tmp("i33-p04-no-imu");
+    copy_dir(&ds, &no_imu, "imu0");
+    let out = tmp("i33-p04");
+    for (link, name) in [
+        ("serial:/dev/ttyACM0", "serial /dev/ttyACM0 at"),
+        ("tcp:127.0.0.1:9", "tcp 127.0.0.1:9"),
+    ] {
+        let (_, se) = expect(&track_args(&no_imu, &out, &["--link", link]), 2);
+        assert!(se.contains(&format!("Error: --link {name}")), "{se}");
+        assert!(
+            se.contains("a vision-only run does not reconnect to a core it loses"),
+            "{se}"
+        );
+        assert!(!out.exists());
+    }
 }

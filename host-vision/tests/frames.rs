@@ -246,3 +246,47 @@ fn the_shared_cube_video_when_present() {
     let camera = host_vision::camera::read_camera_json(&dir.join("camera.json")).unwrap();
     assert_eq!((camera.width, camera.height), (640, 480));
 }
+
+/// Issue 33, point 6: a cut-off file (or a pipe whose ffmpeg was killed) was read to its end
+/// as if complete: ffmpeg exits 0 and says "File ended prematurely" only among its errors. The
+/// frames before the cut are delivered, then the source fails, naming what ffmpeg said; the
+/// `frames` command exits 1 with it. The whole file still reads cleanly.
+#[test]
+fn a_cut_off_video_ends_with_an_error_after_its_frames() {
+    // The mp4 with its index first, so that the first half still has it.
+    for (ext, extra) in [("mkv", &[][..]), ("mp4", &["-movflags", "+faststart"][..])] {
+        let whole = make_video(&format!("cut-whole.{ext}"), "160x120", 30, 3.0, extra);
+        assert_eq!(
+            read_all(&FrameInput::Video(whole.clone())).unwrap().len(),
+            90
+        );
+        let bytes = std::fs::read(&whole).unwrap();
+        let half = tmp(&format!("cut-half.{ext}"));
+        std::fs::write(&half, &bytes[..bytes.len() / 2]).unwrap();
+        let frames: Vec<Result<Frame, FrameError>> = FrameInput::Video(half.clone())
+            .open(&VideoOptions::default())
+            .unwrap()
+            .collect();
+        let (last, good) = frames.split_last().unwrap();
+        assert!(good.iter().all(Result::is_ok), "{ext}");
+        match last {
+            Err(FrameError::EndedAbnormally { frames, reason, .. }) => {
+                assert_eq!(*frames, good.len(), "{ext}");
+                assert!(!reason.is_empty(), "{ext}");
+            }
+            // A cut inside the first frames may fail the decode outright.
+            other => panic!("{ext}: {other:?}"),
+        }
+        let out = Command::new(HV)
+            .args(["frames", "--video"])
+            .arg(&half)
+            .output()
+            .unwrap();
+        let se = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{ext}: {se}");
+        assert!(
+            se.contains("the stream ended abnormally after"),
+            "{ext}: {se}"
+        );
+    }
+}

@@ -41,9 +41,23 @@ impl Pinhole {
 
     /// Checks that the focal lengths are positive and everything is finite.
     pub fn validate(&self) -> Result<(), CameraError> {
-        let all = [self.fx, self.fy, self.cx, self.cy, self.skew];
-        if all.iter().any(|v| !v.is_finite()) || self.fx <= 0.0 || self.fy <= 0.0 {
-            return Err(CameraError::BadIntrinsics(format!("{self:?}")));
+        // Each wrong value by name (issue 33: the whole struct was printed as a debug dump).
+        let named = [
+            ("fx", self.fx),
+            ("fy", self.fy),
+            ("cx", self.cx),
+            ("cy", self.cy),
+            ("skew", self.skew),
+        ];
+        if let Some((name, v)) = named.iter().find(|(_, v)| !v.is_finite()) {
+            return Err(CameraError::BadIntrinsics(format!(
+                "{name} must be a finite number of pixels, got {v}"
+            )));
+        }
+        if let Some((name, v)) = named[..2].iter().find(|(_, v)| *v <= 0.0) {
+            return Err(CameraError::BadIntrinsics(format!(
+                "the focal length {name} must be positive [px], got {v}"
+            )));
         }
         Ok(())
     }

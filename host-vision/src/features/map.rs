@@ -10,6 +10,8 @@
 //!   registered, spread over the image: the image is cut into about as many cells as features
 //!   wanted and cells are visited round-robin, each giving its best feature per round.
 
+use std::collections::BTreeMap;
+
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::gray::{ImageError, Mask};
@@ -366,13 +368,15 @@ impl FeatureMap {
         let cols = ((n as f64 * wf / hf).sqrt().ceil() as usize).max(1);
         let rows = n.div_ceil(cols).max(1);
         let quality = |p: &Predicted| self.get(p.id).map_or(0.0, |f| f.stats.quality());
-        let mut cells: Vec<Vec<Predicted>> = vec![Vec::new(); cols * rows];
+        // Only the occupied cells, in row-major order: `n` sizes the grid, and a huge `n` must
+        // not allocate for it (`--features 100000000000` asked for 2.4 TB).
+        let mut cells: BTreeMap<(usize, usize), Vec<Predicted>> = BTreeMap::new();
         for p in visible {
             let c = ((p.pixel.x / wf * cols as f64).floor().max(0.0) as usize).min(cols - 1);
             let r = ((p.pixel.y / hf * rows as f64).floor().max(0.0) as usize).min(rows - 1);
-            cells[r * cols + c].push(*p);
+            cells.entry((r, c)).or_default().push(*p);
         }
-        for cell in &mut cells {
+        for cell in cells.values_mut() {
             // Best last, so that `pop` takes it.
             cell.sort_by(|a, b| {
                 quality(a)
@@ -382,7 +386,7 @@ impl FeatureMap {
         }
         let mut out = Vec::with_capacity(n.min(visible.len()));
         while out.len() < n {
-            let mut round: Vec<Predicted> = cells.iter_mut().filter_map(|c| c.pop()).collect();
+            let mut round: Vec<Predicted> = cells.values_mut().filter_map(|c| c.pop()).collect();
             if round.is_empty() {
                 break;
             }

@@ -66,6 +66,18 @@ pub enum FrameError {
         /// ffmpeg's error lines.
         reason: String,
     },
+    /// ffmpeg decoded frames, then ended well (exit status 0) but said errors: a file cut off
+    /// (`File ended prematurely`), a pipe whose writer died, corrupt packets. The frames
+    /// before it were delivered; the run that used them did not see the whole input.
+    #[error("{path}: the stream ended abnormally after {frames} frames; ffmpeg said: {reason}")]
+    EndedAbnormally {
+        /// The input.
+        path: PathBuf,
+        /// Frames delivered.
+        frames: usize,
+        /// ffmpeg's error lines.
+        reason: String,
+    },
     /// The input holds no frame.
     #[error("{path}: no frames ({what})")]
     Empty {

@@ -255,6 +255,15 @@ impl VideoFrames {
                 what: "ffmpeg decoded no video frame".into(),
             }));
         }
+        // ffmpeg exits 0 on a cut-off file or a pipe whose writer died, and says so only in
+        // its error lines (issue 33: such runs exited 0 as complete).
+        if !errors.is_empty() {
+            return Some(Err(FrameError::EndedAbnormally {
+                path,
+                frames: self.next_index,
+                reason: errors.join("; "),
+            }));
+        }
         None
     }
 

@@ -36,7 +36,7 @@ use database::Database;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
-use ransac::{RansacConfig, ransac_pose};
+use ransac::{RansacConfig, ransac_search};
 
 /// Two candidate poses closer than this in rotation are one [rad].
 const SAME_POSE_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
@@ -99,7 +99,9 @@ pub struct Attempt {
     pub matches: usize,
     /// RANSAC inliers (0 without a pose).
     pub inliers: usize,
-    /// RANSAC iterations.
+    /// Inliers of RANSAC's best hypothesis, whether it made a pose or not.
+    pub best_inliers: usize,
+    /// RANSAC iterations (the samples drawn, whether a pose was found or not).
     pub iterations: usize,
     /// Features the verification registered.
     pub registered: usize,
@@ -225,7 +227,7 @@ impl Locator {
                 Vector3::new(f64::from(p[0]), f64::from(p[1]), f64::from(p[2]))
             })
             .collect();
-        let found = ransac_pose(
+        let (found, stats) = ransac_search(
             [pin.fx, pin.fy, pin.cx, pin.cy],
             &u,
             &x_w,
@@ -236,7 +238,8 @@ impl Locator {
             keypoints: keypoints.len(),
             matches: matches.len(),
             inliers: 0,
-            iterations: 0,
+            best_inliers: stats.best_inliers,
+            iterations: stats.iterations,
             registered: 0,
             rms_px: None,
             ncc: None,
@@ -255,7 +258,6 @@ impl Locator {
             return Ok((attempt, None));
         };
         attempt.inliers = found.inliers.iter().filter(|&&i| i).count();
-        attempt.iterations = found.iterations;
         let candidate = CameraPose::from_extrinsics(found.q_cw, &found.t);
         attempt.candidate = Some(candidate);
 

@@ -67,6 +67,15 @@ pub struct RansacPose {
     pub runners_up: Vec<(UnitQuaternion<f64>, Vector3<f64>)>,
 }
 
+/// What a RANSAC search did, whether it found a pose or not.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RansacStats {
+    /// Minimal samples drawn.
+    pub iterations: usize,
+    /// Inliers of the best hypothesis, after refinement (0 if none was scored).
+    pub best_inliers: usize,
+}
+
 /// Pixels `u[i]` (undistorted, pinhole fx, fy, cx, cy) matched to world points `x_w[i]`.
 ///
 /// Returns `None` when there are fewer than 4 matches, the lengths differ, the intrinsics or
@@ -78,14 +87,28 @@ pub fn ransac_pose(
     x_w: &[Vector3<f64>],
     cfg: &RansacConfig,
 ) -> Option<RansacPose> {
+    ransac_search(pinhole, u, x_w, cfg).0
+}
+
+/// [`ransac_pose`], with what the search did either way (a search that found no pose still
+/// drew its samples: its report says how many, and how close the best came).
+pub fn ransac_search(
+    pinhole: [f64; 4],
+    u: &[Vector2<f64>],
+    x_w: &[Vector3<f64>],
+    cfg: &RansacConfig,
+) -> (Option<RansacPose>, RansacStats) {
+    let nothing = (None, RansacStats::default());
     let n = u.len();
     if n < 4 || x_w.len() != n {
-        return None;
+        return nothing;
     }
-    let cam = Pinhole::new(pinhole)?;
+    let Some(cam) = Pinhole::new(pinhole) else {
+        return nothing;
+    };
     let thr2 = cfg.threshold_px * cfg.threshold_px;
     if !(cfg.threshold_px > 0.0 && thr2.is_finite()) {
-        return None;
+        return nothing;
     }
 
     // Bearings of the usable matches; the rest stay out of the samples.
@@ -102,7 +125,7 @@ pub fn ransac_pose(
         .collect();
     let usable: Vec<usize> = (0..n).filter(|&i| bearings[i].is_some()).collect();
     if usable.len() < 3 {
-        return None;
+        return nothing;
     }
 
     let mut rng = StdRng::seed_from_u64(cfg.seed);
@@ -131,18 +154,29 @@ pub fn ransac_pose(
     }
 
     let mut polished = top.into_iter().map(|h| polish(&cam, u, x_w, h, thr2));
-    let best = polished.next()?;
+    let Some(best) = polished.next() else {
+        let stats = RansacStats {
+            iterations,
+            best_inliers: 0,
+        };
+        return (None, stats);
+    };
+    let stats = RansacStats {
+        iterations,
+        best_inliers: best.count,
+    };
     let runners_up = polished
         .filter(|h| h.count >= cfg.min_inliers)
         .map(|h| (h.q, h.t))
         .collect();
-    (best.count >= cfg.min_inliers).then_some(RansacPose {
+    let pose = (best.count >= cfg.min_inliers).then_some(RansacPose {
         q_cw: best.q,
         t: best.t,
         inliers: best.inliers,
         iterations,
         runners_up,
-    })
+    });
+    (pose, stats)
 }
 
 /// Hypotheses kept besides the best, of poses distinct from it and from each other.

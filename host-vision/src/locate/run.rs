@@ -287,11 +287,26 @@ impl std::fmt::Display for LocateReport {
                 .map_or(String::from(", cached"), |w| format!(", built: {w}"))
         )?;
         writeln!(f, "renderer     {}", self.adapter)?;
-        writeln!(
-            f,
-            "attempt      {} keypoints, {} matches, {} RANSAC inliers ({} iterations)",
-            a.keypoints, a.matches, a.inliers, a.iterations
-        )?;
+        if a.candidate.is_some() {
+            writeln!(
+                f,
+                "attempt      {} keypoints, {} matches, {} RANSAC inliers ({} iterations)",
+                a.keypoints, a.matches, a.inliers, a.iterations
+            )?;
+        } else if a.iterations == 0 {
+            writeln!(
+                f,
+                "attempt      {} keypoints, {} matches: too few for RANSAC",
+                a.keypoints, a.matches
+            )?;
+        } else {
+            // Issue 33: "0 RANSAC inliers (0 iterations)" was said of a search that ran.
+            writeln!(
+                f,
+                "attempt      {} keypoints, {} matches, no RANSAC pose: the best of {} iterations had {} inliers, too few",
+                a.keypoints, a.matches, a.iterations, a.best_inliers
+            )?;
+        }
         writeln!(
             f,
             "verified     {} features registered, rms {}, correlation {}",

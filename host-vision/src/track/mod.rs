@@ -93,6 +93,12 @@ pub enum TrackError {
         /// The calibration's.
         expected: (u32, u32),
     },
+    /// The model has no texture, and the tracker registers the texture (issue 33: refused
+    /// before anything runs, not half a second into the run by the cold start).
+    #[error(
+        "{0}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow"
+    )]
+    Untextured(PathBuf),
     /// The transport could not be opened.
     #[error(transparent)]
     Transport(#[from] firmware_sim::transport::TransportError),
@@ -355,12 +361,6 @@ impl TrackOptions {
                 let f = &dataset.frames;
                 (f.len() >= 2).then(|| (f[1].stamp - f[0].stamp) as f64 / 1e9)
             });
-        if !(self.latency.is_finite() && self.latency >= 0.0) {
-            return bad(format!(
-                "--latency must be a non-negative number of seconds, got {}",
-                self.latency
-            ));
-        }
         if let Some(period) = frame_period
             && self.latency >= period
         {
@@ -428,8 +428,25 @@ impl TrackOptions {
                 "--blind-at counts seconds from the start and must be at least 0, got {t}"
             ));
         }
-        if self.vision.map.subset_size == 0 {
+        // Checked for every run (a vision-only run sends its correspondences before the next
+        // tick, and has no latency to wait for; issue 33: `-1` was accepted there).
+        if !(self.latency.is_finite() && self.latency >= 0.0) {
+            return bad(format!(
+                "--latency must be a non-negative number of seconds, got {}",
+                self.latency
+            ));
+        }
+        let features = self.vision.map.subset_size;
+        if features == 0 {
             return bad("--features must be at least 1".into());
+        }
+        // What one frame can send the core (protocol/PROTOCOL.md §6): more is never used.
+        if features > protocol::MAX_CORRESPONDENCES_PER_FRAME {
+            return bad(format!(
+                "--features must be at most {} (the correspondences one frame can send to the \
+                 core), got {features}",
+                protocol::MAX_CORRESPONDENCES_PER_FRAME
+            ));
         }
         let f = &self.faults;
         if !(0.0..=1.0).contains(&f.outlier_fraction) {
@@ -478,7 +495,15 @@ impl TrackOptions {
                 self.link
             ));
         }
-        // Outages are handled in runs with an IMU (docs/notes/issue17-faults.md §6).
+        // Outages are handled in runs with an IMU (docs/notes/issue17-faults.md §6): a
+        // vision-only run is refused a link it could lose and not come back from (issue 33:
+        // it exited 0.09 s after a board was killed, with no outage recorded).
+        if self.vision_only() && matches!(self.link, LinkSpec::Serial { .. } | LinkSpec::Tcp(_)) {
+            return bad(format!(
+                "--link {}: a vision-only run does not reconnect to a core it loses (runs with an IMU do, protocol/PROTOCOL.md §8); track it with --link sim or qemu",
+                self.link
+            ));
+        }
         if self.vision_only()
             && (f.reset_core_at.is_some() || f.cut_link_at.is_some() || self.attach)
         {
@@ -1006,6 +1031,9 @@ fn vision_worker(
 ) {
     let setup = || -> Result<(Vision, Ready, crate::model::Model), TrackError> {
         let model = crate::model::load(&model_path)?;
+        if !model.materials.iter().any(|m| m.texture.is_some()) {
+            return Err(TrackError::Untextured(model_path.clone()));
+        }
         let vision = Vision::new(camera, &model, options)?;
         let ready = Ready {
             adapter: vision.adapter_summary(),
@@ -1487,6 +1515,19 @@ impl Session<'_> {
         }
         self.close_outages();
         progress(end, end, self.results.len(), self.log.mode());
+        // An outage that the input outlasted is a failed run, as one that outlasts the retry
+        // window is: the samples after it were never tracked.
+        if let Some(o) = open {
+            let outage = &self.outages[o.index];
+            return Err(TrackError::Link(format!(
+                "link {}: the core was not reached again before the input ended, {:.2} s after \
+                 the outage began ({} attempts): {}",
+                link.name(),
+                output::seconds(self.t_us(end.saturating_sub(1))) - outage.noticed_s,
+                outage.attempts,
+                outage.cause
+            )));
+        }
         Ok(true)
     }
 

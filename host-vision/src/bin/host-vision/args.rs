@@ -13,8 +13,8 @@ use host_vision::track::LinkSpec;
 /// Vision host of the visual-inertial tracker.
 ///
 /// Exit codes: 0 done; 1 failed (input, link, output); 2 bad command line or option value;
-/// 3 tracking never started (track: the core accepted no correspondence); 130 interrupted
-/// (Ctrl-C; what was done is written).
+/// 3 nothing found (track: the core accepted no correspondence, tracking never started;
+/// locate: no pose); 130 interrupted (Ctrl-C; what was done is written).
 #[derive(Parser, Debug)]
 #[command(version, about)]
 pub struct Cli {
@@ -28,9 +28,10 @@ pub struct Cli {
 pub enum Command {
     /// Protocol loop-back self-test over a pty pair (a real serial line in one process).
     Selftest {
-        /// IMU samples to stream through the link.
-        #[arg(long, default_value_t = 2000)]
-        imu_samples: usize,
+        /// IMU samples to stream through the link (1 to 100000: both ends keep every message
+        /// sent, about 1 KB each, to compare them).
+        #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+        imu_samples: u32,
     },
     /// Writes a synthetic EuRoC-format dataset of one of the paper's test cases.
     Synth(Box<SynthArgs>),
@@ -170,7 +171,7 @@ pub struct FramesArgs {
     #[arg(long, help = IMAGES_HELP)]
     pub images: Option<PathBuf>,
     /// Frame rate of a plain image folder [Hz] (a EuRoC folder has its time stamps).
-    #[arg(long, requires = "images")]
+    #[arg(long, requires = "images", value_parser = parse_fps)]
     pub fps: Option<f64>,
     /// Pinhole intrinsics without distortion `fx,fy,cx,cy` [px], checked against the frames.
     #[arg(long, value_parser = host_vision::camera::parse_intrinsics, allow_hyphen_values = true, conflicts_with = "camera")]
@@ -202,7 +203,7 @@ pub struct TrackArgs {
     #[arg(long, conflicts_with = "dataset")]
     pub images: Option<PathBuf>,
     /// Frame rate of a plain --images folder [Hz].
-    #[arg(long, requires = "images")]
+    #[arg(long, requires = "images", value_parser = parse_fps)]
     pub fps: Option<f64>,
     /// The camera of --video/--images: a camera.json (pinhole, no distortion: model, width,
     /// height, fx, fy, cx, cy).
@@ -246,7 +247,7 @@ pub struct TrackArgs {
     /// period, so that each prediction has the previous frame's update.
     #[arg(long, default_value_t = 0.03)]
     pub latency: f64,
-    /// Features registered per frame (at least 1).
+    /// Features registered per frame (1 to 128, what one frame can send the core).
     #[arg(long, default_value_t = 40)]
     pub features: usize,
     /// Track only the first S seconds of the dataset (longer than the core's 0.3 s
@@ -454,6 +455,15 @@ fn parse_resolution(s: &str) -> Result<(u32, u32), String> {
         return Err(format!("each side must be 16..=4096 pixels, got {w}x{h}"));
     }
     Ok((w, h))
+}
+
+/// `--fps`: a frame rate in (0, 10000] Hz, refused as a usage error before anything is read
+/// (issue 33: `0`, `1e9` and `NaN` reached the image folder and exited 1).
+fn parse_fps(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(f) if f.is_finite() && f > 0.0 && f <= 10_000.0 => Ok(f),
+        _ => Err(format!("a frame rate in (0, 10000] Hz, got {text}")),
+    }
 }
 
 #[cfg(test)]

@@ -27,7 +27,8 @@ pub mod exit {
     pub const FAILED: u8 = 1;
     /// Bad command line or option value.
     pub const USAGE: u8 = 2;
-    /// `track`: the core accepted no correspondence, tracking never started.
+    /// Ran, but found nothing: `track`'s core accepted no correspondence (tracking never
+    /// started), or `locate` found no pose.
     pub const NEVER_TRACKED: u8 = 3;
     /// Interrupted (Ctrl-C), the shell's convention (128 + SIGINT).
     pub const INTERRUPTED: u8 = 130;
@@ -55,8 +56,13 @@ fn classify(error: &anyhow::Error) -> u8 {
     use host_vision::eval::EvalError;
     use host_vision::track::TrackError;
     let track = error.chain().find_map(|e| e.downcast_ref::<TrackError>());
+    let eval_option = matches!(
+        error.downcast_ref::<EvalError>(),
+        Some(EvalError::Option(_))
+    );
     match track {
         Some(TrackError::Option(_)) => exit::USAGE,
+        _ if eval_option => exit::USAGE,
         Some(TrackError::Interrupted) => exit::INTERRUPTED,
         _ if matches!(
             error.downcast_ref::<EvalError>(),

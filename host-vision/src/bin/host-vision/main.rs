@@ -29,6 +29,8 @@ enum Done {
     Complete,
     /// `track` ran, but the core never accepted a correspondence.
     NeverTracked,
+    /// `locate` ran, but found no pose.
+    NotFound,
     /// Ctrl-C: what was done is written.
     Interrupted,
 }
@@ -165,7 +167,12 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
     })?;
     bar.finish();
     say!("{report}");
-    Ok(Done::Complete)
+    // A search that found nothing is not a success (issue 33: it exited 0).
+    Ok(if report.accepted {
+        Done::Complete
+    } else {
+        Done::NotFound
+    })
 }
 
 fn frames(a: &FramesArgs) -> Result<Done, Failure> {
@@ -181,15 +188,36 @@ fn frames(a: &FramesArgs) -> Result<Done, Failure> {
     if a.max_frames == Some(0) {
         return Err(usage("--max-frames must be at least 1".into()));
     }
-    // The calibration is read first: a bad one is said before a long decode.
+    // The calibration is read and checked against the first frame before the whole input is
+    // decoded: a wrong one is said at once (issue 33: all 989 frames were decoded and the
+    // report printed first), as a usage error, as `track` says it.
     let camera = a.camera.as_deref().map(read_camera_json).transpose()?;
+    if a.intrinsics.is_some() || camera.is_some() {
+        let mut first = input.open(&VideoOptions::default())?;
+        let (w, h) = match first.next() {
+            Some(frame) => frame?.image.dimensions(),
+            None => return Err(anyhow::anyhow!("{}: no frames", input.path().display()).into()),
+        };
+        if let Some(p) = a.intrinsics {
+            pinhole_camera(w, h, p).map_err(|e| usage(format!("--intrinsics: {e}")))?;
+        }
+        if let (Some(c), Some(path)) = (&camera, &a.camera)
+            && (c.width, c.height) != (w, h)
+        {
+            return Err(usage(format!(
+                "--camera {}: the calibration is for {}x{} images, the frames are {w}x{h}",
+                path.display(),
+                c.width,
+                c.height
+            )));
+        }
+    }
     let source = input.open(&VideoOptions::default())?;
     let stats = DecodeStats::collect(source, a.max_frames, &mut |_| {})?;
     say!("{}", input.path().display());
     say!("{stats}");
     if let Some(p) = a.intrinsics {
         let (w, h) = stats.size;
-        pinhole_camera(w, h, p).map_err(|e| usage(format!("--intrinsics: {e}")))?;
         say!(
             "intrinsics:    fx {} fy {} cx {} cy {}, no distortion: fit the {w}x{h} frames",
             p.fx,
@@ -199,19 +227,6 @@ fn frames(a: &FramesArgs) -> Result<Done, Failure> {
         );
     }
     if let (Some(c), Some(path)) = (camera, &a.camera) {
-        if (c.width, c.height) != stats.size {
-            return Err(Failure {
-                error: anyhow::anyhow!(
-                    "--camera {}: the calibration is for {}x{} images, the frames are {}x{}",
-                    path.display(),
-                    c.width,
-                    c.height,
-                    stats.size.0,
-                    stats.size.1
-                ),
-                code: exit::FAILED,
-            });
-        }
         say!(
             "camera:        {} fits the frames (fx {} fy {} cx {} cy {})",
             path.display(),
@@ -258,10 +273,13 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         Some(f) => f.into(),
         None if !camera_only => protocol::ModelKind::Acc,
         None => {
-            note!(
-                "{}: no IMU: tracking vision-only (--filter vision)",
-                dataset.display()
-            );
+            // Said of an input that is there: a missing one is named by its error alone.
+            if dataset.exists() {
+                note!(
+                    "{}: no IMU: tracking vision-only (--filter vision)",
+                    dataset.display()
+                );
+            }
             protocol::ModelKind::Vision
         }
     };
@@ -565,8 +583,8 @@ fn demo(a: &DemoArgs) -> Result<Done, Failure> {
     Ok(Done::Complete)
 }
 
-fn selftest(imu_samples: usize) -> Result<Done, Failure> {
-    let report = host_vision::selftest::run_over_pty(imu_samples)?;
+fn selftest(imu_samples: u32) -> Result<Done, Failure> {
+    let report = host_vision::selftest::run_over_pty(imu_samples as usize)?;
     say!("{report}");
     say!("self-test passed");
     Ok(Done::Complete)
@@ -598,7 +616,7 @@ fn main() -> ExitCode {
     };
     match done {
         Ok(Done::Complete) => ExitCode::SUCCESS,
-        Ok(Done::NeverTracked) => ExitCode::from(exit::NEVER_TRACKED),
+        Ok(Done::NeverTracked | Done::NotFound) => ExitCode::from(exit::NEVER_TRACKED),
         Ok(Done::Interrupted) => ExitCode::from(exit::INTERRUPTED),
         Err(f) => console::report(f),
     }
