@@ -864,7 +864,7 @@ fn issue_32_defect_2_large_corrections_never_trip_the_quaternion_test() {
             let norm = out
                 .statuses
                 .iter()
-                .filter(|s| s.reason == StatusReason::QuaternionNorm)
+                .filter(|s| s.mode == Mode::Diverged && s.reason == StatusReason::QuaternionNorm)
                 .count();
             let reasons: Vec<_> = out
                 .statuses
