@@ -26,6 +26,16 @@ fn start(link: &str) -> (Child, String, std::thread::JoinHandle<String>) {
     (child, line.trim().to_string(), rest)
 }
 
+/// Starts the board on a pty: the process, the pty's path, and the rest of what it prints.
+fn start_pty() -> (Child, String, std::thread::JoinHandle<String>) {
+    let (child, line, rest) = start("pty");
+    let path = line
+        .rsplit_once("serial:")
+        .map(|(_, p)| p.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    (child, path, rest)
+}
+
 /// Waits for the board to exit by itself (a guard against a hang, not a speed requirement).
 fn wait_for_exit(child: &mut Child) -> std::process::ExitStatus {
     let deadline = Instant::now() + Duration::from_secs(20);
@@ -102,11 +112,7 @@ fn session(link: Duplex) {
 /// prints its report and exits, and a second host finds no device (issue 13, point 3).
 #[test]
 fn a_host_talks_to_the_board_process_over_its_pty_and_the_session_ends_with_it() {
-    let (mut child, line, rest) = start("pty");
-    let path = line
-        .rsplit_once("serial:")
-        .map(|(_, p)| p.to_string())
-        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let (mut child, path, rest) = start_pty();
     let link = transport::serial(&path, 921_600).expect("open the board's pty");
     session(link);
     let status = wait_for_exit(&mut child);
@@ -125,11 +131,7 @@ fn a_host_talks_to_the_board_process_over_its_pty_and_the_session_ends_with_it()
 /// clock is the host's ticks, and the report says so.
 #[test]
 fn a_vision_only_session_reports_ticks() {
-    let (mut child, line, rest) = start("pty");
-    let path = line
-        .rsplit_once("serial:")
-        .map(|(_, p)| p.to_string())
-        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let (mut child, path, rest) = start_pty();
     let link = transport::serial(&path, 921_600).expect("open the board's pty");
     let mut w = FrameWriter::new(link.writer);
     let mut config = protocol::samples::config();

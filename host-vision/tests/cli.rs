@@ -99,6 +99,13 @@ fn copy_dir(from: &Path, to: &Path, skip: &str) {
     }
 }
 
+/// The tiny dataset without its IMU (vision-only), copied to `name`.
+fn without_imu(name: &str) -> PathBuf {
+    let no_imu = tmp(name);
+    copy_dir(&dataset(), &no_imu, "imu0");
+    no_imu
+}
+
 fn count(haystack: &str, needle: &str) -> usize {
     haystack.matches(needle).count()
 }
@@ -960,9 +967,7 @@ fn p17_a_non_rigid_start_pose_is_refused_with_the_flag() {
 /// are named, and nothing is written.
 #[test]
 fn p18_inputs_without_an_imu_are_tracked_vision_only() {
-    let ds = dataset();
-    let no_imu = tmp("p18-no-imu");
-    copy_dir(&ds, &no_imu, "imu0");
+    let no_imu = without_imu("p18-no-imu");
     let out = tmp("p18-out");
     let (so, se) = expect(&track_args(&no_imu, &out, &["--overlay-every", "0"]), 0);
     assert!(
@@ -1509,9 +1514,7 @@ fn i33_p11_frames_checks_the_camera_first_and_names_the_value() {
 /// period apart.
 #[test]
 fn i33_p02_a_vision_only_trajectory_holds_the_estimates_alone() {
-    let ds = dataset();
-    let no_imu = tmp("i33-p02-no-imu");
-    copy_dir(&ds, &no_imu, "imu0");
+    let no_imu = without_imu("i33-p02-no-imu");
     let out = tmp("i33-p02");
     expect(&track_args(&no_imu, &out, &["--overlay-every", "0"]), 0);
     let tum = std::fs::read_to_string(out.join("trajectory.tum")).unwrap();
@@ -1554,9 +1557,7 @@ fn i33_p10_selftest_streams_many_samples() {
 /// vision-only run is refused the links it could lose (serial, TCP) up front, with the reason.
 #[test]
 fn i33_p04_a_vision_only_run_is_refused_a_link_it_cannot_recover() {
-    let ds = dataset();
-    let no_imu = tmp("i33-p04-no-imu");
-    copy_dir(&ds, &no_imu, "imu0");
+    let no_imu = without_imu("i33-p04-no-imu");
     let out = tmp("i33-p04");
     for (link, name) in [
         ("serial:/dev/ttyACM0", "serial /dev/ttyACM0 at"),
