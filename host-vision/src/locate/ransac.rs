@@ -58,8 +58,6 @@ pub struct RansacPose {
     pub t: Vector3<f64>,
     /// Per match: reprojects within the threshold, in front of the camera (after refinement).
     pub inliers: Vec<bool>,
-    /// Minimal samples drawn.
-    pub iterations: usize,
     /// The best hypotheses of other poses (rotations 5° or more apart), refined, best first,
     /// each with at least `min_inliers`: where the matches fit several poses alike (a face
     /// seen nearly face on), the inlier count at the threshold does not tell them apart, and
@@ -173,7 +171,6 @@ pub fn ransac_search(
         q_cw: best.q,
         t: best.t,
         inliers: best.inliers,
-        iterations,
         runners_up,
     });
     (pose, stats)
@@ -568,7 +565,7 @@ mod tests {
         for s in 0..trials {
             let mut rng = StdRng::seed_from_u64(1000 + s);
             let (u, x, q, t) = scene(&mut rng, 200, 60, 0.5);
-            let Some(p) = ransac_pose(PINHOLE, &u, &x, &cfg) else {
+            let (Some(p), stats) = ransac_search(PINHOLE, &u, &x, &cfg) else {
                 panic!("scene {s}: no pose");
             };
             let (dt, dr) = errors(&p, &q, &t);
@@ -597,8 +594,8 @@ mod tests {
             assert!(false_in <= 2, "scene {s}: {false_in} outliers accepted");
             worst_t = worst_t.max(dt);
             worst_r = worst_r.max(dr);
-            total_it += p.iterations;
-            max_it = max_it.max(p.iterations);
+            total_it += stats.iterations;
+            max_it = max_it.max(stats.iterations);
         }
         println!(
             "ransac 200 matches, 70% outliers, 0.5 px: worst |t-t*| {:.3} mm, worst rot {:.4}°, \
@@ -616,14 +613,14 @@ mod tests {
     fn clean_data_stops_early_and_is_exact() {
         let mut rng = StdRng::seed_from_u64(7);
         let (u, x, q, t) = scene(&mut rng, 100, 100, 0.0);
-        let p = ransac_pose(PINHOLE, &u, &x, &RansacConfig::default());
+        let (p, stats) = ransac_search(PINHOLE, &u, &x, &RansacConfig::default());
         let Some(p) = p else { panic!("no pose") };
         let (dt, dr) = errors(&p, &q, &t);
         println!(
             "clean: {} iterations, |t-t*| {dt:.2e} m, rot {dr:.2e}°",
-            p.iterations
+            stats.iterations
         );
-        assert!(p.iterations <= 5);
+        assert!(stats.iterations <= 5);
         assert!(dt < 1e-9 && dr < 1e-7);
         assert!(p.inliers.iter().all(|b| *b));
     }
@@ -741,12 +738,12 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(10);
         let (u, x, _, _) = scene(&mut rng, 200, 60, 0.5);
         let cfg = RansacConfig::default();
-        let a = ransac_pose(PINHOLE, &u, &x, &cfg);
-        let b = ransac_pose(PINHOLE, &u, &x, &cfg);
+        let (a, a_stats) = ransac_search(PINHOLE, &u, &x, &cfg);
+        let (b, b_stats) = ransac_search(PINHOLE, &u, &x, &cfg);
         let (Some(a), Some(b)) = (a, b) else {
             panic!("no pose")
         };
-        assert_eq!(a.iterations, b.iterations);
+        assert_eq!(a_stats, b_stats);
         assert_eq!(a.inliers, b.inliers);
         assert_eq!(a.t, b.t);
     }
@@ -760,15 +757,15 @@ mod tests {
             for s in 0..10 {
                 let mut rng = StdRng::seed_from_u64(2000 + s);
                 let (u, x, _, _) = scene(&mut rng, 200, n_in, 0.5);
-                let Some(p) = ransac_pose(PINHOLE, &u, &x, &cfg) else {
+                let (Some(_), stats) = ransac_search(PINHOLE, &u, &x, &cfg) else {
                     panic!("no pose")
                 };
                 assert!(
-                    p.iterations <= bound,
+                    stats.iterations <= bound,
                     "{n_in} inliers: {} iterations",
-                    p.iterations
+                    stats.iterations
                 );
-                total += p.iterations;
+                total += stats.iterations;
             }
             println!(
                 "inlier ratio {:.2}: mean iterations {:.1}, theory {}",
