@@ -675,10 +675,7 @@ impl<T: Kernels> Device<T> {
             Counters::bump(&mut self.counters.predictions);
             out(CoreToHost::PosePrediction(self.prediction(frame_id)));
         }
-        let no_vision_us = prm
-            .camera_period_us
-            .saturating_mul(u64::from(NO_VISION_FRAMES));
-        if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us {
+        if self.mode == Mode::Tracking && self.anchor.age_us >= no_vision_us(prm) {
             self.set_mode(Mode::DeadReckoning, StatusReason::NoVision, out);
         }
         let every = self.config.map_or(0, |c| c.state_every);
@@ -813,10 +810,7 @@ impl<T: Kernels> Device<T> {
         // Frames on either side of a gap are not consecutive looks at one state
         // (docs/FILTER.md §9, test 1).
         if !c.items.is_empty() {
-            let gap_us = prm
-                .camera_period_us
-                .saturating_mul(u64::from(NO_VISION_FRAMES));
-            self.monitor.look(c.trigger_us, gap_us);
+            self.monitor.look(c.trigger_us, no_vision_us(&prm));
         }
         // Test 3 judges the frame's updates from the quaternion they started at (docs/FILTER.md
         // §6, §9).
@@ -964,6 +958,12 @@ impl<T: Kernels> Device<T> {
         });
         self.set_mode(Mode::Reinitialising, reason, out);
     }
+}
+
+/// [`NO_VISION_FRAMES`] camera periods [µs]: the end of tracking, and a gap between frames.
+fn no_vision_us<T: Scalar>(prm: &Params<T>) -> u64 {
+    prm.camera_period_us
+        .saturating_mul(u64::from(NO_VISION_FRAMES))
 }
 
 /// The first three values of `x` for the wire (read from the state vector in place).

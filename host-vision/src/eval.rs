@@ -327,14 +327,10 @@ fn outputs() -> Vec<String> {
 /// `options.interrupt`, it writes them for the runs done and says so in
 /// [`EvalReport::interrupted`].
 pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, EvalError> {
-    // As `track` checks it: a run shorter than the core's still window never snaps on.
-    let still = crate::track::config::CoreTuning::default().still_seconds;
-    if let Some(d) = options.duration
-        && !(d.is_finite() && d > still)
-    {
-        return Err(EvalError::Option(format!(
-            "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
-        )));
+    // As `track` checks it.
+    let tuning = crate::track::config::CoreTuning::default();
+    if let Some(why) = options.duration.and_then(|d| tuning.duration_refusal(d)) {
+        return Err(EvalError::Option(why));
     }
     let mut out = OutFolder::prepare(&options.out, &outputs(), None, options.overwrite)?;
     let mut report = EvalReport::default();

@@ -339,13 +339,8 @@ impl TrackOptions {
         }
         let stamp0 = dataset.imu[0].stamp;
         let data_s = (dataset.imu[dataset.imu.len() - 1].stamp - stamp0) as f64 / 1e9;
-        let still = self.tuning.still_seconds;
         let end = match self.duration {
-            Some(d) if !(d.is_finite() && d > still) => {
-                return bad(format!(
-                    "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
-                ));
-            }
+            Some(d) if let Some(why) = self.tuning.duration_refusal(d) => return bad(why),
             Some(d) => dataset
                 .imu
                 .partition_point(|r| ((r.stamp - stamp0) as f64) / 1e9 <= d),
