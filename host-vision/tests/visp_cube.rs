@@ -103,14 +103,78 @@ fn the_cube_video_is_tracked_vision_only_through_pushes_turns_and_the_mug() {
         100.0 * share(&by_index(750, usize::MAX)),
         100.0 * share(&rows)
     );
-    // Measured 97.1 % of the half-visible frames under Mesa's Vulkan renderer (95.8 % before the
-    // mug, 100 % after it) and 96.1 % under its GL renderer (xtask's second pass, which draws
-    // the texture slightly differently): the frames missing are the hardest moments of the
-    // pushes and turns.
+    // Measured (issue 33, `cargo test -p host-vision --test visp_cube -- --nocapture`): 98.5 % of
+    // the half-visible frames under Mesa's Vulkan renderer (98.4 % before the mug, 98.7 % after
+    // it) and 98.0 % under its GL renderer (97.6 %, 98.7 %; xtask's second pass): the frames
+    // missing are the hardest moments of the pushes and turns. Under Vulkan the hand and the
+    // mug lose the cube at 18.4 s, and a search finds it at 24.9 s, after the mug (548-749).
     assert_eq!(lost_at, None, "tracking lost for good");
-    assert!(share(&half_visible) >= 0.9, "{}", share(&half_visible));
-    assert!(share(&by_index(0, 548)) >= 0.9);
-    assert!(share(&by_index(750, usize::MAX)) >= 0.9);
+    assert!(share(&half_visible) >= 0.96, "{}", share(&half_visible));
+    assert!(share(&by_index(0, 548)) >= 0.95);
+    assert!(share(&by_index(750, usize::MAX)) >= 0.96);
+    still_stretch_holds(&out, &rows, s);
+}
+
+/// Issue 33: frames 796-840, where the cube stands nearly still with one face to the camera.
+/// The tilt check once flipped the pose there every sixth frame, 94 mm and 11° each time, with
+/// every frame reported tracked. Now: no flip there, and between consecutive tracked frames the
+/// estimate (`trajectory_frames.tum`) moves less than 2 cm and 2°.
+fn still_stretch_holds(out: &Path, rows: &[&FrameRow], s: &track::output::Summary) {
+    const STILL: std::ops::RangeInclusive<usize> = 796..=840;
+    let flips: Vec<usize> = s.tilt_checks.flips.iter().map(|f| f.frame).collect();
+    assert!(
+        !flips.iter().any(|f| STILL.contains(f)),
+        "tilt flips while the cube stands still: {flips:?}"
+    );
+    let text = std::fs::read_to_string(out.join("trajectory_frames.tum")).unwrap();
+    // Time [s] (as in frames.csv, to the µs) → position and quaternion (x, y, z, w).
+    let poses: std::collections::BTreeMap<i64, [f64; 7]> = text
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().unwrap()).collect();
+            (
+                (v[0] * 1e6).round() as i64,
+                core::array::from_fn(|i| v[i + 1]),
+            )
+        })
+        .collect();
+    let pose_of = |r: &FrameRow| poses.get(&((r.t * 1e6).round() as i64)).copied();
+    let (mut pairs, mut worst_m, mut worst_deg) = (0, 0.0f64, 0.0f64);
+    for w in rows.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if !(STILL.contains(&a.index) && b.index == a.index + 1) {
+            continue;
+        }
+        if a.tracked != Some(true) || b.tracked != Some(true) {
+            continue;
+        }
+        let (pa, pb) = (pose_of(a).unwrap(), pose_of(b).unwrap());
+        let moved =
+            ((pa[0] - pb[0]).powi(2) + (pa[1] - pb[1]).powi(2) + (pa[2] - pb[2]).powi(2)).sqrt();
+        let dot = (3..7).map(|i| pa[i] * pb[i]).sum::<f64>().abs().min(1.0);
+        let turned = 2.0 * dot.acos().to_degrees();
+        worst_m = worst_m.max(moved);
+        worst_deg = worst_deg.max(turned);
+        pairs += 1;
+        assert!(
+            moved < 0.02 && turned < 2.0,
+            "frames {}-{}: the estimate moved {:.1} mm and {turned:.2}° while the cube stood still",
+            a.index,
+            b.index,
+            moved * 1e3
+        );
+    }
+    println!(
+        "still (796-840): {pairs} consecutive tracked pairs, the estimate moved at most {:.1} mm and {worst_deg:.2}°; tilt flips at {flips:?}",
+        worst_m * 1e3
+    );
+    // Measured: 45 pairs, at most 3.2 mm and 0.39° (Vulkan), 3.4 mm and 0.36° (GL). Most of the
+    // stretch must be tracked for the bound to say anything.
+    assert!(
+        pairs >= 30,
+        "only {pairs} consecutive tracked pairs in 796-840"
+    );
 }
 
 /// Issue 15: the same video with no start pose, and a forced loss: every correspondence

@@ -302,11 +302,36 @@ pub fn choose(
     Ok((choice, compared, check))
 }
 
+/// What a tilt check found (docs/notes/issue15-cold-start.md §5.2): the evidence, and the
+/// other tilt where that is the pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TiltCheck {
+    /// The tracked pose against its mirror (eqs. P2, P3); `None` where no comparison was
+    /// made (the tracked pose failed the rule, or has no mirror that is another minimum).
+    pub tracked_vs_mirror: Option<Comparison>,
+    /// The verified mirror against the tracked pose, where the first comparison favoured the
+    /// mirror and the mirror verified as another minimum.
+    pub flipped_vs_tracked: Option<Comparison>,
+    /// The verified mirror, where the image favoured it both times: the pose to flip to.
+    #[serde(skip)]
+    pub flip: Option<CameraPose>,
+}
+
+impl TiltCheck {
+    /// Whether the image decisively favoured the mirror over the tracked pose: evidence that
+    /// the tracked pose is on the wrong branch, whether or not the flip was confirmed.
+    pub fn disfavours_tracked(&self) -> bool {
+        self.tracked_vs_mirror
+            .is_some_and(|c| !c.one_minimum() && c.verdict == Some(Ordering::Greater))
+    }
+}
+
 /// The tilt check of a tracked pose (docs/notes/issue15-cold-start.md §5.2): `pose` verified
 /// in the raw frame `raw`, against its own mirror (eqs. P1–P3). Where the image favours the
-/// mirror decisively, the mirror is verified in its turn; the verified mirror is returned when
-/// it passes `rule` (the cold start's: a flip re-initialises the core as a found pose does)
-/// and the image favours it over the tracked pose again. `None`: the tracked pose stands.
+/// mirror decisively, the mirror is verified in its turn; it is the flip when it passes
+/// `rule` (the cold start's: a flip re-initialises the core as a found pose does) and the
+/// image favours it over the tracked pose again. Whether a flip is applied is tracking's
+/// decision (`track/tilt.rs`: it must hold).
 ///
 /// Tracking follows a face that turns through face on along either branch of the two-fold
 /// ambiguity, and can leave on the wrong one: on the cube video, 150 mm and 18° off for a
@@ -316,31 +341,39 @@ pub fn check_tilt(
     raw: &GrayImage,
     pose: &CameraPose,
     rule: &TrackedRule,
-) -> Result<Option<CameraPose>, TrackError> {
+) -> Result<TiltCheck, TrackError> {
+    let mut check = TiltCheck {
+        tracked_vs_mirror: None,
+        flipped_vs_tracked: None,
+        flip: None,
+    };
     let plausible_rule = TrackedRule {
         min_features: TrackedRule::default().min_features,
         ..*rule
     };
     let (tracked, _) = super::converged(vision, raw, pose, false)?;
     if !plausible_rule.holds(&tracked.assessment) {
-        return Ok(None);
+        return Ok(check);
     }
     let Some(mirror) = mirror_of(&tracked) else {
-        return Ok(None);
+        return Ok(check);
     };
     if same_minimum(&mirror.pose, &tracked.pose) {
-        return Ok(None);
+        return Ok(check);
     }
-    let first = compare(vision, raw, &tracked, &mirror)?;
-    if first.one_minimum() || first.verdict != Some(Ordering::Greater) {
-        return Ok(None);
+    check.tracked_vs_mirror = Some(compare(vision, raw, &tracked, &mirror)?);
+    if !check.disfavours_tracked() {
+        return Ok(check);
     }
     let (flipped, _) = super::converged(vision, raw, &mirror.pose, false)?;
     if !rule.holds(&flipped.assessment) || same_minimum(&flipped.pose, &tracked.pose) {
-        return Ok(None);
+        return Ok(check);
     }
     let second = compare(vision, raw, &flipped, &tracked)?;
-    Ok((!second.one_minimum() && second.verdict == Some(Ordering::Less)).then_some(flipped.pose))
+    check.flipped_vs_tracked = Some(second);
+    check.flip =
+        (!second.one_minimum() && second.verdict == Some(Ordering::Less)).then_some(flipped.pose);
+    Ok(check)
 }
 
 /// `pose` mirrored about the plane of the model points `x_w` (eq. P1,

@@ -82,11 +82,29 @@ pub fn core_config(
         .rate_hz
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(20.0);
+    let constant_velocity = (accel * 1.5).max(0.5);
     let motion = match model {
         // White jerk: the peak jerk of hand-held motion is about a · 2πf at 1-2 Hz.
         ModelKind::Acc => (accel * 8.0).max(1.0),
-        // White acceleration for the constant-velocity models.
-        _ => (accel * 1.5).max(0.5),
+        // Vision only: the velocity changes by what the peak acceleration gives over one push
+        // (`a · τ`), which white acceleration of density `q` gives over `τ` as `q √τ`; so
+        // `q = a √τ`, the angular noise's rule (`OBJECT_IN_HAND_ANGULAR_NOISE`). Nothing but the
+        // correspondences corrects the prediction, and a larger `q` lets the velocity follow
+        // their noise: where one face seen nearly face on pins the tilt down poorly, the pose
+        // then swung 1-3 cm a frame along it while the cube stood still (issue 33).
+        ModelKind::Vision => (accel * PUSH_SECONDS.sqrt()).max(0.5),
+        // White acceleration for the inertial constant-velocity models, whose gyro (and
+        // accelerometer) updates pin the motion down between frames.
+        _ => constant_velocity,
+    };
+    // The room the covariance gets before the monitor calls it diverged is the constant-velocity
+    // rule's for the vision-only model too: its angular noise, not its motion noise, grows the
+    // covariance while the model is hidden, and a hidden object comes back by itself within
+    // seconds (the cube video's hand, 18.4-21.0 s).
+    let room = if model == ModelKind::Acc {
+        motion
+    } else {
+        constant_velocity
     };
     let init_sigma = InitSigma {
         position: tuning.init_position_sigma as f32,
@@ -106,7 +124,7 @@ pub fn core_config(
         &init_sigma,
     ))
     .sqrt();
-    let covariance_threshold = (2.0 * motion * motion)
+    let covariance_threshold = (2.0 * room * room)
         .max(10.0)
         .max(2.0 * f64::from(validate::COVARIANCE_THRESHOLD_MARGIN) * initial);
     Config {
@@ -148,6 +166,10 @@ pub fn core_config(
     }
 }
 
+/// How long a hand's push or turn accelerates one way [s]: a quarter turn in half a second
+/// accelerates for about a quarter of a second.
+pub const PUSH_SECONDS: f64 = 0.25;
+
 /// Peak acceleration [m/s²] of the camera relative to an object held and turned in a hand, the
 /// default for a video or image folder: a hand turns an object at up to about 12 rad/s² (a
 /// quarter turn in half a second), which, seen from 0.4 m, moves the camera in the object's
@@ -159,8 +181,8 @@ pub const OBJECT_IN_HAND_ACCEL: f64 = 5.0;
 pub const OBJECT_IN_HAND_ANGULAR_NOISE: f64 = 6.0;
 
 /// The `Configure` message of the vision-only model for a camera at `camera_rate_hz`: the
-/// constant-velocity motion noise of the inertial models' rule (white acceleration of
-/// `1.5 ×` the expected peak acceleration, white angular acceleration as tuned), no mount (the
+/// constant-velocity motion noise of one push (white acceleration of `a √τ`, with `a` the
+/// expected peak acceleration and `τ` [`PUSH_SECONDS`]; white angular acceleration as tuned), no mount (the
 /// camera is the sensor), and the clock of its ticks: one at each frame and one just after it,
 /// so twice the frame rate.
 pub fn vision_config(

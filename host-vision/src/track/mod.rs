@@ -21,6 +21,7 @@ mod outage;
 pub mod output;
 pub mod overlay;
 pub mod plot;
+pub mod tilt;
 pub mod vision;
 mod vision_only;
 
@@ -723,8 +724,7 @@ pub fn run(
         searches: Vec::new(),
         recoveries: Vec::new(),
         database: None,
-        tilt_checks: 0,
-        tilt_flips: Vec::new(),
+        tilt: tilt::TiltBranch::default(),
         session_id: new_session_id(),
         outages: Vec::new(),
         attached_at: None,
@@ -854,8 +854,8 @@ enum WorkerDone {
         Box<Result<crate::locate::Attempt, TrackError>>,
         Option<crate::locate::database::Provenance>,
     ),
-    /// The other tilt, where it is the pose.
-    CheckTilt(Result<Option<crate::camera::CameraPose>, TrackError>),
+    /// The tilt check's evidence, and the other tilt where it is the pose.
+    CheckTilt(Box<Result<crate::locate::choice::TiltCheck, TrackError>>),
 }
 
 impl VisionWorker {
@@ -972,14 +972,13 @@ impl VisionWorker {
     }
 
     /// The answer of the tilt check sent: waited for (`block`), or only if it is ready
-    /// (`Ok(None)` when not). Its value is the other tilt, where that is the pose.
-    #[allow(clippy::type_complexity)]
+    /// (`Ok(None)` when not).
     fn tilt_result(
         &self,
         block: bool,
-    ) -> Result<Option<Option<crate::camera::CameraPose>>, TrackError> {
+    ) -> Result<Option<crate::locate::choice::TiltCheck>, TrackError> {
         match self.recv_any(block)? {
-            Some(WorkerDone::CheckTilt(r)) => r.map(Some),
+            Some(WorkerDone::CheckTilt(r)) => (*r).map(Some),
             Some(_) => Err(Self::out_of_order()),
             None if block => Err(Self::stopped()),
             None => Ok(None),
@@ -1074,12 +1073,12 @@ fn vision_worker(
                 WorkerDone::Locate(Box::new(attempt), provenance.take())
             }
             WorkerJob::CheckTilt(image, pose) => {
-                WorkerDone::CheckTilt(crate::locate::choice::check_tilt(
+                WorkerDone::CheckTilt(Box::new(crate::locate::choice::check_tilt(
                     &mut vision,
                     &image,
                     &pose,
                     &crate::locate::LocateConfig::default().rule,
-                ))
+                )))
             }
         };
         if results.send(done).is_err() {
@@ -1153,11 +1152,8 @@ pub struct Session<'a> {
     /// Where the searches' viewpoint database came from (read from the cache, or built and
     /// why).
     pub database: Option<crate::locate::database::Provenance>,
-    /// Tilt checks of tracked poses run (vision-only runs).
-    pub tilt_checks: usize,
-    /// Where a tilt check put tracking on the other tilt of a face: the frame checked and
-    /// when the flip was applied [s].
-    pub tilt_flips: Vec<(usize, f64)>,
+    /// The tilt checks of tracked poses and their flips (vision-only runs).
+    pub tilt: tilt::TiltBranch,
     /// This run's name for its configuration of the core (`Config::session`): a core that
     /// reports it in its `HelloAck` kept the state this run gave it.
     pub session_id: u32,

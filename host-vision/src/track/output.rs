@@ -145,22 +145,66 @@ fn frame_period(rows: &[FrameRow]) -> f64 {
     dt.get(dt.len() / 2).copied().unwrap_or(1.0 / 30.0)
 }
 
-/// The tilt checks of a vision-only run (docs/notes/issue15-cold-start.md §5.2).
+/// The tilt checks of a vision-only run (docs/notes/issue15-cold-start.md §5.2,
+/// `track/tilt.rs`).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct TiltChecks {
     /// Checks run.
     pub checks: usize,
-    /// Where one put tracking on the other tilt.
-    pub flips: Vec<TiltFlip>,
+    /// Where one put tracking on the other tilt, with the evidence and whether it held.
+    pub flips: Vec<super::tilt::TiltFlip>,
+    /// The frames checked whose flip was refused: the last flip had not held.
+    pub refused: Vec<usize>,
+    /// Frames that passed the tracked rule but are not counted as tracked: on the tilt the
+    /// checks disfavour, or flipped and not confirmed.
+    pub withheld: usize,
 }
 
-/// A flip to the other tilt of a face.
-#[derive(Debug, Clone, Copy, Serialize)]
-pub struct TiltFlip {
-    /// The frame checked.
-    pub frame: usize,
-    /// When the flip was applied [s].
-    pub at_s: f64,
+impl TiltChecks {
+    /// The summary's lines: the checks, each flip with its evidence, the refusals.
+    fn print(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "tilt checks  {}, {} put tracking on the other tilt of a face{}",
+            self.checks,
+            self.flips.len(),
+            if self.flips.is_empty() { "" } else { ":" }
+        )?;
+        let corr = |c: Option<f64>| c.map_or("-".into(), |c| format!("{c:.2}"));
+        for t in &self.flips {
+            let first = &t.tracked_vs_mirror;
+            writeln!(
+                f,
+                "             frame {} (at {:.2} s): {:.0} mm, {:.1}° away; image correlation \
+                 {} tracked vs {} other tilt over {} px, log-odds {}; {}",
+                t.frame,
+                t.at_s,
+                t.jump_m * 1e3,
+                t.jump_deg,
+                corr(first.contrast.first),
+                corr(first.contrast.second),
+                first.contrast.pixels,
+                first
+                    .evidence
+                    .map_or("-".into(), |e| format!("{:+.1}", e.log_odds)),
+                match t.held {
+                    Some(true) => "held",
+                    Some(false) => "did not hold (tracking walked back)",
+                    None => "not confirmed",
+                }
+            )?;
+        }
+        if !self.refused.is_empty() || self.withheld > 0 {
+            writeln!(
+                f,
+                "             {} flips refused after one that did not hold; {} frames not \
+                 counted as tracked, on the tilt the checks disfavour or flipped unconfirmed",
+                self.refused.len(),
+                self.withheld
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// A loss and its search.
@@ -555,20 +599,7 @@ impl fmt::Display for Summary {
             )?;
         }
         if self.tilt_checks.checks > 0 {
-            let flips: Vec<String> = self
-                .tilt_checks
-                .flips
-                .iter()
-                .map(|t| format!("frame {} (at {:.2} s)", t.frame, t.at_s))
-                .collect();
-            writeln!(
-                f,
-                "tilt checks  {}, {} put tracking on the other tilt of a face{}{}",
-                self.tilt_checks.checks,
-                flips.len(),
-                if flips.is_empty() { "" } else { ": " },
-                flips.join(", ")
-            )?;
+            self.tilt_checks.print(f)?;
         }
         for o in &self.outages {
             writeln!(
@@ -884,7 +915,8 @@ pub(super) fn write_all(
         rows.push(FrameRow {
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
-            tracked: judged.map(|a| rule.holds(a)),
+            tracked: judged
+                .map(|a| rule.holds(a) && !session.tilt.record.withheld.contains(frame_id)),
             index: r.job.index,
             t: seconds(p.t_us),
             frame_id: *frame_id,
@@ -1082,12 +1114,10 @@ pub(super) fn write_all(
         }),
         recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
         tilt_checks: TiltChecks {
-            checks: session.tilt_checks,
-            flips: session
-                .tilt_flips
-                .iter()
-                .map(|&(frame, at_s)| TiltFlip { frame, at_s })
-                .collect(),
+            checks: session.tilt.record.checks,
+            flips: session.tilt.record.flips.clone(),
+            refused: session.tilt.record.refused.clone(),
+            withheld: session.tilt.record.withheld.len(),
         },
         outages: session.outages.clone(),
         attach: session.attach_note.clone(),

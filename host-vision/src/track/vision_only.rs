@@ -193,8 +193,6 @@ impl Session<'_> {
         // The recovery attempt with the search thread: its frame's index, time [µs], and
         // since when the model was lost [µs].
         let mut in_search: Option<(usize, u64, u64)> = None;
-        // The tilt check sent to the search thread: its frame's index.
-        let mut in_check: Option<usize> = None;
         let mut since_check = 0usize;
         let live = source.is_live();
         let search = search.ok_or_else(|| TrackError::Vision("no search thread".into()))?;
@@ -265,27 +263,27 @@ impl Session<'_> {
                     self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
                     if let Some(pose) = a.pose {
                         link.send(&HostToCore::Init(self.vision_init(&pose)))?;
+                        self.tilt.restart();
                         untracked_since = None;
                         diverged = false;
                     }
                 }
             }
             // The tilt check sent at an earlier frame, taken like a search's answer: where it
-            // found tracking on the other tilt of a face, the core is re-initialised there.
-            if let Some(index) = in_check
-                && let Some(flip) = search.tilt_result(!live)?
+            // found tracking on the other tilt of a face and the tracked tilt is settled, the
+            // core is re-initialised there (`track/tilt.rs`).
+            if self.tilt.in_flight()
+                && let Some(check) = search.tilt_result(!live)?
+                && let Some(pose) = self.tilt.answer(&check, t_us as f64 * 1e-6)
             {
-                in_check = None;
-                if let Some(pose) = flip {
-                    link.send(&HostToCore::Init(self.vision_init(&pose)))?;
-                    self.tilt_flips.push((index, t_us as f64 * 1e-6));
-                }
+                link.send(&HostToCore::Init(self.vision_init(&pose)))?;
             }
             let lost =
                 diverged || untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
             if !lost {
                 self.end_recovery(t_us);
-            } else if since_search >= SEARCH_EVERY && in_search.is_none() && in_check.is_none() {
+            } else if since_search >= SEARCH_EVERY && in_search.is_none() && !self.tilt.in_flight()
+            {
                 since_search = 0;
                 search.send_locate(frame.image.clone(), self.options.cache.clone())?;
                 in_search = Some((frame.index, t_us, untracked_since.unwrap_or(t_us)));
@@ -303,9 +301,9 @@ impl Session<'_> {
             self.barrier(link)?;
             frames += 1;
             let mut tracked = false;
-            let mut checked: Option<(GrayImage, CameraPose)> = None;
+            let mut checked: Option<(GrayImage, CameraPose, u32)> = None;
             let check_due = since_check >= TILT_CHECK_EVERY
-                && in_check.is_none()
+                && !self.tilt.in_flight()
                 && in_search.is_none()
                 && untracked_since.is_none();
             let check_image = check_due.then(|| frame.image.clone());
@@ -365,16 +363,16 @@ impl Session<'_> {
                     let a = worker.assess(pose, applied)?;
                     self.assessments.insert(p.frame_id, a);
                     tracked = rule.holds(&a);
+                    self.tilt.judged(p.frame_id);
                     if tracked && let Some(image) = check_image {
-                        checked = Some((image, pose));
+                        checked = Some((image, pose, p.frame_id));
                     }
                 }
             }
             match checked {
-                Some((image, pose)) => {
+                Some((image, pose, frame_id)) => {
                     search.send_tilt_check(image, pose)?;
-                    in_check = Some(frame.index);
-                    self.tilt_checks += 1;
+                    self.tilt.sent(frame.index, frame_id, pose);
                     since_check = 0;
                 }
                 None => since_check += 1,
@@ -389,9 +387,11 @@ impl Session<'_> {
                 progress(frames, total, self.results.len(), self.log.mode());
             }
         }
-        if in_check.is_some() {
+        // A check still in flight confirms nothing: a flip not yet confirmed never held.
+        if self.tilt.in_flight() {
             search.tilt_result(true)?;
         }
+        self.tilt.restart();
         if let Some((index, at_us, since)) = in_search {
             let (a, from) = search.locate_result()?;
             self.keep_provenance(from);
