@@ -226,6 +226,6 @@ fn the_cube_video_is_tracked_from_a_cold_start_and_found_again_after_a_loss() {
         .expect("the forced loss is searched");
     assert!(forced.found, "{forced:?}");
     assert!(forced.ended_at.is_some_and(|t| t <= 11.3), "{forced:?}");
-    // Measured 93.9 % (97.1 % from the given pose without the loss).
+    // Measured 94.8 % (98.5 % from the given pose without the loss), Vulkan.
     assert!(share(&half_visible) >= 0.9, "{}", share(&half_visible));
 }
