@@ -1,26 +1,28 @@
 //! The vision coprocessor beside the camera.
 //!
 //! It holds the host's end of the link to the fusion core ([`link`]), the protocol's loop-back
-//! self-test ([`selftest`]), the camera model ([`camera`]), textured model loading ([`model`]),
-//! the offscreen renderer ([`render`]) and back-projection of rendered depth
-//! ([`backproject`]), and natural features: FAST, pyramids, the photometric KLT, the feature
-//! map and correspondences ([`features`]); synthetic EuRoC datasets of the paper's test cases
-//! ([`synth`]); EuRoC datasets as the tracker reads them ([`dataset`]) and the tracking pipeline
-//! with its outputs ([`track`]), and the checks of a run's output folder ([`out_folder`]);
-//! frame sources without an IMU, a video through ffmpeg or an image folder ([`frames`]), and
-//! the full 6-DoF start pose file ([`start_pose`]).
+//! self-test ([`selftest`]); synthetic EuRoC datasets of the paper's test cases ([`synth`]); EuRoC
+//! datasets as the tracker reads them ([`dataset`]) and the tracking pipeline with its outputs
+//! ([`track`]), and the checks of a run's output folder ([`out_folder`]); frame sources without
+//! an IMU, a video through ffmpeg or an image folder ([`frames`]), and the full 6-DoF start
+//! pose file ([`start_pose`]).
+//!
+//! The camera model ([`camera`]), textured model loading ([`model`]), the offscreen renderer
+//! ([`render`], with back-projection of rendered depth, [`backproject`]) and natural features
+//! (FAST, pyramids, the photometric KLT, the feature map and correspondences, [`features`])
+//! are crates of their own (`host/`), re-exported here under those names.
 
-pub mod backproject;
-pub mod camera;
+pub use ::render::backproject;
+pub use ::camera;
 pub mod dataset;
 pub mod eval;
-pub mod features;
+pub use ::features;
 pub mod frames;
 pub mod link;
 pub mod locate;
-pub mod model;
+pub use ::model;
 pub mod out_folder;
-pub mod render;
+pub use ::render;
 pub mod selftest;
 pub mod start_pose;
 pub mod synth;

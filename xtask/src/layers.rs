@@ -60,6 +60,26 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "camera",
+        dir: "host/camera/src",
+        module: &[],
+    },
+    Tree {
+        name: "model",
+        dir: "host/model/src",
+        module: &[],
+    },
+    Tree {
+        name: "render",
+        dir: "host/render/src",
+        module: &[],
+    },
+    Tree {
+        name: "features",
+        dir: "host/features/src",
+        module: &[],
+    },
+    Tree {
         name: "host-vision track",
         dir: "host-vision/src/track",
         module: &["track"],

@@ -9,7 +9,7 @@
 use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use protocol::{Correspondence, Correspondences, TooManyCorrespondences};
 
-use crate::camera::Camera;
+use camera::Camera;
 
 /// A registered point that cannot become a correspondence.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]

@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix6, UnitQuaternion, Vector2, Vector3, Vector6};
 
-use crate::camera::{Camera, CameraPose};
+use camera::{Camera, CameraPose};
 
 /// A registered pixel (undistorted image) and its model point.
 pub type Registration = (Vector2<f64>, Vector3<f64>);
@@ -170,7 +170,7 @@ pub fn outliers(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{Pinhole, pinhole_camera};
+    use camera::{Pinhole, pinhole_camera};
 
     fn setup() -> (Camera, CameraPose, Vec<Registration>) {
         let camera = pinhole_camera(640, 480, Pinhole::new(600.0, 600.0, 320.0, 240.0)).unwrap();

@@ -892,7 +892,7 @@ fn mask_all_valid(m: &Mask, ox: f64, oy: f64, cols: usize, rows: usize) -> bool 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::features::pyramid::Pyramid;
+    use crate::pyramid::Pyramid;
 
     /// A window inside the image that the mask covers in part takes its weights from whole
     /// mask rows: the same verdicts as `Mask::valid_bilinear` per sample, at integer and

@@ -1,3 +1,4 @@
+#![deny(missing_docs)]
 //! Textured triangle models in metres: Wavefront OBJ + MTL ([`load_obj`]), glTF 2.0
 //! ([`load_gltf`]) and procedural test scenes ([`procedural`]).
 //!

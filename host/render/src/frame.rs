@@ -6,8 +6,8 @@ use wide::f64x4;
 
 use super::RenderError;
 use super::projection::depth_to_z;
-use crate::camera::Gray32FImage;
-use crate::camera::{CameraPose, Pinhole};
+use camera::Gray32FImage;
+use camera::{CameraPose, Pinhole};
 
 /// The view to render: ideal pinhole intrinsics (the live image is undistorted to match),
 /// camera pose and clip distances in metres.
@@ -151,7 +151,7 @@ pub struct Frame {
     pub depth: Gray32FImage,
     /// 255 where the model was rendered, 0 on background.
     pub mask: GrayImage,
-    /// The depth buffer's values (reversed depth, `render/projection.rs`), row-major, kept
+    /// The depth buffer's values (reversed depth, [`crate::projection`]), row-major, kept
     /// instead of `depth` by a tracker's frame.
     buffer: Vec<f32>,
     /// Whether the read-back fills `rgba` and `depth` (see [`Frame::empty_for_tracker`]).

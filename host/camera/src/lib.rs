@@ -1,3 +1,4 @@
+#![deny(missing_docs)]
 //! Camera geometry: pinhole intrinsics with skew, lens distortion, undistortion maps,
 //! calibration files and the camera pose.
 //!

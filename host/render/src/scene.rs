@@ -10,7 +10,7 @@ use image::imageops::{FilterType, resize};
 use wgpu::util::DeviceExt;
 
 use super::RenderError;
-use crate::model::Model;
+use model::Model;
 
 /// Interleaved vertex: position (m) then texture coordinates.
 #[repr(C)]

@@ -17,8 +17,8 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use super::gray::{ImageError, Mask};
 use super::grid::{self, GridConfig};
 use super::klt::KltFailure;
-use crate::backproject::backproject;
-use crate::render::{Frame, RenderView};
+use render::backproject::backproject;
+use render::{Frame, RenderView};
 
 /// Smallest extraction cell [px]: the registration window is 15 px wide, and features closer
 /// than about a window share most of their pixels.
@@ -131,7 +131,7 @@ pub enum Outcome {
     /// Failed, with the reason.
     Failure(KltFailure),
     /// Registered, but no rigid pose explains it with the frame's other registrations
-    /// ([`crate::features::outliers`]): not sent, and counted as a failure.
+    /// ([`crate::outliers`]): not sent, and counted as a failure.
     Outlier,
 }
 

@@ -2,14 +2,14 @@
 //!
 //! The renderer and the image loaders hand over `image::GrayImage` (8 bit); registration works
 //! in `f32` so that blurred, down-sampled and photometrically transformed values keep their
-//! fractions. Pixel convention as in [`crate::camera`]: integer coordinates are pixel centres.
+//! fractions. Pixel convention as in [`camera`]: integer coordinates are pixel centres.
 
 use image::GrayImage;
 
-use crate::camera::Gray32FImage;
+use camera::Gray32FImage;
 
 /// Largest accepted side, as for camera images (guards allocations driven by input sizes).
-pub const MAX_SIDE: usize = crate::camera::MAX_IMAGE_SIDE as usize;
+pub const MAX_SIDE: usize = camera::MAX_IMAGE_SIDE as usize;
 
 /// A buffer whose size does not make an image.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -3,8 +3,8 @@
 
 use nalgebra::{Matrix3, Vector2, Vector3};
 
-use crate::render::projection::depth_sigma;
-use crate::render::{Frame, RenderView};
+use crate::projection::depth_sigma;
+use crate::{Frame, RenderView};
 
 /// A back-projected pixel.
 #[derive(Debug, Clone, Copy, PartialEq)]

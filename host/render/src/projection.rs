@@ -10,7 +10,7 @@
 
 use nalgebra::Matrix4;
 
-use crate::camera::Pinhole;
+use camera::Pinhole;
 
 /// Camera frame → clip space for an image of `width × height` pixels.
 pub fn projection_matrix(

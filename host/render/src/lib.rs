@@ -1,3 +1,4 @@
+#![deny(missing_docs)]
 //! Offscreen rendering of the textured model from a camera pose (wgpu): colour, grayscale,
 //! metric depth and a validity mask, read back to the CPU.
 //!
@@ -5,9 +6,10 @@
 //! every frame. It runs on software drivers: Vulkan through Mesa lavapipe, GL through
 //! llvmpipe, selected with `WGPU_BACKEND=vulkan|gl` (all backends when unset). The projection
 //! is built from the intrinsics ([`projection`]) so a world point lands on the pixel
-//! [`crate::camera::Camera::project`] predicts for the undistorted camera, with integer pixel
+//! [`camera::Camera::project`] predicts for the undistorted camera, with integer pixel
 //! coordinates at pixel centres.
 
+pub mod backproject;
 mod frame;
 mod gpu;
 pub mod projection;
@@ -20,7 +22,7 @@ use gpu::Gpu;
 use scene::{GpuScene, Vertex};
 use targets::Targets;
 
-use crate::model::Model;
+use model::Model;
 
 /// Why rendering failed.
 #[derive(Debug, thiserror::Error)]
@@ -84,7 +86,7 @@ pub enum RenderError {
     BadView(String),
     /// The model is inconsistent (see [`Model::check`]).
     #[error("invalid model: {0}")]
-    Model(#[from] crate::model::ModelError),
+    Model(#[from] model::ModelError),
     /// `render` before `set_model`, or a model without meshes.
     #[error("no model to render (call set_model with a non-empty model)")]
     EmptyModel,

@@ -21,7 +21,7 @@ pub type Gray32FImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 /// For every pixel of the rectified (ideal pinhole) image, where to sample the distorted
 /// source image.
 ///
-/// Coordinates follow the pixel-centre convention of [`crate::camera`]. The map stores `f32`
+/// Coordinates follow the pixel-centre convention of [`crate`]. The map stores `f32`
 /// coordinates (round-off ≤ 1e-4 px for images up to 2000 px, far below what bilinear
 /// interpolation resolves); the point functions of [`Camera`] are the `f64` reference.
 #[derive(Debug, Clone)]
@@ -375,7 +375,7 @@ mod tests {
     //! pixels, pixels on the last source row and column, odd and tiny sizes, and the real
     //! EuRoC calibration and frame.
     use super::*;
-    use crate::camera::Distortion;
+    use crate::Distortion;
     use proptest::prelude::*;
 
     /// The remap before the runs: per pixel, the clamped bilinear formula (unchanged).
@@ -514,9 +514,9 @@ mod tests {
     fn remap_equals_the_per_pixel_formula_on_the_euroc_calibration() {
         let dir = std::path::Path::new(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../shared/data/euroc-v101-micro/mav0/cam0"
+            "/../../../shared/data/euroc-v101-micro/mav0/cam0"
         ));
-        let Ok(calib) = crate::camera::read_euroc_sensor_yaml(&dir.join("sensor.yaml")) else {
+        let Ok(calib) = crate::read_euroc_sensor_yaml(&dir.join("sensor.yaml")) else {
             eprintln!("SKIPPED: no EuRoC calibration under {}", dir.display());
             return;
         };
