@@ -12,8 +12,8 @@
 //! (FAST, pyramids, the photometric KLT, the feature map and correspondences, [`features`])
 //! are crates of their own (`host/`), re-exported here under those names.
 
-pub use ::render::backproject;
 pub use ::camera;
+pub use ::render::backproject;
 pub mod dataset;
 pub mod eval;
 pub use ::features;
