@@ -19,6 +19,9 @@ use std::time::Instant;
 
 mod layers;
 mod references;
+mod steps;
+
+use steps::{Steps, TestBinary};
 
 /// The Cortex-M4F target the no_std crates must build for.
 const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
@@ -44,7 +47,9 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("demo") => setup(DEMO_PACKAGES, false).and_then(|_| demo(&args[1..])),
         Some("test") => setup(TEST_PACKAGES, true).and_then(|_| test()),
-        Some("firmware") => setup(TEST_PACKAGES, true).and_then(|_| firmware_report()),
+        Some("firmware") => {
+            setup(TEST_PACKAGES, true).and_then(|_| firmware_report(&mut Steps::default()))
+        }
         Some("setup") => setup(TEST_PACKAGES, true),
         Some("layers") => layering(),
         Some("references") => references::check(&workspace_root())
@@ -124,30 +129,11 @@ fn check_disk(need_gb: u64) {
     }
 }
 
-/// Runs a command, echoing it; fails with its exit status.
-fn run(mut cmd: Command) -> Result<(), String> {
-    let shown = format!(
-        "{} {}",
-        cmd.get_program().to_string_lossy(),
-        cmd.get_args()
-            .map(|a| a.to_string_lossy().into_owned())
-            .collect::<Vec<_>>()
-            .join(" ")
-    );
-    println!("\n==> {shown}");
-    let start = Instant::now();
-    let status = cmd
-        .status()
-        .map_err(|e| format!("cannot start `{shown}`: {e}"))?;
-    println!(
-        "<== {shown}: {status} after {:.1} s",
-        start.elapsed().as_secs_f64()
-    );
-    if status.success() {
-        Ok(())
-    } else {
-        Err(format!("`{shown}` failed ({status})"))
-    }
+/// Runs a command outside the test's steps (set-up, the demo), echoing it; fails with its exit
+/// status.
+fn run(cmd: Command) -> Result<(), String> {
+    let name = cmd.get_program().to_string_lossy().into_owned();
+    Steps::default().run(&name, cmd)
 }
 
 /// Whether a command runs and exits successfully (output discarded).
@@ -279,12 +265,16 @@ fn demo(extra: &[String]) -> Result<(), String> {
     run(cmd)
 }
 
+/// Packages whose tests run again under GL (llvmpipe): those that render.
+const GL_PACKAGES: &[&str] = &["host-vision", "render", "features"];
+
 fn test() -> Result<(), String> {
     let start = Instant::now();
+    let mut steps = Steps::default();
     check_disk(TEST_DISK_NEED_GB);
     let mut fmt = cargo();
     fmt.args(["fmt", "--all", "--check"]);
-    run(fmt)?;
+    steps.run("format", fmt)?;
 
     // Cheap, and a broken citation is found before minutes of lints and tests.
     let cited = references::check(&workspace_root())?;
@@ -300,13 +290,12 @@ fn test() -> Result<(), String> {
         "-D",
         "warnings",
     ]);
-    run(clippy)?;
+    steps.run("lints", clippy)?;
 
-    // The renderer's GPU tests run on Vulkan here and again on GL below.
     // The firmware: format, lints and image first (the QEMU test drives the image).
     let mut fw_fmt = cargo();
     fw_fmt.current_dir(firmware_dir()).args(["fmt", "--check"]);
-    run(fw_fmt)?;
+    steps.run("firmware format", fw_fmt)?;
     let mut fw_clippy = cargo();
     fw_clippy.current_dir(firmware_dir()).args([
         "clippy",
@@ -317,32 +306,57 @@ fn test() -> Result<(), String> {
         "-D",
         "warnings",
     ]);
-    run(fw_clippy)?;
-    build_firmware()?;
+    steps.run("firmware lints", fw_clippy)?;
+    build_firmware(&mut steps)?;
 
-    let mut tests = cargo();
-    tests
-        .args(["test", "--workspace"])
-        .env("WGPU_BACKEND", "vulkan")
-        .env("REQUIRE_FIRMWARE", "1");
-    run(tests)?;
-
-    let mut gl_tests = cargo();
-    gl_tests
-        .args(["test", "-p", "host-vision"])
-        .env("WGPU_BACKEND", "gl");
-    run(gl_tests)?;
+    // The tests are built once, then each test executable runs as a step of its own, so that
+    // its time shows; the renderer's GPU tests run on Vulkan, and those of the packages that
+    // render again on GL.
+    let mut build = cargo();
+    build.args([
+        "test",
+        "--workspace",
+        "--no-run",
+        "--message-format=json-render-diagnostics",
+    ]);
+    let binaries = steps::test_binaries(&steps.output("build the tests", build)?)?;
+    run_tests(&mut steps, &binaries, "vulkan")?;
+    let mut doc = cargo();
+    doc.args(["test", "--workspace", "--doc"])
+        .env("WGPU_BACKEND", "vulkan");
+    steps.run("doc tests", doc)?;
+    let gl: Vec<TestBinary> = binaries
+        .into_iter()
+        .filter(|b| GL_PACKAGES.contains(&b.package.as_str()))
+        .collect();
+    run_tests(&mut steps, &gl, "gl")?;
 
     for krate in NO_STD_CRATES {
         let mut build = cargo();
         build.args(["build", "--release", "-p", krate, "--target", THUMB_TARGET]);
-        run(build)?;
+        steps.run(&format!("{krate} for {THUMB_TARGET}"), build)?;
     }
-    firmware_report()?;
+    firmware_report(&mut steps)?;
+    println!("\n{}", steps.report());
     println!(
         "\nxtask: all checks passed in {:.0} s",
         start.elapsed().as_secs_f64()
     );
+    Ok(())
+}
+
+/// Runs each test executable in its package's folder, as `cargo test` does, with the renderer
+/// on `backend`.
+fn run_tests(steps: &mut Steps, binaries: &[TestBinary], backend: &str) -> Result<(), String> {
+    for b in binaries {
+        let mut cmd = Command::new(&b.path);
+        cmd.current_dir(&b.dir)
+            .env("CARGO_MANIFEST_DIR", &b.dir)
+            .env("WGPU_BACKEND", backend)
+            .env("REQUIRE_FIRMWARE", "1")
+            .env("NODEVICE_SELECT", "1");
+        steps.run(&format!("{} ({backend})", b.name), cmd)?;
+    }
     Ok(())
 }
 
@@ -351,20 +365,20 @@ fn firmware_dir() -> PathBuf {
 }
 
 /// Builds the firmware images (device loop and benchmark) for the Cortex-M4F.
-fn build_firmware() -> Result<(), String> {
+fn build_firmware(steps: &mut Steps) -> Result<(), String> {
     let mut build = cargo();
     // The firmware's own .cargo/config.toml selects the target: run from its folder. Its
     // images go to firmware/target whatever CARGO_TARGET_DIR says (the QEMU test looks there).
     build
         .current_dir(firmware_dir())
         .args(["build", "--release", "--target-dir", "target"]);
-    run(build)
+    steps.run("firmware images", build)
 }
 
 /// Runs the benchmark image under QEMU with one instruction per virtual nanosecond, and
 /// prints it with the images' flash and RAM footprint.
-fn firmware_report() -> Result<(), String> {
-    build_firmware()?;
+fn firmware_report(steps: &mut Steps) -> Result<(), String> {
+    build_firmware(steps)?;
     let dir = firmware_dir().join("target/thumbv7em-none-eabihf/release");
     let bench = dir.join("bench");
     let mut qemu = Command::new("timeout");
@@ -379,7 +393,7 @@ fn firmware_report() -> Result<(), String> {
     .args(["-nographic", "-monitor", "none", "-icount", "shift=0"])
     .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
     .arg(&bench);
-    run(qemu)?;
+    steps.run("firmware benchmark under QEMU", qemu)?;
     for image in ["device", "bench"] {
         let path = dir.join(image);
         let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
