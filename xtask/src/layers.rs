@@ -80,6 +80,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "vision",
+        dir: "host/vision/src",
+        module: &[],
+    },
+    Tree {
         name: "host-vision track",
         dir: "host-vision/src/track",
         module: &["track"],

@@ -70,6 +70,9 @@ pub enum LocateError {
     /// Rendering, registration.
     #[error(transparent)]
     Track(#[from] TrackError),
+    /// The frame's analysis (the renderer, the image).
+    #[error(transparent)]
+    Vision(#[from] vision::VisionError),
     /// The image file.
     #[error("{path}: {source}")]
     Image {

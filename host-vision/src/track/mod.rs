@@ -12,7 +12,7 @@
 //! - **real time** ([`Pacing::RealTime`]): IMU samples paced by the clock, correspondences sent
 //!   as soon as the worker has them.
 
-pub mod assess;
+pub use ::vision::assess;
 mod cold_start;
 pub mod config;
 pub mod core;
@@ -22,7 +22,7 @@ pub mod output;
 pub mod overlay;
 pub mod plot;
 pub mod tilt;
-pub mod vision;
+pub use ::vision::analysis as vision;
 mod vision_only;
 
 use std::collections::{BTreeMap, VecDeque};
@@ -75,25 +75,6 @@ pub enum TrackError {
     /// Image buffers.
     #[error(transparent)]
     Features(#[from] ImageError),
-    /// A live image could not be read.
-    #[error("{path}: {source}")]
-    Image {
-        /// File.
-        path: PathBuf,
-        /// Cause.
-        #[source]
-        source: image::ImageError,
-    },
-    /// A live image has the wrong size.
-    #[error("{path}: image is {got:?}, the calibration says {expected:?}")]
-    ImageSize {
-        /// File.
-        path: PathBuf,
-        /// Its size.
-        got: (u32, u32),
-        /// The calibration's.
-        expected: (u32, u32),
-    },
     /// The model has no texture, and the tracker registers the texture (issue 33: refused
     /// before anything runs, not half a second into the run by the cold start).
     #[error(
@@ -130,7 +111,10 @@ pub enum TrackError {
     Interrupted,
     /// The vision thread could not start or stopped.
     #[error("{0}")]
-    Vision(String),
+    VisionThread(String),
+    /// A frame could not be analysed.
+    #[error(transparent)]
+    Vision(#[from] ::vision::VisionError),
     /// The cold start never found the model.
     #[error(
         "cold start: the model was not found in any of the {attempts} frames tried (is it in view, and is this its model?); `host-vision locate` on one frame shows the figures"
@@ -871,7 +855,9 @@ impl VisionWorker {
         let handle = std::thread::Builder::new()
             .name("vision".into())
             .spawn(move || vision_worker(camera, model_path, options, job_rx, res_tx, ready_tx))
-            .map_err(|e| TrackError::Vision(format!("cannot start the vision thread: {e}")))?;
+            .map_err(|e| {
+                TrackError::VisionThread(format!("cannot start the vision thread: {e}"))
+            })?;
         let worker = VisionWorker {
             jobs: Some(job_tx),
             results: res_rx,
@@ -879,7 +865,7 @@ impl VisionWorker {
         };
         let ready = ready_rx
             .recv()
-            .map_err(|_| TrackError::Vision("the vision thread stopped".into()))??;
+            .map_err(|_| TrackError::VisionThread("the vision thread stopped".into()))??;
         Ok((worker, ready))
     }
 
@@ -887,7 +873,7 @@ impl VisionWorker {
         self.jobs
             .as_ref()
             .and_then(|j| j.send(job).ok())
-            .ok_or_else(|| TrackError::Vision("the vision thread stopped".into()))
+            .ok_or_else(|| TrackError::VisionThread("the vision thread stopped".into()))
     }
 
     fn send(&self, job: FrameJob) -> Result<(), TrackError> {
@@ -895,11 +881,11 @@ impl VisionWorker {
     }
 
     fn stopped() -> TrackError {
-        TrackError::Vision("the vision thread stopped".into())
+        TrackError::VisionThread("the vision thread stopped".into())
     }
 
     fn out_of_order() -> TrackError {
-        TrackError::Vision("the vision thread answered out of order".into())
+        TrackError::VisionThread("the vision thread answered out of order".into())
     }
 
     fn recv(&self) -> Result<Result<FrameResult, TrackError>, TrackError> {
@@ -1051,8 +1037,12 @@ fn vision_worker(
     // Ends when the session drops its sender.
     while let Ok(job) = jobs.recv() {
         let done = match job {
-            WorkerJob::Frame(job) => WorkerDone::Frame(Box::new(vision.process(job))),
-            WorkerJob::Assess(pose, applied) => WorkerDone::Assess(vision.assess(&pose, &applied)),
+            WorkerJob::Frame(job) => {
+                WorkerDone::Frame(Box::new(vision.process(job).map_err(TrackError::from)))
+            }
+            WorkerJob::Assess(pose, applied) => {
+                WorkerDone::Assess(vision.assess(&pose, &applied).map_err(TrackError::from))
+            }
             WorkerJob::Locate(image, cache) => {
                 let attempt = (|| {
                     if locator.is_none() {
@@ -1067,7 +1057,7 @@ fn vision_worker(
                     }
                     match &locator {
                         Some(l) => Ok(l.attempt(&mut vision, &image, false)?.0),
-                        None => Err(TrackError::Vision("no cold-start database".into())),
+                        None => Err(TrackError::VisionThread("no cold-start database".into())),
                     }
                 })();
                 WorkerDone::Locate(Box::new(attempt), provenance.take())
@@ -1754,7 +1744,11 @@ impl Session<'_> {
             Ok(r) => r,
             // A frame whose image cannot be used is skipped (the core dead-reckons), and
             // reported; anything else stops the run.
-            Err(e @ (TrackError::Image { .. } | TrackError::ImageSize { .. })) => {
+            Err(
+                e @ TrackError::Vision(
+                    ::vision::VisionError::Image { .. } | ::vision::VisionError::ImageSize { .. },
+                ),
+            ) => {
                 self.frame_errors.push((self.results.len(), e.to_string()));
                 return Ok(());
             }

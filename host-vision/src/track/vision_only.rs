@@ -195,7 +195,7 @@ impl Session<'_> {
         let mut in_search: Option<(usize, u64, u64)> = None;
         let mut since_check = 0usize;
         let live = source.is_live();
-        let search = search.ok_or_else(|| TrackError::Vision("no search thread".into()))?;
+        let search = search.ok_or_else(|| TrackError::VisionThread("no search thread".into()))?;
         let rule = super::TrackedRule::default();
         while let Some(frame) = next.take().or_else(|| source.next()) {
             if interrupt.load(Ordering::Relaxed) {

@@ -13,8 +13,8 @@
 use image::GrayImage;
 use serde::Serialize;
 
-use crate::camera::{Camera, CameraPose};
-use crate::features::outliers::Registration;
+use camera::{Camera, CameraPose};
+use features::outliers::Registration;
 
 /// What the assessment of one frame found.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
@@ -190,7 +190,7 @@ impl TrackedRule {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{Pinhole, pinhole_camera};
+    use camera::{Pinhole, pinhole_camera};
     use nalgebra::{UnitQuaternion, Vector2, Vector3};
 
     #[test]

@@ -11,19 +11,19 @@ use nalgebra::{Matrix2, UnitQuaternion, Vector2, Vector3};
 use protocol::{Correspondence, PosePrediction};
 use rayon::prelude::*;
 
-use crate::camera::{Camera, CameraPose, UndistortMap};
-use crate::features::correspondence::correspondence;
-use crate::features::map::MapFeature;
-use crate::features::outliers::{Registration, outliers, robust_fit};
-use crate::features::{
+use camera::{Camera, CameraPose, UndistortMap};
+use features::correspondence::correspondence;
+use features::map::MapFeature;
+use features::outliers::{Registration, outliers, robust_fit};
+use features::{
     FeatureMap, GrayF32, KltConfig, KltFailure, KltResult, MapConfig, Mask, Outcome, OutlierRule,
     Predicted, TemplatePyramid, register,
 };
-use crate::model::Model;
-use crate::render::{RenderView, Renderer};
+use model::Model;
+use render::{RenderView, Renderer};
 
-use super::TrackError;
-use super::assess::{Assessment, Contrast, contrast, masked_ncc, reprojection_rms};
+use crate::VisionError;
+use crate::assess::{Assessment, Contrast, contrast, masked_ncc, reprojection_rms};
 
 /// Image-analysis parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -194,7 +194,7 @@ pub struct Vision {
     last: Option<LastFrame>,
     /// The last rendering (of a frame, an assessment or a contrast), whose buffers the next
     /// one fills.
-    rendering: Option<crate::render::Frame>,
+    rendering: Option<render::Frame>,
 }
 
 impl std::fmt::Debug for Vision {
@@ -213,32 +213,35 @@ fn render_at(
     ideal: &Camera,
     clip: (f64, f64),
     pose: &CameraPose,
-    reuse: Option<crate::render::Frame>,
-) -> Result<crate::render::Frame, TrackError> {
+    reuse: Option<render::Frame>,
+) -> Result<render::Frame, VisionError> {
     let view = RenderView {
         pinhole: ideal.pinhole,
         pose: *pose,
         near: clip.0,
         far: clip.1,
     };
-    let mut frame = reuse.unwrap_or_else(|| crate::render::Frame::empty_for_tracker(view));
+    let mut frame = reuse.unwrap_or_else(|| render::Frame::empty_for_tracker(view));
     renderer.render_into(&view, &mut frame)?;
     Ok(frame)
 }
 
 /// The camera pose of a prediction.
-pub fn prediction_pose(p: &PosePrediction) -> Result<CameraPose, TrackError> {
+pub fn prediction_pose(p: &PosePrediction) -> Result<CameraPose, VisionError> {
     let q = p.q_cw.map(f64::from);
     CameraPose::from_wxyz(
         q,
         Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64),
     )
-    .map_err(|e| TrackError::Core(format!("frame {}: bad predicted pose: {e}", p.frame_id)))
+    .map_err(|source| VisionError::BadPrediction {
+        frame_id: p.frame_id,
+        source,
+    })
 }
 
 impl Vision {
     /// Creates the renderer for `camera` and uploads `model`.
-    pub fn new(camera: Camera, model: &Model, options: VisionOptions) -> Result<Self, TrackError> {
+    pub fn new(camera: Camera, model: &Model, options: VisionOptions) -> Result<Self, VisionError> {
         let ideal = camera.ideal();
         let undistort = UndistortMap::new(&camera)?;
         let mut renderer = Renderer::new(camera.width, camera.height)?;
@@ -258,12 +261,12 @@ impl Vision {
     /// Judges the last analysed frame at `pose`, the core's estimate after that frame's
     /// update: the reprojection rms there of the correspondences the core applied (`applied`,
     /// one flag per correspondence sent, in order; the gated ones are outliers it did not
-    /// use), and the model rendered there against the live image ([`super::assess`]).
+    /// use), and the model rendered there against the live image ([`crate::assess`]).
     pub fn assess(
         &mut self,
         pose: &CameraPose,
         applied: &[bool],
-    ) -> Result<Assessment, TrackError> {
+    ) -> Result<Assessment, VisionError> {
         let Some(last) = &self.last else {
             return Ok(Assessment::default());
         };
@@ -294,13 +297,13 @@ impl Vision {
     }
 
     /// How the live image `raw` tells the poses `a` and `b` apart: each rendering correlated
-    /// with it where the two renderings disagree (eq. P2, [`super::assess::contrast`]).
+    /// with it where the two renderings disagree (eq. P2, [`crate::assess::contrast`]).
     pub fn contrast(
         &mut self,
         raw: &GrayImage,
         a: &CameraPose,
         b: &CameraPose,
-    ) -> Result<Contrast, TrackError> {
+    ) -> Result<Contrast, VisionError> {
         let live = self.undistort(raw)?;
         let clip = self.options.clip;
         let reuse = self.rendering.take();
@@ -312,7 +315,7 @@ impl Vision {
     }
 
     /// The live image of `raw` undistorted into the ideal camera the analysis works in.
-    pub fn undistort(&self, raw: &GrayImage) -> Result<GrayImage, TrackError> {
+    pub fn undistort(&self, raw: &GrayImage) -> Result<GrayImage, VisionError> {
         Ok(self.undistort.remap_gray(raw)?)
     }
 
@@ -327,7 +330,7 @@ impl Vision {
         raw: &GrayImage,
         pose: &CameraPose,
         keep_image: bool,
-    ) -> Result<Verified, TrackError> {
+    ) -> Result<Verified, VisionError> {
         let mut pose = *pose;
         let mut registered = 0;
         let mut result = None;
@@ -428,13 +431,13 @@ impl Vision {
     }
 
     /// Analyses one frame.
-    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, TrackError> {
+    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, VisionError> {
         let t0 = Instant::now();
         let mut times = StageTimes::default();
         self.last = None;
         let raw = match &mut job.image {
             FrameImage::File(path) => image::open(&*path)
-                .map_err(|source| TrackError::Image {
+                .map_err(|source| VisionError::Image {
                     path: path.clone(),
                     source,
                 })?
@@ -442,7 +445,7 @@ impl Vision {
             FrameImage::Decoded(image) => std::mem::take(image),
         };
         if raw.dimensions() != (self.camera.width, self.camera.height) {
-            return Err(TrackError::ImageSize {
+            return Err(VisionError::ImageSize {
                 path: job.image.describe(job.index),
                 got: raw.dimensions(),
                 expected: (self.camera.width, self.camera.height),
@@ -473,7 +476,7 @@ impl Vision {
         let mut rendering = self
             .rendering
             .take()
-            .unwrap_or_else(|| crate::render::Frame::empty_for_tracker(view));
+            .unwrap_or_else(|| render::Frame::empty_for_tracker(view));
         self.renderer.finish_into(&mut rendering)?;
         times.render = (submitted + t.elapsed()).as_secs_f64();
         let (w, h) = (self.camera.width, self.camera.height);
@@ -490,7 +493,7 @@ impl Vision {
         let blur = klt.template_sigma(self.options.blur_sigma);
         let map = &mut self.map;
         let (extraction, template) = rayon::join(
-            || -> Result<(usize, f64), TrackError> {
+            || -> Result<(usize, f64), VisionError> {
                 let t = Instant::now();
                 if !extract {
                     return Ok((0, 0.0));
@@ -502,7 +505,7 @@ impl Vision {
                     .len();
                 Ok((added, t.elapsed().as_secs_f64()))
             },
-            || -> Result<Option<(TemplatePyramid, f64)>, TrackError> {
+            || -> Result<Option<(TemplatePyramid, f64)>, VisionError> {
                 if model_coverage == 0.0 {
                     return Ok(None);
                 }
@@ -674,10 +677,10 @@ impl Vision {
 /// The rendering `frame` prepared for registration: blurred by `blur` (σ, px), `levels`
 /// levels of image and mask.
 fn build_template(
-    frame: &crate::render::Frame,
+    frame: &render::Frame,
     levels: usize,
     blur: f32,
-) -> Result<TemplatePyramid, TrackError> {
+) -> Result<TemplatePyramid, VisionError> {
     Ok(TemplatePyramid::build(
         GrayF32::from_gray8(&frame.gray)?,
         Mask::from_gray8(&frame.mask)?,
