@@ -85,6 +85,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "locate",
+        dir: "host/locate/src",
+        module: &[],
+    },
+    Tree {
         name: "host-vision track",
         dir: "host-vision/src/track",
         module: &["track"],

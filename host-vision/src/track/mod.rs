@@ -1062,14 +1062,15 @@ fn vision_worker(
                 })();
                 WorkerDone::Locate(Box::new(attempt), provenance.take())
             }
-            WorkerJob::CheckTilt(image, pose) => {
-                WorkerDone::CheckTilt(Box::new(crate::locate::choice::check_tilt(
+            WorkerJob::CheckTilt(image, pose) => WorkerDone::CheckTilt(Box::new(
+                crate::locate::choice::check_tilt(
                     &mut vision,
                     &image,
                     &pose,
                     &crate::locate::LocateConfig::default().rule,
-                )))
-            }
+                )
+                .map_err(TrackError::from),
+            )),
         };
         if results.send(done).is_err() {
             return;

@@ -3,7 +3,7 @@
 //! (docs/notes/issue15-cold-start.md §1).
 //!
 //! - A scale pyramid (factor [`OrbConfig::scale`]); on each level FAST-9 corners
-//!   ([`crate::features::fast`]) ranked by the Harris response (eq. C1), the best kept in
+//!   ([`features::fast`]) ranked by the Harris response (eq. C1), the best kept in
 //!   proportion to the level's area.
 //! - Orientation by the intensity centroid of a disc of radius [`PATCH_RADIUS`] (eq. C2).
 //! - A 256-bit binary test descriptor on the Gaussian-smoothed level (eq. C3): pairs drawn once
@@ -18,7 +18,7 @@ use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, Normal};
 
-use crate::features::fast;
+use features::fast;
 
 /// A 256-bit binary descriptor.
 pub type Descriptor = [u64; 4];

@@ -6,7 +6,7 @@
 //! its own. Two independent rms figures of ~40 features differ by ±11 % from noise alone, so
 //! they cannot choose; the evidence must be taken where the two hypotheses differ:
 //!
-//! - eq. P2 ([`crate::track::assess::contrast`]): the live image where the two renderings
+//! - eq. P2 ([`vision::assess::contrast`]): the live image where the two renderings
 //!   disagree. A wrong tilt shows the sliver of a side face that the image does not (and hides
 //!   one it does).
 //! - eq. P3 ([`common_evidence`]): both poses re-fitted to the same registrations (those of
@@ -22,12 +22,12 @@ use std::cmp::Ordering;
 use image::GrayImage;
 use serde::Serialize;
 
-use crate::camera::{Camera, CameraPose};
-use crate::features::outliers::{Registration, robust_fit, robust_scale};
-use crate::locate::ransac::mirrored_pose;
-use crate::track::vision::{Verified, Vision};
-use crate::track::{Contrast, TrackError, TrackedRule};
+use crate::ransac::mirrored_pose;
+use camera::{Camera, CameraPose};
+use features::outliers::{Registration, robust_fit, robust_scale};
 use nalgebra::Vector3;
+use vision::{Contrast, TrackedRule, VisionError};
+use vision::{Verified, Vision};
 
 /// Two poses closer than this [m] and [`SAME_MINIMUM_RAD`] are one minimum: within what one
 /// frame's registrations pin a one-face view down to (and the 1 cm, 2° a found pose is asked
@@ -209,7 +209,7 @@ pub fn compare(
     raw: &GrayImage,
     a: &Verified,
     b: &Verified,
-) -> Result<Comparison, TrackError> {
+) -> Result<Comparison, VisionError> {
     let contrast = vision.contrast(raw, &a.pose, &b.pose)?;
     let evidence = common_evidence(vision.ideal_camera(), a, b);
     let p3 = evidence.as_ref().and_then(evidence_verdict);
@@ -239,7 +239,7 @@ pub fn choose(
     raw: &GrayImage,
     verified: &[Verified],
     rule: &TrackedRule,
-) -> Result<(Choice, Comparisons, Option<Comparison>), TrackError> {
+) -> Result<(Choice, Comparisons, Option<Comparison>), VisionError> {
     let n = verified.len();
     let mut compared: Comparisons = vec![vec![None; n]; n];
     let plausible_rule = TrackedRule {
@@ -331,7 +331,7 @@ impl TiltCheck {
 /// mirror decisively, the mirror is verified in its turn; it is the flip when it passes
 /// `rule` (the cold start's: a flip re-initialises the core as a found pose does) and the
 /// image favours it over the tracked pose again. Whether a flip is applied is tracking's
-/// decision (`track/tilt.rs`: it must hold).
+/// decision (host-vision's `track/tilt.rs`: it must hold).
 ///
 /// Tracking follows a face that turns through face on along either branch of the two-fold
 /// ambiguity, and can leave on the wrong one: on the cube video, 150 mm and 18° off for a
@@ -341,7 +341,7 @@ pub fn check_tilt(
     raw: &GrayImage,
     pose: &CameraPose,
     rule: &TrackedRule,
-) -> Result<TiltCheck, TrackError> {
+) -> Result<TiltCheck, VisionError> {
     let mut check = TiltCheck {
         tracked_vs_mirror: None,
         flipped_vs_tracked: None,
@@ -398,9 +398,9 @@ fn mirror_of(v: &Verified) -> Option<Verified> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{Pinhole, pinhole_camera};
-    use crate::track::Assessment;
+    use camera::{Pinhole, pinhole_camera};
     use nalgebra::{UnitQuaternion, Vector2};
+    use vision::Assessment;
 
     fn camera() -> Camera {
         pinhole_camera(

@@ -13,9 +13,9 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::orb::{Descriptor, Orb, OrbConfig};
-use crate::camera::{CameraPose, Pinhole};
-use crate::model::Model;
-use crate::render::{RenderError, RenderView, Renderer};
+use camera::{CameraPose, Pinhole};
+use model::Model;
+use render::{RenderError, RenderView, Renderer};
 
 /// How the database is built.
 #[derive(Debug, Clone, Copy, PartialEq)]
