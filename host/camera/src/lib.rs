@@ -1,4 +1,5 @@
 #![deny(missing_docs)]
+#![warn(clippy::too_many_lines)]
 //! Camera geometry: pinhole intrinsics with skew, lens distortion, undistortion maps,
 //! calibration files and the camera pose.
 //!

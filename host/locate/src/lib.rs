@@ -1,4 +1,5 @@
 #![deny(missing_docs)]
+#![warn(clippy::too_many_lines)]
 //! Finding the model in an image with no pose given (the cold start; the method and its
 //! equations are in docs/notes/issue15-cold-start.md):
 //!
@@ -36,7 +37,7 @@ use database::Database;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
-use ransac::{RansacConfig, ransac_search};
+use ransac::{RansacConfig, RansacPose, ransac_search};
 use vision::VisionError;
 use vision::{Assessment, TrackedRule};
 use vision::{FrameResult, Verified, Vision};
@@ -188,15 +189,15 @@ impl Locator {
         &self.config
     }
 
-    /// One attempt on the raw live image `raw`, with `vision` (its camera, renderer and
-    /// feature map: a verified pose leaves the map ready for tracking from it). With
-    /// `keep_image`, the verification's analysis comes back with its image, for an overlay.
-    pub fn attempt(
+    /// The first steps of an attempt: ORB keypoints of the undistorted image, matched against
+    /// the database, and the pose by P3P in RANSAC; the attempt's figures so far, and RANSAC's
+    /// pose with the matches' model points, where it found one.
+    #[allow(clippy::type_complexity)]
+    fn ransac_candidate(
         &self,
-        vision: &mut Vision,
+        vision: &Vision,
         raw: &GrayImage,
-        keep_image: bool,
-    ) -> Result<(Attempt, Option<FrameResult>), VisionError> {
+    ) -> Result<(Attempt, Option<(RansacPose, Vec<Vector3<f64>>)>), VisionError> {
         let mut times = AttemptTimes::default();
         let t = Instant::now();
         let live = vision.undistort(raw)?;
@@ -237,7 +238,7 @@ impl Locator {
             &self.config.ransac,
         );
         times.ransac = t.elapsed().as_secs_f64();
-        let mut attempt = Attempt {
+        let attempt = Attempt {
             keypoints: keypoints.len(),
             matches: matches.len(),
             inliers: 0,
@@ -257,7 +258,20 @@ impl Locator {
             times,
             rivals: [None; 4],
         };
-        let Some(found) = found else {
+        Ok((attempt, found.map(|f| (f, x_w))))
+    }
+
+    /// One attempt on the raw live image `raw`, with `vision` (its camera, renderer and
+    /// feature map: a verified pose leaves the map ready for tracking from it). With
+    /// `keep_image`, the verification's analysis comes back with its image, for an overlay.
+    pub fn attempt(
+        &self,
+        vision: &mut Vision,
+        raw: &GrayImage,
+        keep_image: bool,
+    ) -> Result<(Attempt, Option<FrameResult>), VisionError> {
+        let (mut attempt, found) = self.ransac_candidate(vision, raw)?;
+        let Some((found, x_w)) = found else {
             return Ok((attempt, None));
         };
         attempt.inliers = found.inliers.iter().filter(|&&i| i).count();

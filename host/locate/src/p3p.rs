@@ -464,7 +464,7 @@ pub(super) mod tests {
     use rand::{RngExt, SeedableRng};
 
     /// A rotation drawn uniformly (a normalised 4-vector from the unit ball).
-    pub(in crate::locate) fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
+    pub(crate) fn random_rotation(rng: &mut StdRng) -> UnitQuaternion<f64> {
         loop {
             let v = Vector4::new(
                 rng.random_range(-1.0..1.0),

@@ -17,7 +17,7 @@ use features::map::MapFeature;
 use features::outliers::{Registration, outliers, robust_fit};
 use features::{
     FeatureMap, GrayF32, KltConfig, KltFailure, KltResult, MapConfig, Mask, Outcome, OutlierRule,
-    Predicted, TemplatePyramid, register,
+    Predicted, Pyramid, TemplatePyramid, register,
 };
 use model::Model;
 use render::{RenderView, Renderer};
@@ -430,11 +430,8 @@ impl Vision {
         b * b.transpose() * (k * k)
     }
 
-    /// Analyses one frame.
-    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, VisionError> {
-        let t0 = Instant::now();
-        let mut times = StageTimes::default();
-        self.last = None;
+    /// Step 1 of [`Self::process`]: the job's live image, read or taken, at the camera's size.
+    fn read_live(&self, job: &mut FrameJob) -> Result<GrayImage, VisionError> {
         let raw = match &mut job.image {
             FrameImage::File(path) => image::open(&*path)
                 .map_err(|source| VisionError::Image {
@@ -451,46 +448,100 @@ impl Vision {
                 expected: (self.camera.width, self.camera.height),
             });
         }
-        // The rendering is submitted first: the driver rasterises on its threads while this
-        // one undistorts the live image.
-        let t = Instant::now();
-        let pose = prediction_pose(&job.prediction)?;
-        let view = RenderView {
-            pinhole: self.ideal.pinhole,
-            pose,
-            near: self.options.clip.0,
-            far: self.options.clip.1,
-        };
-        self.renderer.submit(&view)?;
-        let submitted = t.elapsed();
-        let live = self.undistort.remap_gray(&raw)?;
-        times.load = (t0.elapsed() - submitted).as_secs_f64();
-        // The live pyramid needs no rendering: built while the driver still rasterises (a
-        // frame with no feature to register wastes it, but in the rendering's shadow).
-        let t = Instant::now();
-        let klt = &self.options.klt;
-        let target = klt.target_pyramid(GrayF32::from_gray8(&live)?);
-        times.pyramids = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        // The previous frame's buffers, refilled (no fresh pages to fault in).
-        let mut rendering = self
-            .rendering
-            .take()
-            .unwrap_or_else(|| render::Frame::empty_for_tracker(view));
-        self.renderer.finish_into(&mut rendering)?;
-        times.render = (submitted + t.elapsed()).as_secs_f64();
-        let (w, h) = (self.camera.width, self.camera.height);
-        let frame_index = job.index as u64;
-        let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
-            / (w as f64 * h as f64);
+        Ok(raw)
+    }
 
-        let t = Instant::now();
-        let mut visible = self.map.predict_visible(&view, w, h, Some(&rendering));
-        let predicted = t.elapsed().as_secs_f64();
-        // FAST on demand and the template pyramid both read only the rendering: built side by
-        // side (rayon), the template whenever the model is in view.
-        let extract = self.map.needs_features(&visible) && model_coverage > 0.0;
-        let blur = klt.template_sigma(self.options.blur_sigma);
+    /// The last step of [`Self::process`]'s registration: the registrations judged together
+    /// (the outlier rule), each outcome recorded in the feature map, and the accepted ones
+    /// turned into correspondences (with the motion blur's covariance at `omega_c`). Fills
+    /// the frame's feature outcomes, correspondences and registrations; returns the sum and
+    /// count of the registrations' distances from their predictions [px].
+    fn record_attempts(
+        &mut self,
+        attempts: Vec<Attempt<'_>>,
+        pose: &CameraPose,
+        omega_c: Option<&Vector3<f64>>,
+        frame_index: u64,
+        (features, correspondences, registered): (
+            &mut Vec<FeatureOutcome>,
+            &mut Vec<Correspondence>,
+            &mut Vec<Registration>,
+        ),
+    ) -> (f64, usize) {
+        let mut error_sum = 0.0;
+        let mut error_count = 0usize;
+        let pairs: Vec<Registration> = attempts
+            .iter()
+            .filter_map(|(_, f, r)| {
+                let r = r.as_ref().ok()?;
+                Some((Vector2::new(r.position[0], r.position[1]), f.p_w))
+            })
+            .collect();
+        let mut outlier = match &self.options.outliers {
+            Some(rule) => outliers(&self.ideal, pose, &pairs, rule),
+            None => vec![false; pairs.len()],
+        }
+        .into_iter();
+        for (p, feature, result) in attempts {
+            let position = [p.pixel.x, p.pixel.y];
+            let outcome = match result {
+                Ok(r) => {
+                    let px = Vector2::new(r.position[0], r.position[1]);
+                    error_sum += (px - p.pixel).norm();
+                    error_count += 1;
+                    let sent = if outlier.next().unwrap_or(false) {
+                        self.map.record(p.id, Outcome::Outlier, frame_index);
+                        false
+                    } else {
+                        self.map.record(p.id, Outcome::Success, frame_index);
+                        let cov: Matrix2<f64> =
+                            r.covariance + self.blur_covariance(omega_c, &p.pixel);
+                        match correspondence(&self.ideal, px, &cov, &feature.p_w, &feature.cov_w) {
+                            Ok(c) => {
+                                correspondences.push(c);
+                                registered.push((px, feature.p_w));
+                                true
+                            }
+                            Err(_) => false,
+                        }
+                    };
+                    FeatureOutcome {
+                        id: p.id,
+                        predicted: position,
+                        registered: Ok(r.position),
+                        sent,
+                    }
+                }
+                Err(why) => {
+                    self.map.record(p.id, Outcome::Failure(why), frame_index);
+                    FeatureOutcome {
+                        id: p.id,
+                        predicted: position,
+                        registered: Err(why),
+                        sent: false,
+                    }
+                }
+            };
+            features.push(outcome);
+        }
+        (error_sum, error_count)
+    }
+
+    /// Step of [`Self::process`]: new features extracted from the rendering where the map
+    /// needs them (FAST on demand) beside the template pyramid, which is built whenever the
+    /// model is in view; both read only the rendering, so they run side by side (rayon).
+    /// Returns the features added, the extraction's time [s], and the template with its time.
+    #[allow(clippy::type_complexity)]
+    fn extract_beside_template(
+        &mut self,
+        visible: &[Predicted],
+        rendering: &render::Frame,
+        model_coverage: f64,
+        frame_index: u64,
+        blur: f32,
+    ) -> Result<(usize, f64, Option<(TemplatePyramid, f64)>), VisionError> {
+        let extract = self.map.needs_features(visible) && model_coverage > 0.0;
+        let levels = self.options.klt.levels;
         let map = &mut self.map;
         let (extraction, template) = rayon::join(
             || -> Result<(usize, f64), VisionError> {
@@ -501,7 +552,7 @@ impl Vision {
                 let occupied: Vec<[f64; 2]> =
                     visible.iter().map(|p| [p.pixel.x, p.pixel.y]).collect();
                 let added = map
-                    .add_from_rendering(&rendering, &occupied, frame_index)?
+                    .add_from_rendering(rendering, &occupied, frame_index)?
                     .len();
                 Ok((added, t.elapsed().as_secs_f64()))
             },
@@ -510,12 +561,71 @@ impl Vision {
                     return Ok(None);
                 }
                 let t = Instant::now();
-                let template = build_template(&rendering, klt.levels, blur)?;
+                let template = build_template(rendering, levels, blur)?;
                 Ok(Some((template, t.elapsed().as_secs_f64())))
             },
         );
         let (added, extracting) = extraction?;
-        let template = template?.map(|(template, took)| {
+        Ok((added, extracting, template?))
+    }
+
+    /// Step of [`Self::process`]: the rendering at `view` submitted first, so that the driver
+    /// rasterises on its threads while this one undistorts the live image `raw` and builds its
+    /// pyramid (which needs no rendering); then the rendering read back into the previous
+    /// frame's buffers (no fresh pages to fault in). Fills the load, pyramid and render times.
+    fn render_beside_live(
+        &mut self,
+        raw: &GrayImage,
+        view: RenderView,
+        t0: Instant,
+        times: &mut StageTimes,
+    ) -> Result<(GrayImage, Pyramid, render::Frame), VisionError> {
+        let t = Instant::now();
+        self.renderer.submit(&view)?;
+        let submitted = t.elapsed();
+        let live = self.undistort.remap_gray(raw)?;
+        times.load = (t0.elapsed() - submitted).as_secs_f64();
+        let t = Instant::now();
+        let target = self.options.klt.target_pyramid(GrayF32::from_gray8(&live)?);
+        times.pyramids = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mut rendering = self
+            .rendering
+            .take()
+            .unwrap_or_else(|| render::Frame::empty_for_tracker(view));
+        self.renderer.finish_into(&mut rendering)?;
+        times.render = (submitted + t.elapsed()).as_secs_f64();
+        Ok((live, target, rendering))
+    }
+
+    /// Analyses one frame.
+    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, VisionError> {
+        let t0 = Instant::now();
+        let mut times = StageTimes::default();
+        self.last = None;
+        let raw = self.read_live(&mut job)?;
+        let pose = prediction_pose(&job.prediction)?;
+        let view = RenderView {
+            pinhole: self.ideal.pinhole,
+            pose,
+            near: self.options.clip.0,
+            far: self.options.clip.1,
+        };
+        let (live, target, rendering) = self.render_beside_live(&raw, view, t0, &mut times)?;
+        let klt = &self.options.klt;
+        let (w, h) = (self.camera.width, self.camera.height);
+        let frame_index = job.index as u64;
+        let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
+            / (w as f64 * h as f64);
+
+        let t = Instant::now();
+        let mut visible = self.map.predict_visible(&view, w, h, Some(&rendering));
+        let predicted = t.elapsed().as_secs_f64();
+        let blur = klt.template_sigma(self.options.blur_sigma);
+        let levels = klt.levels;
+        let (added, extracting, template) =
+            self.extract_beside_template(&visible, &rendering, model_coverage, frame_index, blur)?;
+        let template = template.map(|(template, took)| {
             times.pyramids += took;
             template
         });
@@ -544,107 +654,24 @@ impl Vision {
             let t = Instant::now();
             let template = match template {
                 Some(template) => template,
-                None => build_template(&rendering, klt.levels, blur)?,
+                None => build_template(&rendering, levels, blur)?,
             };
             times.pyramids += t.elapsed().as_secs_f64();
 
             let t = Instant::now();
-            // Register until `wanted` succeeded; then judge the successes together. The
-            // registrations are independent: they run in parallel (rayon) in batches of the
-            // successes still missing, and the attempts are kept in order up to the one that
-            // completes `wanted`, so the result is the sequential one whatever the threads.
             let candidates: Vec<(&Predicted, MapFeature)> = selected
                 .iter()
                 .filter_map(|p| Some((p, self.map.get(p.id).copied()?)))
                 .collect();
-            let mut attempts: Vec<(&Predicted, MapFeature, Result<KltResult, KltFailure>)> =
-                Vec::with_capacity(candidates.len());
-            let mut succeeded = 0usize;
-            let mut next = 0usize;
-            while succeeded < wanted && next < candidates.len() {
-                let batch = &candidates[next..(next + wanted - succeeded).min(candidates.len())];
-                next += batch.len();
-                let results: Vec<Result<KltResult, KltFailure>> = batch
-                    .par_iter()
-                    .map(|(p, _)| {
-                        register(
-                            &template.image,
-                            Some(&template.mask),
-                            &target,
-                            [p.pixel.x, p.pixel.y],
-                            [0.0, 0.0],
-                            klt,
-                        )
-                    })
-                    .collect();
-                for ((p, feature), result) in batch.iter().zip(results) {
-                    if succeeded >= wanted {
-                        break;
-                    }
-                    succeeded += usize::from(result.is_ok());
-                    attempts.push((p, *feature, result));
-                }
-            }
-            let pairs: Vec<Registration> = attempts
-                .iter()
-                .filter_map(|(_, f, r)| {
-                    let r = r.as_ref().ok()?;
-                    Some((Vector2::new(r.position[0], r.position[1]), f.p_w))
-                })
-                .collect();
-            let mut outlier = match &self.options.outliers {
-                Some(rule) => outliers(&self.ideal, &pose, &pairs, rule),
-                None => vec![false; pairs.len()],
-            }
-            .into_iter();
-            for (p, feature, result) in attempts {
-                let position = [p.pixel.x, p.pixel.y];
-                let outcome = match result {
-                    Ok(r) => {
-                        let px = Vector2::new(r.position[0], r.position[1]);
-                        error_sum += (px - p.pixel).norm();
-                        error_count += 1;
-                        let sent = if outlier.next().unwrap_or(false) {
-                            self.map.record(p.id, Outcome::Outlier, frame_index);
-                            false
-                        } else {
-                            self.map.record(p.id, Outcome::Success, frame_index);
-                            let cov: Matrix2<f64> =
-                                r.covariance + self.blur_covariance(job.omega_c.as_ref(), &p.pixel);
-                            match correspondence(
-                                &self.ideal,
-                                px,
-                                &cov,
-                                &feature.p_w,
-                                &feature.cov_w,
-                            ) {
-                                Ok(c) => {
-                                    correspondences.push(c);
-                                    registered.push((px, feature.p_w));
-                                    true
-                                }
-                                Err(_) => false,
-                            }
-                        };
-                        FeatureOutcome {
-                            id: p.id,
-                            predicted: position,
-                            registered: Ok(r.position),
-                            sent,
-                        }
-                    }
-                    Err(why) => {
-                        self.map.record(p.id, Outcome::Failure(why), frame_index);
-                        FeatureOutcome {
-                            id: p.id,
-                            predicted: position,
-                            registered: Err(why),
-                            sent: false,
-                        }
-                    }
-                };
-                features.push(outcome);
-            }
+            let attempts =
+                register_until(&candidates, wanted, &template, &target, &self.options.klt);
+            (error_sum, error_count) = self.record_attempts(
+                attempts,
+                &pose,
+                job.omega_c.as_ref(),
+                frame_index,
+                (&mut features, &mut correspondences, &mut registered),
+            );
             times.klt = t.elapsed().as_secs_f64();
         }
         let retired = self.map.retire().len();
@@ -672,6 +699,50 @@ impl Vision {
             job,
         })
     }
+}
+
+/// One registration attempt: the predicted feature, its map entry and the KLT's answer.
+type Attempt<'a> = (&'a Predicted, MapFeature, Result<KltResult, KltFailure>);
+
+/// Registers `candidates` in order until `wanted` succeeded. The registrations are
+/// independent: they run in parallel (rayon) in batches of the successes still missing, and
+/// the attempts are kept in order up to the one that completes `wanted`, so the result is the
+/// sequential one whatever the threads.
+fn register_until<'a>(
+    candidates: &[(&'a Predicted, MapFeature)],
+    wanted: usize,
+    template: &TemplatePyramid,
+    target: &Pyramid,
+    klt: &KltConfig,
+) -> Vec<Attempt<'a>> {
+    let mut attempts: Vec<Attempt<'a>> = Vec::with_capacity(candidates.len());
+    let mut succeeded = 0usize;
+    let mut next = 0usize;
+    while succeeded < wanted && next < candidates.len() {
+        let batch = &candidates[next..(next + wanted - succeeded).min(candidates.len())];
+        next += batch.len();
+        let results: Vec<Result<KltResult, KltFailure>> = batch
+            .par_iter()
+            .map(|(p, _)| {
+                register(
+                    &template.image,
+                    Some(&template.mask),
+                    target,
+                    [p.pixel.x, p.pixel.y],
+                    [0.0, 0.0],
+                    klt,
+                )
+            })
+            .collect();
+        for ((p, feature), result) in batch.iter().zip(results) {
+            if succeeded >= wanted {
+                break;
+            }
+            succeeded += usize::from(result.is_ok());
+            attempts.push((p, *feature, result));
+        }
+    }
+    attempts
 }
 
 /// The rendering `frame` prepared for registration: blurred by `blur` (σ, px), `levels`
