@@ -32,29 +32,10 @@ pub fn load_gltf(path: &Path) -> Result<Model, ModelError> {
     check_ranges(&document, &buffers)?;
     let images = ::gltf::import_images(&document, Some(base), &buffers).map_err(gltf_err)?;
 
-    let mut model = Model::default();
-    for (i, m) in document.materials().enumerate() {
-        let name = m
-            .name()
-            .map_or_else(|| format!("material{i}"), str::to_owned);
-        let pbr = m.pbr_metallic_roughness();
-        let texture = match pbr.base_color_texture() {
-            None => None,
-            Some(info) => {
-                let index = info.texture().source().index();
-                let data = images.get(index).ok_or_else(|| ModelError::BadIndex {
-                    mesh: name.clone(),
-                    detail: format!("image {index} of {}", images.len()),
-                })?;
-                Some(Arc::new(to_rgba(&name, data)?))
-            }
-        };
-        model.materials.push(Material {
-            name,
-            base_colour: pbr.base_color_factor(),
-            texture,
-        });
-    }
+    let mut model = Model {
+        materials: materials(&document, &images)?,
+        ..Model::default()
+    };
     let default_material = model.materials.len();
     model.materials.push(Material {
         name: "default".into(),
@@ -194,6 +175,37 @@ fn check_ranges(
         }
     }
     Ok(())
+}
+
+/// The document's materials, with their base colour textures from `images`.
+fn materials(
+    document: &::gltf::Document,
+    images: &[::gltf::image::Data],
+) -> Result<Vec<Material>, ModelError> {
+    let mut materials = Vec::new();
+    for (i, m) in document.materials().enumerate() {
+        let name = m
+            .name()
+            .map_or_else(|| format!("material{i}"), str::to_owned);
+        let pbr = m.pbr_metallic_roughness();
+        let texture = match pbr.base_color_texture() {
+            None => None,
+            Some(info) => {
+                let index = info.texture().source().index();
+                let data = images.get(index).ok_or_else(|| ModelError::BadIndex {
+                    mesh: name.clone(),
+                    detail: format!("image {index} of {}", images.len()),
+                })?;
+                Some(Arc::new(to_rgba(&name, data)?))
+            }
+        };
+        materials.push(Material {
+            name,
+            base_colour: pbr.base_color_factor(),
+            texture,
+        });
+    }
+    Ok(materials)
 }
 
 fn to_rgba(name: &str, data: &::gltf::image::Data) -> Result<RgbaImage, ModelError> {

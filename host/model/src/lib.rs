@@ -1,4 +1,5 @@
 #![deny(missing_docs)]
+#![warn(clippy::too_many_lines)]
 //! Textured triangle models in metres: Wavefront OBJ + MTL ([`load_obj`]), glTF 2.0
 //! ([`load_gltf`]) and procedural test scenes ([`procedural`]).
 //!

@@ -49,32 +49,10 @@ pub fn load_obj(path: &Path) -> Result<Model, ModelError> {
         }
     };
 
-    let mut textures: HashMap<PathBuf, Arc<image::RgbaImage>> = HashMap::new();
-    let mut out = Model::default();
-    for m in &mtl {
-        let texture = match m.diffuse_texture.as_deref().filter(|t| !t.is_empty()) {
-            None => None,
-            Some(file) => {
-                let tex_path = dir.join(file);
-                if let Some(t) = textures.get(&tex_path) {
-                    Some(t.clone())
-                } else {
-                    let t = Arc::new(load_texture(&m.name, &tex_path)?);
-                    textures.insert(tex_path, t.clone());
-                    Some(t)
-                }
-            }
-        };
-        let base_colour = match (&texture, m.diffuse) {
-            (None, Some([r, g, b])) => [r, g, b, 1.0],
-            _ => [1.0; 4],
-        };
-        out.materials.push(Material {
-            name: m.name.clone(),
-            base_colour,
-            texture,
-        });
-    }
+    let mut out = Model {
+        materials: load_materials(&mtl, dir)?,
+        ..Model::default()
+    };
     // Meshes without a material get a plain white one.
     let mut default_material = None;
     for model in models {
@@ -119,6 +97,37 @@ pub fn load_obj(path: &Path) -> Result<Model, ModelError> {
         });
     }
     out.validate(&path.display().to_string())
+}
+
+/// The MTL's materials, with their diffuse textures loaded from `dir` (each file once).
+fn load_materials(mtl: &[tobj::Material], dir: &Path) -> Result<Vec<Material>, ModelError> {
+    let mut textures: HashMap<PathBuf, Arc<image::RgbaImage>> = HashMap::new();
+    let mut materials = Vec::with_capacity(mtl.len());
+    for m in mtl {
+        let texture = match m.diffuse_texture.as_deref().filter(|t| !t.is_empty()) {
+            None => None,
+            Some(file) => {
+                let tex_path = dir.join(file);
+                if let Some(t) = textures.get(&tex_path) {
+                    Some(t.clone())
+                } else {
+                    let t = Arc::new(load_texture(&m.name, &tex_path)?);
+                    textures.insert(tex_path, t.clone());
+                    Some(t)
+                }
+            }
+        };
+        let base_colour = match (&texture, m.diffuse) {
+            (None, Some([r, g, b])) => [r, g, b, 1.0],
+            _ => [1.0; 4],
+        };
+        materials.push(Material {
+            name: m.name.clone(),
+            base_colour,
+            texture,
+        });
+    }
+    Ok(materials)
 }
 
 /// The first `mtllib` the OBJ names (for the error message when it is missing).
