@@ -129,10 +129,37 @@ impl Board {
         }
     }
 
+    /// A new session begins (a connection, or a host in the same process attaching).
+    pub fn open_session(&mut self) {
+        self.report.sessions += 1;
+    }
+
+    /// Takes `bytes` from the host: a reset requested on the pin first (what the core held is
+    /// gone, as after a brown-out), then the core; its answers, as encoded frames, are
+    /// appended to `out`.
+    pub fn receive(&mut self, bytes: &[u8], out: &mut Vec<u8>) {
+        let resets = self.pin.take();
+        if resets > 0 {
+            self.report.resets += resets;
+            self.power_on(self.precision());
+        }
+        self.report.bytes_in += bytes.len() as u64;
+        let mut send = |frame: &[u8]| out.extend_from_slice(frame);
+        match &mut self.core {
+            Core::F32(io) => io.receive(bytes, &mut send),
+            Core::F64(io) => io.receive(bytes, &mut send),
+        }
+    }
+
+    /// Counts `n` bytes of answers that reached the host.
+    pub fn delivered(&mut self, n: usize) {
+        self.report.bytes_out += n as u64;
+    }
+
     /// Serves one connection until the host closes it; the core keeps its state for the next.
     /// A transport error ends the connection with that error.
     pub fn serve(&mut self, link: Duplex) -> io::Result<()> {
-        self.report.sessions += 1;
+        self.open_session();
         let Duplex {
             mut reader,
             mut writer,
@@ -149,21 +176,11 @@ impl Board {
                 Err(e) if transport::is_hang_up(&e) => return Ok(()),
                 Err(e) => return Err(e),
             };
-            let resets = self.pin.take();
-            if resets > 0 {
-                self.report.resets += resets;
-                self.power_on(self.precision());
-            }
-            self.report.bytes_in += n as u64;
             out.clear();
-            let mut send = |frame: &[u8]| out.extend_from_slice(frame);
-            match &mut self.core {
-                Core::F32(io) => io.receive(&buf[..n], &mut send),
-                Core::F64(io) => io.receive(&buf[..n], &mut send),
-            }
+            self.receive(&buf[..n], &mut out);
             if !out.is_empty() {
                 match writer.write_all(&out).and_then(|_| writer.flush()) {
-                    Ok(()) => self.report.bytes_out += out.len() as u64,
+                    Ok(()) => self.delivered(out.len()),
                     // The host hung up while answers were in flight.
                     Err(e) if transport::is_hang_up(&e) => return Ok(()),
                     Err(e) => return Err(e),

@@ -1572,3 +1572,25 @@ fn i33_p04_a_vision_only_run_is_refused_a_link_it_cannot_recover() {
         assert!(!out.exists());
     }
 }
+
+/// Issue 34: the in-process core (`--link inproc`: the simulated board's device loop called
+/// directly, no pty and no thread) tracks the tiny desktop-fast dataset to the same trajectory,
+/// byte for byte, as the same board on its pty; with the IMU and vision-only.
+#[test]
+fn i34_the_in_process_core_tracks_as_the_board_on_a_pty() {
+    let no_imu = without_imu("i34-no-imu");
+    for (name, ds) in [("imu", dataset()), ("vision", no_imu)] {
+        let mut runs = Vec::new();
+        for link in ["sim", "inproc"] {
+            let out = tmp(&format!("i34-{name}-{link}"));
+            let (stdout, _) = expect(
+                &track_args(&ds, &out, &["--link", link, "--overlay-every", "0"]),
+                0,
+            );
+            assert!(stdout.contains(link), "{link}: {stdout}");
+            runs.push(std::fs::read(out.join("trajectory.tum")).unwrap());
+        }
+        assert!(runs[0].len() > 100, "{name}: {} bytes", runs[0].len());
+        assert!(runs[0] == runs[1], "{name}: the trajectories differ");
+    }
+}

@@ -1,8 +1,10 @@
 //! The host's connection to a fusion core: the simulated board in-process on a pty pair,
-//! a serial device, a TCP peer, or the firmware under QEMU. A reader thread decodes the core's
-//! frames as they arrive, so the core never blocks on a full line while the host is busy with
-//! a frame.
+//! the same board called directly (no pty, no thread), a serial device, a TCP peer, or the
+//! firmware under QEMU. On a byte transport a reader thread decodes the core's frames as they
+//! arrive, so the core never blocks on a full line while the host is busy with a frame.
 
+use std::cell::RefCell;
+use std::collections::VecDeque;
 use std::io::{self, Write};
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -12,7 +14,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, Sender, TryRecvError, channel}
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use firmware_sim::board::{self, BoardReport, Precision, ResetPin};
+use firmware_sim::board::{self, Board, BoardReport, Precision, ResetPin};
 use firmware_sim::qemu::QemuBoard;
 use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
@@ -25,6 +27,9 @@ use super::TrackError;
 pub enum LinkSpec {
     /// The simulated board on a pty pair in this process.
     Sim(Precision),
+    /// The simulated board called directly in this process: the frames as bytes into its
+    /// device loop, its answers decoded at once; no pty and no thread, so deterministic.
+    InProcess(Precision),
     /// A serial device (hardware board, or a simulated board in another process).
     Serial {
         /// Device path, or a pattern (`/dev/ttyUSB*`): each connection opens the first
@@ -44,7 +49,8 @@ pub enum LinkSpec {
 }
 
 /// The command line's forms of a link, for help texts and errors.
-pub const LINK_FORMS: &str = "sim, sim:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
+pub const LINK_FORMS: &str =
+    "sim, sim:f64, inproc, inproc:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
 
 /// Baud rate of `serial:PATH` without `@BAUD` (the least the IMU and correspondence traffic
 /// needs, PROTOCOL.md §6).
@@ -79,6 +85,12 @@ impl std::fmt::Display for LinkSpec {
             LinkSpec::Sim(Precision::F64) => {
                 write!(f, "sim:f64 (f64 core in this process, on a pty pair)")
             }
+            LinkSpec::InProcess(Precision::F32) => {
+                write!(f, "inproc (f32 core called directly in this process)")
+            }
+            LinkSpec::InProcess(Precision::F64) => {
+                write!(f, "inproc:f64 (f64 core called directly in this process)")
+            }
             LinkSpec::Serial { path, baud } => write!(f, "serial {path} at {baud} baud"),
             LinkSpec::Tcp(addr) => write!(f, "tcp {addr}"),
             LinkSpec::Qemu(image) => write!(f, "qemu {}", image.display()),
@@ -94,6 +106,8 @@ impl FromStr for LinkSpec {
         match s {
             "sim" | "sim:f32" => return Ok(LinkSpec::Sim(Precision::F32)),
             "sim:f64" => return Ok(LinkSpec::Sim(Precision::F64)),
+            "inproc" | "inproc:f32" => return Ok(LinkSpec::InProcess(Precision::F32)),
+            "inproc:f64" => return Ok(LinkSpec::InProcess(Precision::F64)),
             "qemu" => return Ok(LinkSpec::QemuDefault),
             _ => {}
         }
@@ -151,6 +165,8 @@ pub struct CoreLink {
     name: String,
     conn: Option<Connection>,
     board: Option<SimBoard>,
+    /// The board called directly (`LinkSpec::InProcess`), with its reset line.
+    local: Option<(Board, ResetPin)>,
     qemu: Option<QemuBoard>,
     /// `(byte error rate, seed)` of the injected line noise.
     noise: Option<(f64, u64)>,
@@ -162,16 +178,30 @@ pub struct CoreLink {
     pub damage: Option<LineNoise>,
 }
 
-/// One connection: the framed writer, and the reader thread with its channel. Dropping it
-/// closes the host's end (the core sees the line hang up) and joins the reader.
-struct Connection {
+/// One connection.
+enum Connection {
+    /// Bytes on a transport, with a reader thread.
+    Threaded(Threaded),
+    /// The board called directly: the frames it answered, decoded, wait here.
+    InProcess {
+        /// Encodes each message (into its own buffer).
+        writer: FrameWriter<Vec<u8>>,
+        /// The core's answers not yet taken.
+        answers: RefCell<VecDeque<Incoming>>,
+    },
+}
+
+/// A connection on a byte transport: the framed writer, and the reader thread with its
+/// channel. Dropping it closes the host's end (the core sees the line hang up) and joins the
+/// reader.
+struct Threaded {
     writer: FrameWriter<Box<dyn Write + Send>>,
     rx: Receiver<Result<Incoming, String>>,
     stop: Arc<AtomicBool>,
     reader: Option<JoinHandle<()>>,
 }
 
-impl Drop for Connection {
+impl Drop for Threaded {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::Relaxed);
         if let Some(r) = self.reader.take() {
@@ -249,11 +279,19 @@ impl CoreLink {
             }
             _ => None,
         };
+        let local = match &spec {
+            LinkSpec::InProcess(precision) => {
+                let pin = ResetPin::default();
+                Some((Board::new(*precision, pin.clone()), pin))
+            }
+            _ => None,
+        };
         let mut link = CoreLink {
             name: spec.to_string(),
             spec,
             conn: None,
             board,
+            local,
             qemu: None,
             noise,
             messages_out: 0,
@@ -295,6 +333,18 @@ impl CoreLink {
                     return Err(TrackError::Core("the simulated board has stopped".into()));
                 }
                 host
+            }
+            LinkSpec::InProcess(_) => {
+                if let Some((board, _)) = &mut self.local {
+                    board.open_session();
+                }
+                self.name = self.spec.to_string();
+                self.conn = Some(Connection::InProcess {
+                    writer: FrameWriter::new(Vec::new()),
+                    answers: RefCell::new(VecDeque::new()),
+                });
+                self.connections += 1;
+                return Ok(());
             }
             LinkSpec::Serial { path, baud } => open_serial(path, *baud)?,
             LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str())?,
@@ -343,11 +393,15 @@ impl CoreLink {
             b.pin.pulse();
             return Ok(());
         }
+        if let Some((_, pin)) = &self.local {
+            pin.pulse();
+            return Ok(());
+        }
         if self.qemu.take().is_some() {
             return Ok(());
         }
         Err(TrackError::Option(format!(
-            "the host cannot reset the core on {}: only sim and qemu links have a reset line",
+            "the host cannot reset the core on {}: only sim, inproc and qemu links have a reset line",
             self.spec
         )))
     }
@@ -370,9 +424,31 @@ impl CoreLink {
             .conn
             .as_mut()
             .ok_or_else(|| TrackError::Link(format!("link {name} is down")))?;
-        conn.writer
-            .send(msg)
-            .map_err(|e| TrackError::Link(format!("link {name}: write failed: {e}")))?;
+        let failed = |e: io::Error| TrackError::Link(format!("link {name}: write failed: {e}"));
+        match conn {
+            Connection::Threaded(t) => t.writer.send(msg).map_err(failed)?,
+            Connection::InProcess { writer, answers } => {
+                writer.send(msg).map_err(failed)?;
+                let bytes = std::mem::take(writer.get_mut());
+                let (board, _) = self
+                    .local
+                    .as_mut()
+                    .ok_or_else(|| TrackError::Link(format!("link {name}: no board")))?;
+                let mut out = Vec::new();
+                board.receive(&bytes, &mut out);
+                board.delivered(out.len());
+                let mut reader = FrameReader::new(io::Cursor::new(out));
+                let mut answers = answers.borrow_mut();
+                loop {
+                    match reader.recv::<CoreToHost>() {
+                        Ok(m) => answers.push_back(Incoming::Message(m)),
+                        Err(RecvError::Frame(e)) => answers.push_back(Incoming::Rejected(e)),
+                        // All the answers taken (the core answers whole frames).
+                        Err(_) => break,
+                    }
+                }
+            }
+        }
         self.messages_out += 1;
         Ok(())
     }
@@ -389,7 +465,12 @@ impl CoreLink {
 
     /// Waits up to `timeout` for the next item; `None` if none came.
     pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackError> {
-        match self.conn()?.rx.recv_timeout(timeout) {
+        let t = match self.conn()? {
+            Connection::Threaded(t) => t,
+            // The core answered when it was called: what is not here will not come.
+            Connection::InProcess { answers, .. } => return Ok(answers.borrow_mut().pop_front()),
+        };
+        match t.rx.recv_timeout(timeout) {
             Ok(Ok(m)) => Ok(Some(m)),
             Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
             Err(RecvTimeoutError::Timeout) => Ok(None),
@@ -402,7 +483,11 @@ impl CoreLink {
 
     /// The next item if one is waiting.
     pub fn try_recv(&self) -> Result<Option<Incoming>, TrackError> {
-        match self.conn()?.rx.try_recv() {
+        let t = match self.conn()? {
+            Connection::Threaded(t) => t,
+            Connection::InProcess { answers, .. } => return Ok(answers.borrow_mut().pop_front()),
+        };
+        match t.rx.try_recv() {
             Ok(Ok(m)) => Ok(Some(m)),
             Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
             Err(TryRecvError::Empty) => Ok(None),
@@ -424,6 +509,9 @@ impl CoreLink {
         // board's connection channel ends the board.
         self.conn = None;
         self.qemu = None;
+        if let Some((board, _)) = self.local.take() {
+            return Ok(Some(board.report()));
+        }
         let Some(board) = self.board.as_mut() else {
             return Ok(None);
         };
@@ -475,6 +563,13 @@ fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackError> {
 impl Connection {
     /// Starts the reader thread of `duplex`, which decodes the core's frames as they arrive.
     fn start(duplex: Duplex) -> Self {
+        Connection::Threaded(Threaded::start(duplex))
+    }
+}
+
+impl Threaded {
+    /// See [`Connection::start`].
+    fn start(duplex: Duplex) -> Self {
         let Duplex { reader, writer, .. } = duplex;
         let (tx, rx) = channel();
         let stop = Arc::new(AtomicBool::new(false));
@@ -505,7 +600,7 @@ impl Connection {
                 }
             })
             .ok();
-        Connection {
+        Threaded {
             writer: FrameWriter::new(writer),
             rx,
             stop,

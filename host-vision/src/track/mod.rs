@@ -467,11 +467,14 @@ impl TrackOptions {
         if f.reset_core_at.is_some()
             && !matches!(
                 self.link,
-                LinkSpec::Sim(_) | LinkSpec::Qemu(_) | LinkSpec::QemuDefault
+                LinkSpec::Sim(_)
+                    | LinkSpec::InProcess(_)
+                    | LinkSpec::Qemu(_)
+                    | LinkSpec::QemuDefault
             )
         {
             return bad(format!(
-                "--reset-core-at needs a core the host can reset: --link sim or qemu, not {}",
+                "--reset-core-at needs a core the host can reset: --link sim, inproc or qemu, not {}",
                 self.link
             ));
         }

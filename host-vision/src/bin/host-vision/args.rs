@@ -89,11 +89,11 @@ pub struct LocateArgs {
 }
 
 /// The help of every `--link`.
-const LINK_HELP: &str =
-    "The fusion core: sim, sim:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
+const LINK_HELP: &str = "The fusion core: sim, sim:f64, inproc, inproc:f64, serial:PATH[@BAUD], tcp:HOST:PORT, qemu or qemu:IMAGE";
 const LINK_LONG_HELP: &str = "The fusion core at the other end of the link:
   sim               the simulated board (f32 core) in this process, on a pty pair
   sim:f64           the same with the f64 core
+  inproc            the same board called directly: no pty, no thread (inproc:f64 too)
   serial:PATH[@BAUD] a serial device: a board, or `firmware-sim --link pty` in another
                     process (it prints the PATH); BAUD defaults to 921600
   tcp:HOST:PORT     `firmware-sim --link tcp:HOST:PORT` in another process
