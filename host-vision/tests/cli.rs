@@ -323,7 +323,7 @@ fn p06_out_of_range_values_are_refused() {
         ),
         (
             vec!["--reset-core-at", "1", "--link", "tcp:127.0.0.1:9"],
-            "--reset-core-at needs a core the host can reset: --link sim or qemu, not tcp 127.0.0.1:9",
+            "--reset-core-at needs a core the host can reset: --link sim, inproc or qemu, not tcp 127.0.0.1:9",
         ),
         (
             vec!["--cut-link-at", "-1"],
