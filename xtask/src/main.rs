@@ -132,7 +132,12 @@ fn check_disk(need_gb: u64) {
 /// Runs a command outside the test's steps (set-up, the demo), echoing it; fails with its exit
 /// status.
 fn run(cmd: Command) -> Result<(), String> {
-    let name = cmd.get_program().to_string_lossy().into_owned();
+    let program = Path::new(cmd.get_program());
+    let name = program
+        .file_name()
+        .unwrap_or(program.as_os_str())
+        .to_string_lossy()
+        .into_owned();
     Steps::default().run(&name, cmd)
 }
 
