@@ -101,10 +101,10 @@ pub fn core_config(
     // rule's for the vision-only model too: its angular noise, not its motion noise, grows the
     // covariance while the model is hidden, and a hidden object comes back by itself within
     // seconds (the cube video's hand, 18.4-21.0 s).
-    let room = if model == ModelKind::Acc {
-        motion
-    } else {
+    let room = if model == ModelKind::Vision {
         constant_velocity
+    } else {
+        motion
     };
     let init_sigma = InitSigma {
         position: tuning.init_position_sigma as f32,
