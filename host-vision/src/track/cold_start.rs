@@ -7,8 +7,9 @@
 //!   ([`crate::locate`]); the IMU stream goes on meanwhile. The first verified pose gives the
 //!   core its `Init`: position and yaw from the pose, roll and pitch from gravity
 //!   (`InitAttitude::KeepTilt`, which a core not yet running takes from its still window).
-//! - **Loss.** The model is lost after a divergence, or when the core has not been tracking
-//!   for [`LOST_AFTER_US`]. While lost, every [`SEARCH_EVERY`]-th frame gets an attempt; a
+//! - **Loss.** The model is lost by the one loss rule of every run ([`tracker::loss`]), here
+//!   with the core's mode as the frames' judgement: after a divergence, or when the core has
+//!   not been tracking for half a second. While lost, attempts follow at intervals; a
 //!   verified pose re-anchors the running filter at once (`KeepTilt`: position and yaw from
 //!   the pose, roll and pitch kept from the filter, which gravity levelled).
 //!
@@ -24,15 +25,10 @@
 use nalgebra::UnitQuaternion;
 use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
 
-use super::{CoreLink, Search, Session, Start, TrackError, VisionWorker};
+use tracker::loss::LossRule;
+
+use super::{FaultyLink, Search, Session, Start, TrackError, VisionWorker};
 use crate::camera::CameraPose;
-
-/// Not tracking for this long [µs] (or a divergence) means the model is lost, as in
-/// vision-only runs.
-pub(super) const LOST_AFTER_US: u64 = 500_000;
-
-/// While lost, one attempt every this many frames.
-pub(super) const SEARCH_EVERY: usize = 5;
 
 /// An attempt sent to the vision thread.
 #[derive(Debug, Clone, Copy)]
@@ -54,14 +50,8 @@ pub(super) struct Searcher {
     started: bool,
     /// The attempt with the search thread.
     job: Option<LocateJob>,
-    /// Frames since the last attempt while lost.
-    since_attempt: usize,
-    /// Since when the core has not been tracking [µs].
-    not_tracking_since: Option<u64>,
-    /// Whether the core diverged since it last tracked.
-    diverged: bool,
-    /// Statuses of the log already looked at.
-    statuses_seen: usize,
+    /// The loss rule, with the core's mode as each frame's judgement.
+    loss: LossRule,
 }
 
 /// What to do at a trigger.
@@ -79,31 +69,22 @@ impl Searcher {
     /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says what
     /// to do.
     pub fn at_trigger(&mut self, statuses: &[protocol::Status], t_us: u64) -> AtTrigger {
-        let new = &statuses[self.statuses_seen.min(statuses.len())..];
-        self.diverged |= new.iter().any(|s| s.mode == Mode::Diverged);
-        self.statuses_seen = statuses.len();
+        self.loss.note_statuses(statuses, t_us);
         if !self.started {
             return match self.job {
                 None => AtTrigger::Attempt(None),
                 Some(_) => AtTrigger::Wait,
             };
         }
-        if statuses.last().is_some_and(|s| s.mode == Mode::Tracking) && !self.diverged {
-            self.not_tracking_since = None;
-            self.since_attempt = SEARCH_EVERY;
+        let tracking = statuses.last().is_some_and(|s| s.mode == Mode::Tracking);
+        if tracking && !self.loss.diverged() {
+            self.loss.frame(true, t_us);
             return AtTrigger::Tracking;
         }
-        let since = *self.not_tracking_since.get_or_insert(t_us);
-        let lost = self.diverged || t_us >= since + LOST_AFTER_US;
-        if !lost || self.job.is_some() {
-            return AtTrigger::Wait;
-        }
-        if self.since_attempt >= SEARCH_EVERY {
-            self.since_attempt = 0;
-            AtTrigger::Attempt(Some(since))
-        } else {
-            self.since_attempt += 1;
-            AtTrigger::Wait
+        self.loss.frame(false, t_us);
+        match self.loss.search_due(t_us, self.job.is_some()) {
+            Some(since) => AtTrigger::Attempt(Some(since)),
+            None => AtTrigger::Wait,
         }
     }
 
@@ -125,7 +106,7 @@ impl Session<'_> {
     /// real time as soon as it is ready.
     pub(super) fn poll_search(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         searcher: &mut Searcher,
         search: &VisionWorker,
         lock_step_k: Option<usize>,
@@ -142,7 +123,7 @@ impl Session<'_> {
                 None => return Ok(()),
             },
         };
-        self.keep_provenance(from);
+        self.record.keep_provenance(from);
         searcher.job = None;
         self.found(link, searcher, job, attempt, now_us)
     }
@@ -150,7 +131,7 @@ impl Session<'_> {
     /// Applies an attempt's answer: records it, and gives the core a verified pose.
     fn found(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         searcher: &mut Searcher,
         job: LocateJob,
         attempt: crate::locate::Attempt,
@@ -158,8 +139,8 @@ impl Session<'_> {
     ) -> Result<(), TrackError> {
         let search = Search::new(job.index, job.t_us, attempt);
         match job.lost_at {
-            None => self.searches.push(search),
-            Some(since) => self.record_recovery(since as f64 * 1e-6, search),
+            None => self.record.searches.push(search),
+            Some(since) => self.record.record_recovery(since as f64 * 1e-6, search),
         }
         let Some(pose) = attempt.pose else {
             return Ok(());
@@ -167,9 +148,8 @@ impl Session<'_> {
         let init = self.keep_tilt_init(&pose, job.t_us, now_us);
         link.send(&HostToCore::Init(init))?;
         searcher.started = true;
-        searcher.diverged = false;
         // The new start gets the same grace as a loss before it counts as lost.
-        searcher.not_tracking_since = Some(now_us);
+        searcher.loss.found(Some(now_us));
         Ok(())
     }
 
@@ -179,7 +159,7 @@ impl Session<'_> {
     fn keep_tilt_init(&self, pose: &CameraPose, frame_us: u64, now_us: u64) -> Init {
         let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.dataset.hand_eye);
         let q_ws_found = q_sw.inverse();
-        let states = &self.log.states;
+        let states = &self.record.log.states;
         let q_ws = match (state_at(states, frame_us), state_at(states, now_us)) {
             (Some(then), Some(now)) if then.t_us < now.t_us => {
                 let (_, q_then) = super::state_pose(then);

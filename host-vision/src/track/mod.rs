@@ -15,34 +15,36 @@
 pub use ::vision::assess;
 mod cold_start;
 pub mod config;
-pub mod core;
+mod faults;
 mod frame_row;
 mod outage;
 pub mod output;
 pub mod overlay;
 pub mod plot;
-pub mod tilt;
 pub use ::vision::analysis as vision;
 mod vision_only;
+pub use tracker::link as core;
+pub use tracker::tilt;
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{Receiver, Sender, channel};
 use std::time::{Duration, Instant};
 
 use nalgebra::{UnitQuaternion, Vector3};
-use protocol::{
-    CoreToHost, Correspondence, ErrorReport, HostToCore, Init, InitAttitude, ModelKind,
-    PROTOCOL_VERSION, PosePrediction, StateReport, Status, UpdateReport,
-};
-use rand::rngs::StdRng;
-use rand::{RngExt as _, SeedableRng};
+use protocol::{HostToCore, Init, InitAttitude, ModelKind, StateReport};
+use tracker::TrackerError;
+use tracker::worker::VisionWorker;
 
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
-pub use self::core::{CoreLink, Incoming, LinkSpec};
+pub use self::core::{CoreLink, LinkSpec};
+pub use self::faults::{Faults, FaultyLink};
+pub use tracker::Incoming;
+pub use tracker::log::CoreLog;
+pub use tracker::record::Record;
+pub use tracker::search::{Recovery, Search};
 pub use self::frame_row::FrameRow;
 pub use self::output::{Outage, OutageKind, Summary};
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
@@ -129,13 +131,25 @@ pub enum TrackError {
     /// A bad option (named by its command-line flag).
     #[error("{0}")]
     Option(String),
+    /// The tracker refused an input or stopped.
+    #[error(transparent)]
+    Tracker(TrackerError),
 }
 
-/// On a line with injected errors: a `Hello` unanswered this long is sent again.
-const RESEND_AFTER: Duration = Duration::from_millis(300);
-
-/// On a line with injected errors: tries of a `Configure` or an `Init` before giving up.
-const CONFIRM_TRIES: usize = 10;
+impl From<TrackerError> for TrackError {
+    fn from(e: TrackerError) -> Self {
+        match e {
+            TrackerError::Transport(e) => TrackError::Transport(e),
+            TrackerError::Core(m) => TrackError::Core(m),
+            TrackerError::Link(m) => TrackError::Link(m),
+            TrackerError::VisionThread(m) => TrackError::VisionThread(m),
+            TrackerError::Vision(e) => TrackError::Vision(e),
+            TrackerError::Database(e) => TrackError::Database(e),
+            TrackerError::Config(m) => TrackError::Option(m),
+            other => TrackError::Tracker(other),
+        }
+    }
+}
 
 /// How the IMU stream is paced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -144,37 +158,6 @@ pub enum Pacing {
     LockStep,
     /// By the clock; correspondences as soon as they are ready.
     RealTime,
-}
-
-/// Faults injected by the host, for tests of the core's robustness.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Faults {
-    /// Fraction of correspondences replaced by outliers (model point moved 0.1-0.5 m).
-    pub outlier_fraction: f64,
-    /// From this time [s] on, for `corrupt_seconds`, every correspondence is an outlier:
-    /// the core's divergence monitor must fire and tracking must resume.
-    pub corrupt_from: Option<f64>,
-    /// Length of the corrupted stretch [s].
-    pub corrupt_seconds: f64,
-    /// From this time [s] on, for `blind_seconds`, every frame is replaced by noise: the model
-    /// is gone from the images (a covered lens, garbage frames) while the camera moves. The
-    /// core dead-reckons; the model must be found again once the frames are back.
-    pub blind_from: Option<f64>,
-    /// Length of the blind stretch [s].
-    pub blind_seconds: f64,
-    /// Bit errors on the line to the simulated board: the probability that a byte has a bit
-    /// flipped, in both directions. Damaged frames must be detected and dropped at both ends.
-    pub line_errors: Option<f64>,
-    /// At this time [s] the core is reset (the simulated board's reset line, or QEMU killed):
-    /// the host must notice, configure and initialise it again, and resume.
-    pub reset_core_at: Option<f64>,
-    /// At this time [s] the cable is pulled: the host's end of the line is closed, and
-    /// reconnecting fails for `cut_seconds`.
-    pub cut_link_at: Option<f64>,
-    /// How long the cable stays out [s].
-    pub cut_seconds: f64,
-    /// Seed of the injected faults.
-    pub seed: u64,
 }
 
 /// Where tracking starts (the paper's semi-automatic initialisation: the user holds the
@@ -536,77 +519,6 @@ impl TrackOptions {
     }
 }
 
-/// Everything the core said, as received.
-#[derive(Debug, Default)]
-pub struct CoreLog {
-    /// State reports (one per IMU sample while running).
-    pub states: Vec<StateReport>,
-    /// Pose predictions by trigger time [µs].
-    pub predictions: BTreeMap<u64, PosePrediction>,
-    /// Update reports by frame id.
-    pub updates: BTreeMap<u32, Vec<UpdateReport>>,
-    /// Mode changes.
-    pub statuses: Vec<Status>,
-    /// Refusals.
-    pub errors: Vec<ErrorReport>,
-    /// Frames from the core that failed to decode.
-    pub rejected_frames: usize,
-    /// `HelloAck`s received (handshake and barriers).
-    pub acks: usize,
-    /// Added to the core's frame ids: a core that was reset numbers its frames from 0 again,
-    /// and the log keeps one id per frame across cores (`new_core`).
-    frame_offset: u32,
-    /// One past the largest frame id logged.
-    next_frame: u32,
-}
-
-impl CoreLog {
-    fn take(&mut self, item: Incoming) {
-        match item {
-            Incoming::Rejected(_) => self.rejected_frames += 1,
-            Incoming::Message(m) => match m {
-                CoreToHost::HelloAck(_) => self.acks += 1,
-                CoreToHost::Error(e) => self.errors.push(e),
-                CoreToHost::PosePrediction(mut p) => {
-                    p.frame_id = self.frame_id(p.frame_id);
-                    self.predictions.insert(p.t_us, p);
-                }
-                // The answer to a `Query` repeats the last state: kept once.
-                CoreToHost::State(s) if self.states.last().is_some_and(|l| l.t_us == s.t_us) => {}
-                CoreToHost::State(s) => self.states.push(s),
-                CoreToHost::UpdateReport(mut r) => {
-                    r.frame_id = self.frame_id(r.frame_id);
-                    self.updates.entry(r.frame_id).or_default().push(r)
-                }
-                CoreToHost::Status(s) => self.statuses.push(s),
-            },
-        }
-    }
-
-    /// The log's id of the current core's frame `core_id`.
-    fn frame_id(&mut self, core_id: u32) -> u32 {
-        let id = core_id.wrapping_add(self.frame_offset);
-        self.next_frame = self.next_frame.max(id.wrapping_add(1));
-        id
-    }
-
-    /// The current core's id of the log's frame `id`.
-    fn core_frame_id(&self, id: u32) -> u32 {
-        id.wrapping_sub(self.frame_offset)
-    }
-
-    /// A new core (reset, and configured again) numbers its frames from 0: they follow the
-    /// old core's in the log.
-    fn new_core(&mut self) {
-        self.frame_offset = self.next_frame;
-    }
-
-    /// The current mode (last status).
-    pub fn mode(&self) -> Option<protocol::Mode> {
-        self.statuses.last().map(|s| s.mode)
-    }
-}
-
 /// The result of a tracking run.
 #[derive(Debug)]
 pub struct TrackRun {
@@ -673,18 +585,21 @@ pub fn run(
         .faults
         .line_errors
         .map(|rate| (rate, options.faults.seed));
-    let mut link = CoreLink::open_noisy(&options.link, noise)?;
+    let mut link = FaultyLink::new(CoreLink::open_noisy(&options.link, noise)?, &options.faults);
     // The vision worker owns the renderer: created once, on its own thread, and always shut
     // down and joined before this function returns (a renderer torn down by the process's
     // exit crashes in the driver).
     let mut vision = options.vision;
     vision.map.small_object_cells |= options.vision_only();
-    let (mut worker, ready) =
-        VisionWorker::start(dataset.camera.camera, model_path.clone(), vision)?;
+    let model = crate::model::load(&model_path)?;
+    if !tracker::worker::is_textured(&model) {
+        return Err(TrackError::Untextured(model_path));
+    }
+    let (mut worker, ready) = VisionWorker::start(dataset.camera.camera, model.clone(), vision)?;
     // Searches for the model (the cold start, and after a loss) run on a thread of their own,
     // with a renderer of their own, so that an attempt never holds up the frames.
     let mut search = if options.vision_only() || options.start.is_cold(&dataset) {
-        Some(VisionWorker::start(dataset.camera.camera, model_path, vision)?.0)
+        Some(VisionWorker::start(dataset.camera.camera, model, vision)?.0)
     } else {
         None
     };
@@ -692,30 +607,16 @@ pub fn run(
     let mut session = Session {
         options,
         dataset: &dataset,
-        core_hand_eye: if options.vision_only() {
-            HandEye::IDENTITY
-        } else {
-            dataset.hand_eye
-        },
-        clock: Vec::new(),
-        assessments: BTreeMap::new(),
-        log: CoreLog::default(),
-        results: Vec::new(),
-        frame_errors: Vec::new(),
-        rng: StdRng::seed_from_u64(options.faults.seed),
-        resent_hellos: 0,
-        injected_outliers: 0,
-        sent_correspondences: 0,
-        wall: Instant::now(),
-        axes: ready.axes,
-        searches: Vec::new(),
-        recoveries: Vec::new(),
-        database: None,
-        tilt: tilt::TiltBranch::default(),
-        session_id: new_session_id(),
-        outages: Vec::new(),
-        attached_at: None,
-        attach_note: None,
+        record: Record::new(
+            if options.vision_only() {
+                HandEye::IDENTITY
+            } else {
+                dataset.hand_eye
+            },
+            new_session_id(),
+            ready.axes,
+        ),
+        host: HostRecord::default(),
     };
     let outcome = match frames.as_mut() {
         Some(source) => session.drive_vision(
@@ -739,32 +640,35 @@ pub fn run(
     if let Some(s) = search.as_mut() {
         s.stop();
     }
+    session.host.injected_outliers = link.injected;
+    let link = link.into_inner();
     let damage = link.damage.clone();
     let closed = link.close();
-    if session.clock.is_empty() {
+    if session.record.clock.is_empty() {
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
+        let closed = closed.map_err(TrackError::from);
         return Err(match (outcome, closed) {
             (Err(e), _) | (Ok(_), Err(e)) => e,
-            (Ok(true), Ok(_)) if !session.searches.is_empty() => TrackError::NotFound {
-                attempts: session.searches.len(),
+            (Ok(true), Ok(_)) if !session.record.searches.is_empty() => TrackError::NotFound {
+                attempts: session.record.searches.len(),
             },
             (Ok(_), Ok(_)) => TrackError::Interrupted,
         });
     }
     // An inertial cold start that never found the model streamed its IMU to a core that was
     // never initialised: nothing was tracked either.
-    let found = session.searches.iter().any(|s| s.attempt.accepted());
-    if !options.vision_only() && !session.searches.is_empty() && !found && outcome.is_ok() {
+    let found = session.record.searches.iter().any(|s| s.attempt.accepted());
+    if !options.vision_only() && !session.record.searches.is_empty() && !found && outcome.is_ok() {
         if let Ok(false) = outcome {
             return Err(TrackError::Interrupted);
         }
         return Err(TrackError::NotFound {
-            attempts: session.searches.len(),
+            attempts: session.record.searches.len(),
         });
     }
     // Whatever happened, write what was tracked. A board that failed at the end of an
     // otherwise complete session fails the run too.
-    let outcome = match (outcome, closed) {
+    let outcome = match (outcome, closed.map_err(TrackError::from)) {
         (Ok(completed), Ok(board)) => Ok((completed, board)),
         (Ok(_), Err(e)) | (Err(e), _) => Err(e),
     };
@@ -776,7 +680,8 @@ pub fn run(
     let (frames, summary, written) = output::write_all(
         &dataset,
         options,
-        &session,
+        &session.record,
+        &session.host,
         &adapter,
         output::LinkEnd {
             board: board.as_ref(),
@@ -787,7 +692,7 @@ pub fn run(
     )?;
     outcome?;
     Ok(TrackRun {
-        log: session.log,
+        log: session.record.log,
         frames,
         summary,
         written,
@@ -804,305 +709,6 @@ fn new_session_id() -> u32 {
     (nanos ^ std::process::id().rotate_left(16)).max(1)
 }
 
-/// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
-/// return leaves the renderer to be torn down by the process's exit.
-struct VisionWorker {
-    jobs: Option<Sender<WorkerJob>>,
-    results: Receiver<WorkerDone>,
-    handle: Option<std::thread::JoinHandle<()>>,
-}
-
-/// What the vision thread is asked to do.
-enum WorkerJob {
-    /// Analyse a frame.
-    Frame(FrameJob),
-    /// Judge the last analysed frame at the pose estimated with its update, over the
-    /// correspondences the core applied.
-    Assess(crate::camera::CameraPose, Vec<bool>),
-    /// Find the model in a raw frame with no pose given (the cold start), with the viewpoint
-    /// database of this cache folder.
-    Locate(image::GrayImage, PathBuf),
-    /// Check the tilt of a tracked pose in its raw frame ([`crate::locate::choice::check_tilt`]).
-    CheckTilt(image::GrayImage, crate::camera::CameraPose),
-}
-
-/// An attempt's answer, with the database's provenance on the attempt that loaded it.
-type Located = (
-    crate::locate::Attempt,
-    Option<crate::locate::database::Provenance>,
-);
-
-/// What the vision thread answers, in the order of the jobs.
-enum WorkerDone {
-    Frame(Box<Result<FrameResult, TrackError>>),
-    Assess(Result<Assessment, TrackError>),
-    /// With the database's provenance, on the attempt that loaded or built it.
-    Locate(
-        Box<Result<crate::locate::Attempt, TrackError>>,
-        Option<crate::locate::database::Provenance>,
-    ),
-    /// The tilt check's evidence, and the other tilt where it is the pose.
-    CheckTilt(Box<Result<crate::locate::choice::TiltCheck, TrackError>>),
-}
-
-impl VisionWorker {
-    /// Starts the thread and waits until its renderer is set up.
-    fn start(
-        camera: crate::camera::Camera,
-        model_path: PathBuf,
-        options: VisionOptions,
-    ) -> Result<(Self, Ready), TrackError> {
-        let (job_tx, job_rx) = channel::<WorkerJob>();
-        let (res_tx, res_rx) = channel::<WorkerDone>();
-        let (ready_tx, ready_rx) = channel::<Result<Ready, TrackError>>();
-        let handle = std::thread::Builder::new()
-            .name("vision".into())
-            .spawn(move || vision_worker(camera, model_path, options, job_rx, res_tx, ready_tx))
-            .map_err(|e| {
-                TrackError::VisionThread(format!("cannot start the vision thread: {e}"))
-            })?;
-        let worker = VisionWorker {
-            jobs: Some(job_tx),
-            results: res_rx,
-            handle: Some(handle),
-        };
-        let ready = ready_rx
-            .recv()
-            .map_err(|_| TrackError::VisionThread("the vision thread stopped".into()))??;
-        Ok((worker, ready))
-    }
-
-    fn send_job(&self, job: WorkerJob) -> Result<(), TrackError> {
-        self.jobs
-            .as_ref()
-            .and_then(|j| j.send(job).ok())
-            .ok_or_else(|| TrackError::VisionThread("the vision thread stopped".into()))
-    }
-
-    fn send(&self, job: FrameJob) -> Result<(), TrackError> {
-        self.send_job(WorkerJob::Frame(job))
-    }
-
-    fn stopped() -> TrackError {
-        TrackError::VisionThread("the vision thread stopped".into())
-    }
-
-    fn out_of_order() -> TrackError {
-        TrackError::VisionThread("the vision thread answered out of order".into())
-    }
-
-    fn recv(&self) -> Result<Result<FrameResult, TrackError>, TrackError> {
-        match self.results.recv() {
-            Ok(WorkerDone::Frame(r)) => Ok(*r),
-            Ok(_) => Err(Self::out_of_order()),
-            Err(_) => Err(Self::stopped()),
-        }
-    }
-
-    fn try_recv(&self) -> Option<Result<FrameResult, TrackError>> {
-        match self.results.try_recv().ok()? {
-            WorkerDone::Frame(r) => Some(*r),
-            _ => Some(Err(Self::out_of_order())),
-        }
-    }
-
-    /// The next answer of any kind: waiting for it (`block`), or only if it is there.
-    fn recv_any(&self, block: bool) -> Result<Option<WorkerDone>, TrackError> {
-        if block {
-            self.results.recv().map(Some).map_err(|_| Self::stopped())
-        } else {
-            match self.results.try_recv() {
-                Ok(d) => Ok(Some(d)),
-                Err(std::sync::mpsc::TryRecvError::Empty) => Ok(None),
-                Err(std::sync::mpsc::TryRecvError::Disconnected) => Err(Self::stopped()),
-            }
-        }
-    }
-
-    /// One cold-start attempt on the raw frame `image`, waited for (no frame may be in
-    /// flight).
-    fn locate(&self, image: image::GrayImage, cache: PathBuf) -> Result<Located, TrackError> {
-        self.send_locate(image, cache)?;
-        self.locate_result()
-    }
-
-    /// Starts an attempt on `image` (its answer comes by [`Self::locate_result`] or
-    /// [`Self::try_locate`]).
-    fn send_locate(&self, image: image::GrayImage, cache: PathBuf) -> Result<(), TrackError> {
-        self.send_job(WorkerJob::Locate(image, cache))
-    }
-
-    /// The answer of the attempt sent, waited for.
-    fn locate_result(&self) -> Result<Located, TrackError> {
-        match self.recv_any(true)? {
-            Some(WorkerDone::Locate(r, from)) => r.map(|a| (a, from)),
-            Some(_) => Err(Self::out_of_order()),
-            None => Err(Self::stopped()),
-        }
-    }
-
-    /// The answer of the attempt sent, if it is ready.
-    fn try_locate(&self) -> Result<Option<Located>, TrackError> {
-        match self.recv_any(false)? {
-            Some(WorkerDone::Locate(r, from)) => r.map(|a| Some((a, from))),
-            Some(_) => Err(Self::out_of_order()),
-            None => Ok(None),
-        }
-    }
-
-    /// Starts the tilt check of the tracked `pose` in its raw frame `image` (its answer comes
-    /// by [`Self::tilt_result`]).
-    fn send_tilt_check(
-        &self,
-        image: image::GrayImage,
-        pose: crate::camera::CameraPose,
-    ) -> Result<(), TrackError> {
-        self.send_job(WorkerJob::CheckTilt(image, pose))
-    }
-
-    /// The answer of the tilt check sent: waited for (`block`), or only if it is ready
-    /// (`Ok(None)` when not).
-    fn tilt_result(
-        &self,
-        block: bool,
-    ) -> Result<Option<crate::locate::choice::TiltCheck>, TrackError> {
-        match self.recv_any(block)? {
-            Some(WorkerDone::CheckTilt(r)) => (*r).map(Some),
-            Some(_) => Err(Self::out_of_order()),
-            None if block => Err(Self::stopped()),
-            None => Ok(None),
-        }
-    }
-
-    /// Judges the last analysed frame at `pose` over the correspondences `applied` (no frame
-    /// may be in flight).
-    fn assess(
-        &self,
-        pose: crate::camera::CameraPose,
-        applied: Vec<bool>,
-    ) -> Result<Assessment, TrackError> {
-        self.send_job(WorkerJob::Assess(pose, applied))?;
-        match self.results.recv() {
-            Ok(WorkerDone::Assess(r)) => r,
-            Ok(_) => Err(Self::out_of_order()),
-            Err(_) => Err(Self::stopped()),
-        }
-    }
-
-    /// Ends the thread (it returns once its job channel is closed) and waits for it.
-    fn stop(&mut self) {
-        self.jobs = None;
-        if let Some(h) = self.handle.take() {
-            let _ = h.join();
-        }
-    }
-}
-
-impl Drop for VisionWorker {
-    fn drop(&mut self) {
-        self.stop();
-    }
-}
-
-fn vision_worker(
-    camera: crate::camera::Camera,
-    model_path: PathBuf,
-    options: VisionOptions,
-    jobs: Receiver<WorkerJob>,
-    results: Sender<WorkerDone>,
-    ready: Sender<Result<Ready, TrackError>>,
-) {
-    let setup = || -> Result<(Vision, Ready, crate::model::Model), TrackError> {
-        let model = crate::model::load(&model_path)?;
-        if !model.materials.iter().any(|m| m.texture.is_some()) {
-            return Err(TrackError::Untextured(model_path.clone()));
-        }
-        let vision = Vision::new(camera, &model, options)?;
-        let ready = Ready {
-            adapter: vision.adapter_summary(),
-            axes: model_axes(&model),
-        };
-        Ok((vision, ready, model))
-    };
-    let (mut vision, model) = match setup() {
-        Ok((v, r, m)) => {
-            let _ = ready.send(Ok(r));
-            (v, m)
-        }
-        Err(e) => {
-            let _ = ready.send(Err(e));
-            return;
-        }
-    };
-    // The cold start's database, loaded (or built) on the first attempt.
-    let mut locator: Option<crate::locate::Locator> = None;
-    let mut provenance = None;
-    // Ends when the session drops its sender.
-    while let Ok(job) = jobs.recv() {
-        let done = match job {
-            WorkerJob::Frame(job) => {
-                WorkerDone::Frame(Box::new(vision.process(job).map_err(TrackError::from)))
-            }
-            WorkerJob::Assess(pose, applied) => {
-                WorkerDone::Assess(vision.assess(&pose, &applied).map_err(TrackError::from))
-            }
-            WorkerJob::Locate(image, cache) => {
-                let attempt = (|| {
-                    if locator.is_none() {
-                        let (db, from) = crate::locate::database::Database::load_or_build(
-                            &model,
-                            &crate::locate::database::DatabaseConfig::default(),
-                            &cache,
-                            &mut |_, _| {},
-                        )?;
-                        locator = Some(crate::locate::Locator::new(&db, Default::default()));
-                        provenance = Some(from);
-                    }
-                    match &locator {
-                        Some(l) => Ok(l.attempt(&mut vision, &image, false)?.0),
-                        None => Err(TrackError::VisionThread("no cold-start database".into())),
-                    }
-                })();
-                WorkerDone::Locate(Box::new(attempt), provenance.take())
-            }
-            WorkerJob::CheckTilt(image, pose) => WorkerDone::CheckTilt(Box::new(
-                crate::locate::choice::check_tilt(
-                    &mut vision,
-                    &image,
-                    &pose,
-                    &crate::locate::LocateConfig::default().rule,
-                )
-                .map_err(TrackError::from),
-            )),
-        };
-        if results.send(done).is_err() {
-            return;
-        }
-    }
-}
-
-/// What the vision worker reports once set up.
-struct Ready {
-    adapter: String,
-    axes: (Vector3<f64>, f64),
-}
-
-/// Where the overlays draw the model's axes: the centre of its bounding box, a quarter of its
-/// largest extent long.
-fn model_axes(model: &crate::model::Model) -> (Vector3<f64>, f64) {
-    let mut lo = Vector3::repeat(f64::INFINITY);
-    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
-    for p in model.meshes.iter().flat_map(|m| m.positions.iter()) {
-        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-        lo = lo.inf(&p);
-        hi = hi.sup(&p);
-    }
-    if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite())) {
-        return (Vector3::zeros(), 0.1);
-    }
-    ((lo + hi) * 0.5, ((hi - lo).max() * 0.25).max(0.02))
-}
-
 /// A frame whose correspondences are awaited.
 #[derive(Debug, Clone, Copy)]
 struct Pending {
@@ -1115,131 +721,24 @@ struct Pending {
 pub struct Session<'a> {
     options: &'a TrackOptions,
     dataset: &'a Dataset,
-    /// The mount the core was configured with: the dataset's, or none (the camera is the
-    /// sensor) in vision-only runs.
-    pub core_hand_eye: HandEye,
-    /// Time stamp [ns, the input's clock] of every clock message sent, in order: the IMU
-    /// samples, or the vision-only ticks.
-    pub clock: Vec<u64>,
-    /// Per frame id, the vision-only frame's judgement at the pose estimated with its update.
-    pub assessments: BTreeMap<u32, Assessment>,
-    /// What the core said.
-    pub log: CoreLog,
-    /// Frame results with the id the core gave them.
-    pub results: Vec<(u32, FrameResult)>,
-    /// Frames that could not be analysed, with why.
-    pub frame_errors: Vec<(usize, String)>,
-    rng: StdRng,
-    /// `Hello`s sent again on a noisy line (lost, or their answer lost).
-    pub resent_hellos: usize,
-    /// Correspondences replaced by outliers.
-    pub injected_outliers: usize,
-    /// Correspondences sent.
-    pub sent_correspondences: usize,
-    wall: Instant,
-    /// Where the overlays draw the model's axes, and their length.
-    pub axes: (Vector3<f64>, f64),
-    /// The cold start's attempts, in order (runs with no start pose).
-    pub searches: Vec<Search>,
-    /// Searches after the model was lost, one entry per loss.
-    pub recoveries: Vec<Recovery>,
-    /// Where the searches' viewpoint database came from (read from the cache, or built and
-    /// why).
-    pub database: Option<crate::locate::database::Provenance>,
-    /// The tilt checks of tracked poses and their flips (vision-only runs).
-    pub tilt: tilt::TiltBranch,
-    /// This run's name for its configuration of the core (`Config::session`): a core that
-    /// reports it in its `HelloAck` kept the state this run gave it.
-    pub session_id: u32,
+    /// What the run saw.
+    pub record: Record,
+    /// What the host did to it: faults injected, outages, an attach.
+    pub host: HostRecord,
+}
+
+/// What the application adds to the tracker's [`Record`]: the faults it injected, the
+/// link's outages, and an attach to a running core (runs with an IMU).
+#[derive(Debug, Default)]
+pub struct HostRecord {
     /// Outages of the link or the core, and how each ended (protocol/PROTOCOL.md §8).
     pub outages: Vec<Outage>,
     /// With `--attach`: the first sample sent, the one after the core's last.
     pub attached_at: Option<usize>,
     /// With `--attach`: what the host found, and what it did.
     pub attach_note: Option<String>,
-}
-
-/// A loss of a vision-only run and its search.
-#[derive(Debug, Clone)]
-pub struct Recovery {
-    /// Since when the frames were not tracked [s from the first frame].
-    pub lost_at: f64,
-    /// The attempts, in order.
-    pub searches: Vec<Search>,
-    /// When it ended [s]: by a pose found (the last search's), or by tracking coming back by
-    /// itself; `None` while still lost at the end of the run.
-    pub ended_at: Option<f64>,
-}
-
-impl Session<'_> {
-    /// Records a recovery search for a loss that began at `lost_at` [s].
-    fn record_recovery(&mut self, lost_at: f64, search: Search) {
-        let found = search.attempt.accepted();
-        let t = search.t;
-        let open = self
-            .recoveries
-            .last_mut()
-            .filter(|r| r.ended_at.is_none() && (r.lost_at - lost_at).abs() < 1e-9);
-        let r = match open {
-            Some(r) => r,
-            None => {
-                self.recoveries.push(Recovery {
-                    lost_at,
-                    searches: Vec::new(),
-                    ended_at: None,
-                });
-                let Some(r) = self.recoveries.last_mut() else {
-                    return;
-                };
-                r
-            }
-        };
-        r.searches.push(search);
-        if found {
-            r.ended_at = Some(t);
-        }
-    }
-
-    /// Keeps where the searches' database came from, told by the attempt that loaded it.
-    fn keep_provenance(&mut self, from: Option<crate::locate::database::Provenance>) {
-        if self.database.is_none() {
-            self.database = from;
-        }
-    }
-
-    /// Closes an open recovery: tracking came back by itself at `t_us`.
-    fn end_recovery(&mut self, t_us: u64) {
-        if let Some(r) = self.recoveries.last_mut().filter(|r| r.ended_at.is_none()) {
-            r.ended_at = Some(t_us as f64 * 1e-6);
-        }
-    }
-}
-
-/// One cold-start attempt of a tracking run.
-#[derive(Debug, Clone, Copy)]
-pub struct Search {
-    /// The frame's index in the input.
-    pub index: usize,
-    /// Its time [s from the first frame].
-    pub t: f64,
-    /// Time of the attempt's stages on the vision thread [ms]: detection, matching, RANSAC
-    /// and verification, not the database's load or build (once, before the first attempt).
-    pub ms: f64,
-    /// What it found.
-    pub attempt: crate::locate::Attempt,
-}
-
-impl Search {
-    /// The search of `attempt` on frame `index` at `t_us`.
-    fn new(index: usize, t_us: u64, attempt: crate::locate::Attempt) -> Self {
-        let t = &attempt.times;
-        Self {
-            index,
-            t: t_us as f64 * 1e-6,
-            ms: (t.detect + t.matching + t.ransac + t.verify + t.choose) * 1e3,
-            attempt,
-        }
-    }
+    /// Correspondences replaced by outliers.
+    pub injected_outliers: usize,
 }
 
 impl Session<'_> {
@@ -1248,98 +747,30 @@ impl Session<'_> {
         (self.dataset.imu[k].stamp - self.dataset.imu[0].stamp) / 1000
     }
 
-    fn handshake(&mut self, link: &mut CoreLink) -> Result<protocol::HelloAck, TrackError> {
-        let hello = HostToCore::Hello(protocol::Hello {
-            version: PROTOCOL_VERSION,
-        });
-        link.send(&hello)?;
-        let deadline = Instant::now() + self.options.timeout;
-        loop {
-            // Refusals of messages sent before this `Hello` (to a core that was reset, say)
-            // may come first: only the version's verdict answers it.
-            match self.next_or_resend(link, &hello, deadline)? {
-                Incoming::Message(
-                    m @ (CoreToHost::HelloAck(_)
-                    | CoreToHost::Error(protocol::ErrorReport {
-                        code: protocol::ErrorCode::VersionMismatch { .. },
-                    })),
-                ) => {
-                    let ack = protocol::handshake::check_answer(&m)
-                        .map_err(|e| TrackError::Core(format!("handshake: {e}")))?;
-                    self.log.acks += 1;
-                    return Ok(ack);
-                }
-                other => self.log.take(other),
-            }
-        }
-    }
-
-    /// The next item from the core by `deadline`. On a line with injected errors a `Hello` or
-    /// its answer may be lost: then `hello` is sent again every [`RESEND_AFTER`].
-    fn next_or_resend(
-        &mut self,
-        link: &mut CoreLink,
-        hello: &HostToCore,
-        deadline: Instant,
-    ) -> Result<Incoming, TrackError> {
-        if link.damage.is_none() {
-            return link.recv(self.options.timeout);
-        }
-        loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if let Some(item) = link.recv_within(left.min(RESEND_AFTER))? {
-                return Ok(item);
-            }
-            if left <= RESEND_AFTER {
-                return link.recv(Duration::ZERO);
-            }
-            link.send(hello)?;
-            self.resent_hellos += 1;
-        }
+    fn handshake(&mut self, link: &mut FaultyLink) -> Result<protocol::HelloAck, TrackError> {
+        Ok(self.record.log.handshake(link, self.options.timeout)?)
     }
 
     /// Sends `Hello` and collects everything up to its answer.
-    fn barrier(&mut self, link: &mut CoreLink) -> Result<(), TrackError> {
-        let hello = HostToCore::Hello(protocol::Hello {
-            version: PROTOCOL_VERSION,
-        });
-        link.send(&hello)?;
-        let acks = self.log.acks;
-        let deadline = Instant::now() + self.options.timeout;
-        while self.log.acks == acks {
-            let item = self.next_or_resend(link, &hello, deadline)?;
-            self.log.take(item);
-        }
-        Ok(())
+    fn barrier(&mut self, link: &mut FaultyLink) -> Result<(), TrackError> {
+        Ok(self.record.log.barrier(link, self.options.timeout)?)
     }
 
-    /// Sends a `Configure` or `Init` and collects the answers. On a line with injected errors,
-    /// where it may be lost, it is sent again until a status with `reason` confirms it.
+    /// Sends a `Configure` or `Init` and collects the answers (confirmed on a noisy line).
     fn send_confirmed(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         msg: &HostToCore,
         reason: protocol::StatusReason,
     ) -> Result<(), TrackError> {
-        for _ in 0..CONFIRM_TRIES {
-            let seen = self.log.statuses.len();
-            link.send(msg)?;
-            self.barrier(link)?;
-            let confirmed = self.log.statuses[seen..].iter().any(|s| s.reason == reason);
-            if link.damage.is_none() || confirmed || !self.log.errors.is_empty() {
-                return Ok(());
-            }
-        }
-        Err(TrackError::Core(format!(
-            "no confirmation of {msg:?} in {CONFIRM_TRIES} tries over the noisy line"
-        )))
+        Ok(self
+            .record
+            .log
+            .send_confirmed(link, msg, reason, self.options.timeout)?)
     }
 
-    fn drain(&mut self, link: &CoreLink) -> Result<(), TrackError> {
-        while let Some(item) = link.try_recv()? {
-            self.log.take(item);
-        }
-        Ok(())
+    fn drain(&mut self, link: &mut FaultyLink) -> Result<(), TrackError> {
+        Ok(self.record.log.drain(link)?)
     }
 
     fn init_message(&self) -> Result<Init, TrackError> {
@@ -1380,7 +811,7 @@ impl Session<'_> {
     /// Runs the session; `Ok(false)` when interrupted.
     fn drive(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         worker: &VisionWorker,
         search: Option<&VisionWorker>,
         end: usize,
@@ -1389,10 +820,10 @@ impl Session<'_> {
     ) -> Result<bool, TrackError> {
         let ack = self.handshake(link)?;
         let config = core_config(
-            self.dataset,
+            &self.dataset.rig(),
             self.options.filter,
             &self.options.tuning,
-            self.session_id,
+            self.record.session_id,
         );
         check_latency(self.options.latency, &ack.capacities, &config)?;
         let attached = if self.options.attach {
@@ -1415,7 +846,7 @@ impl Session<'_> {
                 self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
             }
         }
-        if let Some(e) = self.log.errors.first() {
+        if let Some(e) = self.record.log.errors.first() {
             return Err(TrackError::Core(format!(
                 "refused the configuration: {}",
                 e.code
@@ -1447,7 +878,7 @@ impl Session<'_> {
                 }
             }
             let t_us = self.t_us(k);
-            let refusals = self.log.errors.len();
+            let refusals = self.record.log.errors.len();
             // Faults are injected while the core is there; while it is not, the sample waits
             // for an attempt to reach it.
             let ready = match open.as_mut() {
@@ -1490,7 +921,7 @@ impl Session<'_> {
                 open = Some(self.begin_outage(cause, t_us, &mut injected, &mut pending, worker)?);
             }
             if k % 50 == 0 || k + 1 == end {
-                progress(k + 1, end, frames_done, self.log.mode());
+                progress(k + 1, end, frames_done, self.record.log.mode());
             }
         }
         // A core not reached again before the end has nothing left to collect.
@@ -1499,11 +930,11 @@ impl Session<'_> {
             self.finish(link, &mut pending, worker, searching, false)?;
         }
         self.close_outages();
-        progress(end, end, self.results.len(), self.log.mode());
+        progress(end, end, self.record.results.len(), self.record.log.mode());
         // An outage that the input outlasted is a failed run, as one that outlasts the retry
         // window is: the samples after it were never tracked.
         if let Some(o) = open {
-            let outage = &self.outages[o.index];
+            let outage = &self.host.outages[o.index];
             return Err(TrackError::Link(format!(
                 "link {}: the core was not reached again before the input ended, {:.2} s after \
                  the outage began ({} attempts): {}",
@@ -1519,7 +950,7 @@ impl Session<'_> {
     /// Sends the IMU sample `k`, with the camera's trigger if it fired there.
     fn send_sample(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         k: usize,
         trigger: bool,
     ) -> Result<(), TrackError> {
@@ -1530,7 +961,7 @@ impl Session<'_> {
             accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
             trigger,
         }))?;
-        self.clock.push(row.stamp);
+        self.record.clock.push(row.stamp);
         Ok(())
     }
 
@@ -1540,7 +971,7 @@ impl Session<'_> {
     #[allow(clippy::too_many_arguments)]
     fn sample_step(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         worker: &VisionWorker,
         search: Option<&VisionWorker>,
         mut searcher: Option<&mut cold_start::Searcher>,
@@ -1583,9 +1014,9 @@ impl Session<'_> {
         } else {
             // Real time: the prediction is usually back within a millisecond.
             let deadline = Instant::now() + Duration::from_millis(20);
-            while !self.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
+            while !self.record.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
                 if let Ok(item) = link.recv(Duration::from_millis(2)) {
-                    self.log.take(item);
+                    self.record.log.take(item);
                 }
             }
         }
@@ -1595,10 +1026,10 @@ impl Session<'_> {
         let step = searcher
             .as_deref_mut()
             .map_or(cold_start::AtTrigger::Wait, |s| {
-                s.at_trigger(&self.log.statuses, t_us)
+                s.at_trigger(&self.record.log.statuses, t_us)
             });
         if step == cold_start::AtTrigger::Tracking {
-            self.end_recovery(t_us);
+            self.record.end_recovery(t_us);
         }
         if let (Some(s), Some(w)) = (searcher, search)
             && let cold_start::AtTrigger::Attempt(lost_at) = step
@@ -1621,15 +1052,15 @@ impl Session<'_> {
                 }
                 // An unreadable frame is no attempt, as it is no analysis: reported, and the
                 // next frame is tried.
-                Err(e) => self.frame_errors.push((
-                    self.results.len(),
+                Err(e) => self.record.frame_errors.push((
+                    self.record.results.len(),
                     format!("{}: {e} (no search on it)", path.display()),
                 )),
             }
         }
-        if let Some(p) = self.log.predictions.get(&t_us).copied() {
+        if let Some(p) = self.record.log.predictions.get(&t_us).copied() {
             let every = self.options.overlay_every;
-            let omega_c = self.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
+            let omega_c = self.record.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
                 let w = Vector3::new(
                     s.omega_s[0] as f64,
                     s.omega_s[1] as f64,
@@ -1664,11 +1095,11 @@ impl Session<'_> {
     /// last), or `None` when there is nothing to take over and the core is configured anew.
     fn attach(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         ack: &protocol::HelloAck,
     ) -> Result<Option<usize>, TrackError> {
         if ack.session == 0 || ack.model != Some(self.options.filter) {
-            self.attach_note = Some(format!(
+            self.host.attach_note = Some(format!(
                 "the core ran no {:?} session (model {:?}, session {}): configured anew",
                 self.options.filter, ack.model, ack.session
             ));
@@ -1683,7 +1114,7 @@ impl Session<'_> {
             mode,
             protocol::Mode::Tracking | protocol::Mode::DeadReckoning
         ) {
-            self.attach_note = Some(format!(
+            self.host.attach_note = Some(format!(
                 "the core was {mode:?}, not tracking: configured and initialised anew"
             ));
             return Ok(None);
@@ -1692,9 +1123,9 @@ impl Session<'_> {
         let next = (0..ds.imu.len()).find(|&k| self.t_us(k) > last_us);
         match next {
             Some(k) if self.t_us(k) - last_us <= outage::MAX_BACKLOG_US => {
-                self.session_id = ack.session;
-                self.attached_at = Some(k);
-                self.attach_note = Some(format!(
+                self.record.session_id = ack.session;
+                self.host.attached_at = Some(k);
+                self.host.attach_note = Some(format!(
                     "attached to session {:#010x}, {mode:?} at t = {:.3} s: went on from there",
                     ack.session,
                     last_us as f64 * 1e-6
@@ -1713,7 +1144,7 @@ impl Session<'_> {
     /// the last answers.
     fn finish(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         pending: &mut VecDeque<Pending>,
         worker: &VisionWorker,
         searching: Option<(&mut cold_start::Searcher, &VisionWorker)>,
@@ -1724,100 +1155,30 @@ impl Session<'_> {
             if interrupted {
                 // Record the analysis; the core has no samples left to apply it to.
                 if let Ok(r) = r {
-                    self.results.push((p.frame_id, r));
+                    self.record.results.push((p.frame_id, r));
                 }
             } else {
                 self.deliver(link, p, r)?;
             }
         }
         if let Some((s, w)) = searching {
-            let now_us = self.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
+            let now_us = self.record.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
             self.poll_search(link, s, w, Some(usize::MAX), now_us)?;
         }
         self.barrier(link)
     }
 
-    /// Sends a frame's correspondences (after injecting faults, if asked).
+    /// Sends a frame's correspondences (outliers, where asked, are injected on the way:
+    /// [`FaultyLink`]).
     fn deliver(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         p: Pending,
-        result: Result<FrameResult, TrackError>,
+        result: Result<FrameResult, TrackerError>,
     ) -> Result<(), TrackError> {
-        let result = match result {
-            Ok(r) => r,
-            // A frame whose image cannot be used is skipped (the core dead-reckons), and
-            // reported; anything else stops the run.
-            Err(
-                e @ TrackError::Vision(
-                    ::vision::VisionError::Image { .. } | ::vision::VisionError::ImageSize { .. },
-                ),
-            ) => {
-                self.frame_errors.push((self.results.len(), e.to_string()));
-                return Ok(());
-            }
-            Err(e) => return Err(e),
-        };
-        let t = output::seconds(p.trigger_us);
-        let f = &self.options.faults;
-        let corrupt = f
-            .corrupt_from
-            .is_some_and(|from| t >= from && t < from + f.corrupt_seconds);
-        let mut items: Vec<Correspondence> = result.correspondences.clone();
-        for c in &mut items {
-            if corrupt
-                || (f.outlier_fraction > 0.0 && self.rng.random::<f64>() < f.outlier_fraction)
-            {
-                self.injected_outliers += 1;
-                outlier(c, &mut self.rng);
-            }
-        }
-        if !items.is_empty() {
-            let core_id = self.log.core_frame_id(p.frame_id);
-            let parts = protocol::Correspondences::split(core_id, p.trigger_us, &items)
-                .map_err(|e| TrackError::Core(format!("frame {}: {e:?}", p.frame_id)))?;
-            for part in parts {
-                link.send(&HostToCore::Correspondences(part))?;
-            }
-            self.sent_correspondences += items.len();
-        }
-        self.results.push((p.frame_id, result));
-        Ok(())
-    }
-
-    /// Seconds since the session started.
-    pub fn elapsed(&self) -> f64 {
-        self.wall.elapsed().as_secs_f64()
-    }
-}
-
-impl Faults {
-    /// Whether the frame at `t` [s] is replaced by noise.
-    pub fn blind_at(&self, t: f64) -> bool {
-        self.blind_from
-            .is_some_and(|from| t >= from && t < from + self.blind_seconds)
-    }
-
-    /// The noise that replaces frame `index` of a blind stretch (uniform grey levels, the same
-    /// in every run of a seed).
-    pub fn noise_frame(&self, width: u32, height: u32, index: usize) -> image::GrayImage {
-        let mut rng = StdRng::seed_from_u64(self.seed ^ (index as u64).wrapping_mul(0x9E37_79B9));
-        image::GrayImage::from_fn(width, height, |_, _| image::Luma([rng.random::<u8>()]))
-    }
-}
-
-/// Replaces a correspondence's model point by one 0.1-0.5 m away in a random direction.
-fn outlier(c: &mut Correspondence, rng: &mut StdRng) {
-    let dir = Vector3::new(
-        rng.random::<f64>() - 0.5,
-        rng.random::<f64>() - 0.5,
-        rng.random::<f64>() - 0.5,
-    )
-    .try_normalize(1e-9)
-    .unwrap_or_else(Vector3::x);
-    let shift = dir * (0.1 + 0.4 * rng.random::<f64>());
-    for (m, s) in c.m_w.iter_mut().zip(shift.iter()) {
-        *m += *s as f32;
+        Ok(self
+            .record
+            .deliver(link, p.frame_id, p.trigger_us, result)?)
     }
 }
 

@@ -9,7 +9,7 @@ use std::time::Instant;
 use protocol::{ErrorCode, HostToCore, Init, InitAttitude, Mode, Resume, StatusReason};
 
 use super::output::{Outage, OutageKind, seconds};
-use super::{CoreLink, Pending, Session, TrackError, VisionWorker};
+use super::{FaultyLink, Pending, Session, TrackError, VisionWorker};
 
 /// The first wait before reconnecting [µs of the input's clock]; it doubles after each failed
 /// attempt, up to [`MAX_BACKOFF_US`].
@@ -62,7 +62,7 @@ impl Session<'_> {
     /// `--cut-link-at`).
     pub(super) fn inject_faults(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         injected: &mut Injected,
         t_us: u64,
     ) -> Result<(), TrackError> {
@@ -91,7 +91,7 @@ impl Session<'_> {
     /// Whether the core refused a message for want of a handshake or a configuration since
     /// `seen` refusals: it was reset.
     pub(super) fn core_forgot(&self, seen: usize) -> bool {
-        self.log.errors[seen.min(self.log.errors.len())..]
+        self.record.log.errors[seen.min(self.record.log.errors.len())..]
             .iter()
             .any(|e| matches!(e.code, ErrorCode::NoHandshake | ErrorCode::NotConfigured))
     }
@@ -109,14 +109,14 @@ impl Session<'_> {
     ) -> Result<Open, TrackError> {
         while let Some(p) = pending.pop_front() {
             if let Ok(r) = worker.recv()? {
-                self.results.push((p.frame_id, r));
+                self.record.results.push((p.frame_id, r));
             }
         }
         let (injected_s, notice_wall_ms) = match injected.pending.take() {
             Some((at, wall)) => (Some(at), Some(wall.elapsed().as_secs_f64() * 1e3)),
             None => (None, None),
         };
-        self.outages.push(Outage {
+        self.host.outages.push(Outage {
             kind: OutageKind::Unresolved,
             cause,
             noticed_s: seconds(t_us),
@@ -130,7 +130,7 @@ impl Session<'_> {
             tracking_s: None,
         });
         Ok(Open {
-            index: self.outages.len() - 1,
+            index: self.host.outages.len() - 1,
             next_attempt_us: t_us,
             backoff_us: FIRST_BACKOFF_US,
             since_us: t_us,
@@ -143,7 +143,7 @@ impl Session<'_> {
     /// attempts it waits, in the input's time, twice as long as before.
     pub(super) fn attempt_resume(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         open: &mut Open,
         injected: &Injected,
         k: usize,
@@ -158,11 +158,11 @@ impl Session<'_> {
                 "link {}: the core could not be reached for {:.1} s ({} attempts): {}",
                 link.name(),
                 GIVE_UP_US as f64 * 1e-6,
-                self.outages[open.index].attempts,
-                self.outages[open.index].cause
+                self.host.outages[open.index].attempts,
+                self.host.outages[open.index].cause
             )));
         }
-        self.outages[open.index].attempts += 1;
+        self.host.outages[open.index].attempts += 1;
         let reached = if injected.cut_until_us.is_some_and(|until| t_us < until) {
             // The cable is out: the device is gone, as a serial adaptor's is.
             Err(TrackError::Link("the cable is out (injected)".into()))
@@ -172,13 +172,13 @@ impl Session<'_> {
         };
         match reached {
             Ok(()) => {
-                self.outages[open.index].resumed_s = Some(seconds(t_us));
-                self.outages[open.index].resumed_on = Some(link.name().to_string());
+                self.host.outages[open.index].resumed_s = Some(seconds(t_us));
+                self.host.outages[open.index].resumed_on = Some(link.name().to_string());
                 Ok(Attempt::Resumed)
             }
             // Not there, or lost again on the way: the next attempt starts over.
             Err(TrackError::Link(e)) => {
-                self.outages[open.index].last_failure = Some(e);
+                self.host.outages[open.index].last_failure = Some(e);
                 link.cut();
                 open.next_attempt_us = t_us + open.backoff_us;
                 if self.options.pacing == super::Pacing::LockStep {
@@ -197,14 +197,14 @@ impl Session<'_> {
     /// samples it missed, or configures and initialises one that lost it.
     fn bring_up_to_date(
         &mut self,
-        link: &mut CoreLink,
+        link: &mut FaultyLink,
         outage: usize,
         ack: &protocol::HelloAck,
         k: usize,
         triggers: &std::collections::BTreeMap<usize, usize>,
     ) -> Result<(), TrackError> {
         let t_us = self.t_us(k);
-        let kept = if ack.session == self.session_id {
+        let kept = if ack.session == self.record.session_id {
             self.query(link)?
         } else {
             None
@@ -224,19 +224,19 @@ impl Session<'_> {
                     self.send_sample(link, j, triggers.contains_key(&j))?;
                 }
                 self.barrier(link)?;
-                self.outages[outage].backlog = missed.len();
-                self.outages[outage].kind = OutageKind::LinkLost;
+                self.host.outages[outage].backlog = missed.len();
+                self.host.outages[outage].kind = OutageKind::LinkLost;
             }
             None => {
                 self.configure_again(link, t_us)?;
-                self.outages[outage].kind = OutageKind::CoreReset;
+                self.host.outages[outage].kind = OutageKind::CoreReset;
             }
         }
         Ok(())
     }
 
     /// Reconnects if needed and shakes hands.
-    fn reach(&mut self, link: &mut CoreLink) -> Result<protocol::HelloAck, TrackError> {
+    fn reach(&mut self, link: &mut FaultyLink) -> Result<protocol::HelloAck, TrackError> {
         if !link.is_connected() {
             link.reconnect()?;
         }
@@ -244,11 +244,11 @@ impl Session<'_> {
     }
 
     /// Asks a core for its mode and the time of its last sample.
-    pub(super) fn query(&mut self, link: &mut CoreLink) -> Result<Option<(Mode, u64)>, TrackError> {
-        let seen = self.log.statuses.len();
+    pub(super) fn query(&mut self, link: &mut FaultyLink) -> Result<Option<(Mode, u64)>, TrackError> {
+        let seen = self.record.log.statuses.len();
         link.send(&HostToCore::Query)?;
         self.barrier(link)?;
-        Ok(self.log.statuses[seen..]
+        Ok(self.record.log.statuses[seen..]
             .iter()
             .rev()
             .find(|s| s.reason == StatusReason::Queried)
@@ -259,22 +259,23 @@ impl Session<'_> {
     /// state it reported while tracking (`Resume`), if that is recent; else from that state's
     /// position and yaw with roll and pitch from gravity again (or from the run's start, if it
     /// never tracked).
-    fn configure_again(&mut self, link: &mut CoreLink, t_us: u64) -> Result<(), TrackError> {
+    fn configure_again(&mut self, link: &mut FaultyLink, t_us: u64) -> Result<(), TrackError> {
         let config = super::core_config(
-            self.dataset,
+            &self.dataset.rig(),
             self.options.filter,
             &self.options.tuning,
-            self.session_id,
+            self.record.session_id,
         );
-        let errors = self.log.errors.len();
+        let errors = self.record.log.errors.len();
         self.send_confirmed(
             link,
             &HostToCore::Configure(config),
             StatusReason::Configured,
         )?;
         // The new core numbers its frames from 0 again.
-        self.log.new_core();
+        self.record.log.new_core();
         let last_good = self
+            .record
             .log
             .states
             .iter()
@@ -295,7 +296,7 @@ impl Session<'_> {
             None => HostToCore::Init(self.init_message()?),
         };
         self.send_confirmed(link, &start, StatusReason::HostRequest)?;
-        if let Some(e) = self.log.errors.get(errors) {
+        if let Some(e) = self.record.log.errors.get(errors) {
             return Err(TrackError::Core(format!(
                 "refused the configuration again: {}",
                 e.code
@@ -307,11 +308,12 @@ impl Session<'_> {
     /// Fills in, from the statuses, when the core reported `Tracking` again after each
     /// outage.
     pub(super) fn close_outages(&mut self) {
-        for o in &mut self.outages {
+        for o in &mut self.host.outages {
             let Some(resumed) = o.resumed_s else {
                 continue;
             };
             o.tracking_s = self
+                .record
                 .log
                 .statuses
                 .iter()

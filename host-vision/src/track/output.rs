@@ -14,7 +14,7 @@ use firmware_sim::board::BoardReport;
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
 use super::{
-    CoreLog, Session, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose,
+    CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose,
 };
 use crate::dataset::{Dataset, HandEye};
 use crate::locate::database::Provenance;
@@ -822,7 +822,8 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
 pub(super) fn write_all(
     dataset: &Dataset,
     options: &TrackOptions,
-    session: &Session,
+    record: &Record,
+    host: &HostRecord,
     adapter: &str,
     link: LinkEnd,
     stopped_early: bool,
@@ -830,23 +831,23 @@ pub(super) fn write_all(
 ) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
     let board = link.board;
     let out = &options.out;
-    let log = &session.log;
+    let log = &record.log;
     // Times count from the input's first sample, also where an attached run began later.
-    let stamp0 = match session.attached_at {
+    let stamp0 = match host.attached_at {
         Some(_) => dataset.imu.first().map_or(0, |r| r.stamp),
-        None => session.clock.first().copied().unwrap_or(0),
+        None => record.clock.first().copied().unwrap_or(0),
     };
     let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
     let mut written = Vec::new();
 
     // Trajectories (the states through the core's mount, the ground truth through the
     // dataset's).
-    let core_he = session.core_hand_eye;
+    let core_he = record.core_hand_eye;
     let he = dataset.hand_eye;
     let path = out.join("trajectory.tum");
     // Outages: the poses around them come from a core that had its state (protocol/PROTOCOL.md
     // §8); the hole between is marked.
-    let gaps: Vec<(u64, String)> = session
+    let gaps: Vec<(u64, String)> = host
         .outages
         .iter()
         .map(|o| {
@@ -888,7 +889,7 @@ pub(super) fn write_all(
         let path = out.join("groundtruth.tum");
         write_tum(
             &path,
-            session.clock.iter().filter_map(|&stamp| {
+            record.clock.iter().filter_map(|&stamp| {
                 let (p, q) = dataset.groundtruth_at(stamp)?;
                 let (c, q_cw) = he.camera_pose(&p, &q);
                 Some((stamp, c, q_cw.inverse()))
@@ -900,8 +901,8 @@ pub(super) fn write_all(
 
     // Frames.
     let rule = super::TrackedRule::default();
-    let mut rows = Vec::with_capacity(session.results.len());
-    for (frame_id, r) in &session.results {
+    let mut rows = Vec::with_capacity(record.results.len());
+    for (frame_id, r) in &record.results {
         let reports = log.updates.get(frame_id);
         let accepted = reports.map_or(0, |v| v.iter().map(|u| u.accepted as usize).sum());
         let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
@@ -911,12 +912,12 @@ pub(super) fn write_all(
             let (c, _) = super::vision::camera_in_world(p)?;
             Some((c - c_true).norm())
         });
-        let judged = session.assessments.get(frame_id);
+        let judged = record.assessments.get(frame_id);
+        let tracked = record.tracked(*frame_id, &rule);
         rows.push(FrameRow {
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
-            tracked: judged
-                .map(|a| rule.holds(a) && !session.tilt.record.withheld.contains(frame_id)),
+            tracked,
             index: r.job.index,
             t: seconds(p.t_us),
             frame_id: *frame_id,
@@ -1055,7 +1056,7 @@ pub(super) fn write_all(
     });
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
-    let duration_s = session
+    let duration_s = record
         .clock
         .last()
         .map_or(0.0, |&stamp| (stamp - stamp0) as f64 / 1e9);
@@ -1068,22 +1069,22 @@ pub(super) fn write_all(
         duration_s,
         tracked_s: snapped_on_at.map_or(0.0, |t0| (duration_s - t0).max(0.0)),
         frames: rows.len(),
-        frame_errors: session
+        frame_errors: record
             .frame_errors
             .iter()
             .map(|(_, e)| e.clone())
             .collect(),
-        correspondences_sent: session.sent_correspondences,
+        correspondences_sent: record.sent_correspondences,
         accepted: rows.iter().map(|r| r.accepted).sum(),
         gated: rows.iter().map(|r| r.gated).sum(),
-        injected_outliers: session.injected_outliers,
+        injected_outliers: host.injected_outliers,
         mean_prediction_error_px: (!errors_px.is_empty())
             .then(|| errors_px.iter().sum::<f64>() / errors_px.len() as f64),
         median_prediction_error_px: median(errors_px),
         accuracy,
         snapped_on_at,
         imu_used: !options.vision_only(),
-        tracked: (!session.assessments.is_empty()).then(|| {
+        tracked: (!record.assessments.is_empty()).then(|| {
             let judged: Vec<bool> = rows.iter().filter_map(|r| r.tracked).collect();
             let tracked = judged.iter().filter(|&&t| t).count();
             TrackedShare {
@@ -1096,7 +1097,7 @@ pub(super) fn write_all(
         }),
         divergences,
         without_vision,
-        cold_start: ColdStart::of(&session.searches, frame_period(&rows)),
+        cold_start: ColdStart::of(&record.searches, frame_period(&rows)),
         line: link.noise.map(|n| LineSummary {
             byte_error_rate: n.byte_error_rate,
             damaged_to_core: n.to_core.counts().1,
@@ -1104,30 +1105,30 @@ pub(super) fn write_all(
             invalid_at_core: board.map(|b| u64::from(b.counters.invalid_messages)),
             damaged_to_host: n.to_host.counts().1,
             refused_by_host: log.rejected_frames as u64,
-            resent_hellos: session.resent_hellos,
+            resent_hellos: record.log.resent_hellos,
         }),
-        search_database: session.database.as_ref().map(|p| match p {
+        search_database: record.database.as_ref().map(|p| match p {
             Provenance::Cached(path) => format!("{} (from the cache)", path.display()),
             Provenance::Built { path, why } => {
                 format!("built: {why}; written to {}", path.display())
             }
         }),
-        recoveries: session.recoveries.iter().map(RecoverySummary::of).collect(),
+        recoveries: record.recoveries.iter().map(RecoverySummary::of).collect(),
         tilt_checks: TiltChecks {
-            checks: session.tilt.record.checks,
-            flips: session.tilt.record.flips.clone(),
-            refused: session.tilt.record.refused.clone(),
-            withheld: session.tilt.record.withheld.len(),
+            checks: record.tilt.record.checks,
+            flips: record.tilt.record.flips.clone(),
+            refused: record.tilt.record.refused.clone(),
+            withheld: record.tilt.record.withheld.len(),
         },
-        outages: session.outages.clone(),
-        attach: session.attach_note.clone(),
+        outages: host.outages.clone(),
+        attach: host.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0
         } else {
             rows.iter().map(|r| r.total_ms).sum::<f64>() / rows.len() as f64
         },
-        wall_s: session.elapsed(),
+        wall_s: record.elapsed(),
         core_errors: log.errors.len(),
         core_rejected_frames: log.rejected_frames,
         stopped_early,
@@ -1161,7 +1162,7 @@ pub(super) fn write_all(
     written.extend(overlay::write_overlays(
         &out.join("overlays"),
         dataset,
-        session,
+        record,
     )?);
     let position_mm: Vec<(f64, f64)> = errors
         .iter()

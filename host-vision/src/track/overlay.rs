@@ -9,7 +9,7 @@ use image::{Rgb, RgbImage};
 use nalgebra::Vector3;
 
 use super::vision::{FrameResult, prediction_pose};
-use super::{Session, TrackError};
+use super::{Record, TrackError};
 use crate::camera::Camera;
 use crate::dataset::Dataset;
 
@@ -105,12 +105,12 @@ pub fn draw(result: &FrameResult, camera: &Camera, axes: (Vector3<f64>, f64)) ->
 pub fn write_overlays(
     dir: &Path,
     dataset: &Dataset,
-    session: &Session,
+    record: &Record,
 ) -> Result<Vec<PathBuf>, TrackError> {
     let camera = dataset.camera.camera.ideal();
     let mut written = Vec::new();
-    for (_, r) in &session.results {
-        let Some(img) = draw(r, &camera, session.axes) else {
+    for (_, r) in &record.results {
+        let Some(img) = draw(r, &camera, record.axes) else {
             continue;
         };
         if written.is_empty() {

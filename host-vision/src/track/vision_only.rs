@@ -19,7 +19,7 @@ use protocol::{HostToCore, Init, InitAttitude, Tick};
 
 use super::config::vision_config;
 use super::{
-    FrameImage, FrameJob, Pending, Progress, Search, Session, Start, TrackError, TrackOptions,
+    FaultyLink, FrameImage, FrameJob, Pending, Progress, Search, Session, Start, TrackError, TrackOptions,
     VisionWorker,
 };
 use image::GrayImage;
@@ -100,7 +100,7 @@ impl Session<'_> {
 
     /// The core's `Init` for the camera at `pose`.
     fn vision_init(&self, pose: &CameraPose) -> Init {
-        let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.core_hand_eye);
+        let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.record.core_hand_eye);
         let q = q_sw.quaternion();
         Init {
             position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
@@ -112,20 +112,20 @@ impl Session<'_> {
     /// stamp.
     fn tick(
         &mut self,
-        link: &mut super::CoreLink,
+        link: &mut FaultyLink,
         stamp0: u64,
         t_us: u64,
         trigger: bool,
     ) -> Result<(), TrackError> {
         link.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
-        self.clock.push(stamp0 + t_us * 1000);
+        self.record.clock.push(stamp0 + t_us * 1000);
         Ok(())
     }
 
     /// Runs a vision-only session over `source`; `Ok(false)` when interrupted.
     pub(super) fn drive_vision(
         &mut self,
-        link: &mut super::CoreLink,
+        link: &mut FaultyLink,
         worker: &VisionWorker,
         search: Option<&VisionWorker>,
         source: &mut FrameSource,
@@ -141,7 +141,7 @@ impl Session<'_> {
             .or(self.dataset.camera.rate_hz)
             .filter(|r| r.is_finite() && *r > 0.0)
             .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
-        let config = vision_config(self.dataset, rate, &self.options.tuning, self.session_id);
+        let config = vision_config(rate, &self.options.tuning, self.record.session_id);
         // The first frame fixes the clock (and, with a ground truth, the start pose).
         let Some(first) = source.next() else {
             return Err(TrackError::Option(format!(
@@ -174,7 +174,7 @@ impl Session<'_> {
             let init = HostToCore::Init(self.vision_init(pose));
             self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
         }
-        if let Some(e) = self.log.errors.first() {
+        if let Some(e) = self.record.log.errors.first() {
             return Err(TrackError::Core(format!(
                 "refused the configuration: {}",
                 e.code
@@ -188,7 +188,7 @@ impl Session<'_> {
         // statuses already looked at.
         let mut untracked_since: Option<u64> = None;
         let mut diverged = false;
-        let mut statuses_seen = self.log.statuses.len();
+        let mut statuses_seen = self.record.log.statuses.len();
         let mut since_search = SEARCH_EVERY;
         // The recovery attempt with the search thread: its frame's index, time [µs], and
         // since when the model was lost [µs].
@@ -214,8 +214,8 @@ impl Session<'_> {
                 break;
             }
             if last_us.is_some_and(|l| t_us <= l + 1) {
-                self.frame_errors.push((
-                    self.results.len(),
+                self.record.frame_errors.push((
+                    self.record.results.len(),
                     format!(
                         "frame {}: time stamp {} µs is within 1 µs of the previous frame's: skipped",
                         frame.index, t_us
@@ -227,12 +227,12 @@ impl Session<'_> {
                 // The cold start: one attempt per frame until a pose is verified; the frame
                 // it was found in is then tracked from it.
                 let (a, from) = search.locate(frame.image.clone(), self.options.cache.clone())?;
-                self.keep_provenance(from);
-                self.searches.push(Search::new(frame.index, t_us, a));
+                self.record.keep_provenance(from);
+                self.record.searches.push(Search::new(frame.index, t_us, a));
                 let Some(pose) = a.pose else {
                     frames += 1;
                     if frames.is_multiple_of(10) {
-                        progress(frames, total, self.results.len(), self.log.mode());
+                        progress(frames, total, self.record.results.len(), self.record.log.mode());
                     }
                     continue;
                 };
@@ -241,14 +241,14 @@ impl Session<'_> {
             }
             // Recovery: lost after a divergence or half a second untracked; then a search
             // every few frames until a pose is verified, which re-initialises the core.
-            if self.log.statuses[statuses_seen.min(self.log.statuses.len())..]
+            if self.record.log.statuses[statuses_seen.min(self.record.log.statuses.len())..]
                 .iter()
                 .any(|st| st.mode == protocol::Mode::Diverged)
             {
                 diverged = true;
                 untracked_since.get_or_insert(t_us);
             }
-            statuses_seen = self.log.statuses.len();
+            statuses_seen = self.record.log.statuses.len();
             // The attempt sent at an earlier frame: a file's frames wait for it at the next
             // frame (a replay is deterministic); a live camera's take it when it is ready.
             if let Some((index, at_us, since)) = in_search {
@@ -259,11 +259,11 @@ impl Session<'_> {
                 };
                 if let Some((a, from)) = done {
                     in_search = None;
-                    self.keep_provenance(from);
-                    self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
+                    self.record.keep_provenance(from);
+                    self.record.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
                     if let Some(pose) = a.pose {
                         link.send(&HostToCore::Init(self.vision_init(&pose)))?;
-                        self.tilt.restart();
+                        self.record.tilt.restart();
                         untracked_since = None;
                         diverged = false;
                     }
@@ -272,17 +272,17 @@ impl Session<'_> {
             // The tilt check sent at an earlier frame, taken like a search's answer: where it
             // found tracking on the other tilt of a face and the tracked tilt is settled, the
             // core is re-initialised there (`track/tilt.rs`).
-            if self.tilt.in_flight()
+            if self.record.tilt.in_flight()
                 && let Some(check) = search.tilt_result(!live)?
-                && let Some(pose) = self.tilt.answer(&check, t_us as f64 * 1e-6)
+                && let Some(pose) = self.record.tilt.answer(&check, t_us as f64 * 1e-6)
             {
                 link.send(&HostToCore::Init(self.vision_init(&pose)))?;
             }
             let lost =
                 diverged || untracked_since.is_some_and(|since| t_us >= since + LOST_AFTER_US);
             if !lost {
-                self.end_recovery(t_us);
-            } else if since_search >= SEARCH_EVERY && in_search.is_none() && !self.tilt.in_flight()
+                self.record.end_recovery(t_us);
+            } else if since_search >= SEARCH_EVERY && in_search.is_none() && !self.record.tilt.in_flight()
             {
                 since_search = 0;
                 search.send_locate(frame.image.clone(), self.options.cache.clone())?;
@@ -303,13 +303,14 @@ impl Session<'_> {
             let mut tracked = false;
             let mut checked: Option<(GrayImage, CameraPose, u32)> = None;
             let check_due = since_check >= TILT_CHECK_EVERY
-                && !self.tilt.in_flight()
+                && !self.record.tilt.in_flight()
                 && in_search.is_none()
                 && untracked_since.is_none();
             let check_image = check_due.then(|| frame.image.clone());
-            if let Some(p) = self.log.predictions.get(&t_us).copied() {
+            if let Some(p) = self.record.log.predictions.get(&t_us).copied() {
                 let every = self.options.overlay_every;
                 let omega_c = self
+                    .record
                     .log
                     .states
                     .last()
@@ -338,9 +339,9 @@ impl Session<'_> {
                 self.tick(link, first_stamp, t_us + 1, false)?;
                 last_us = Some(t_us + 1);
                 self.barrier(link)?;
-                let updated = self.log.states.last().filter(|s| s.t_us == t_us + 1);
+                let updated = self.record.log.states.last().filter(|s| s.t_us == t_us + 1);
                 if let (true, Some(s)) = (analysed, updated) {
-                    let (c_w, q_wc) = super::camera_of_state(s, &self.core_hand_eye);
+                    let (c_w, q_wc) = super::camera_of_state(s, &self.record.core_hand_eye);
                     let pose = CameraPose {
                         q_cw: q_wc.inverse(),
                         c_w,
@@ -349,6 +350,7 @@ impl Session<'_> {
                     // by part in the order sent, within the gate.
                     let gate = f64::from(config.gate);
                     let mut reports = self
+                        .record
                         .log
                         .updates
                         .get(&p.frame_id)
@@ -361,9 +363,9 @@ impl Session<'_> {
                         .map(|&s_i| f64::from(s_i) <= gate)
                         .collect();
                     let a = worker.assess(pose, applied)?;
-                    self.assessments.insert(p.frame_id, a);
+                    self.record.assessments.insert(p.frame_id, a);
                     tracked = rule.holds(&a);
-                    self.tilt.judged(p.frame_id);
+                    self.record.tilt.judged(p.frame_id);
                     if tracked && let Some(image) = check_image {
                         checked = Some((image, pose, p.frame_id));
                     }
@@ -372,7 +374,7 @@ impl Session<'_> {
             match checked {
                 Some((image, pose, frame_id)) => {
                     search.send_tilt_check(image, pose)?;
-                    self.tilt.sent(frame.index, frame_id, pose);
+                    self.record.tilt.sent(frame.index, frame_id, pose);
                     since_check = 0;
                 }
                 None => since_check += 1,
@@ -384,25 +386,25 @@ impl Session<'_> {
                 untracked_since.get_or_insert(t_us);
             }
             if frames.is_multiple_of(10) {
-                progress(frames, total, self.results.len(), self.log.mode());
+                progress(frames, total, self.record.results.len(), self.record.log.mode());
             }
         }
         // A check still in flight confirms nothing: a flip not yet confirmed never held.
-        if self.tilt.in_flight() {
+        if self.record.tilt.in_flight() {
             search.tilt_result(true)?;
         }
-        self.tilt.restart();
+        self.record.tilt.restart();
         if let Some((index, at_us, since)) = in_search {
             let (a, from) = search.locate_result()?;
-            self.keep_provenance(from);
-            self.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
+            self.record.keep_provenance(from);
+            self.record.record_recovery(since as f64 * 1e-6, Search::new(index, at_us, a));
         }
         self.barrier(link)?;
         progress(
             frames,
             total.max(frames),
-            self.results.len(),
-            self.log.mode(),
+            self.record.results.len(),
+            self.record.log.mode(),
         );
         Ok(true)
     }

@@ -18,9 +18,10 @@ use firmware_sim::board::{self, Board, BoardReport, Precision, ResetPin};
 use firmware_sim::qemu::QemuBoard;
 use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
-use protocol::{CoreToHost, DecodeError, HostToCore};
+use protocol::{CoreToHost, HostToCore};
 
-use super::TrackError;
+use crate::error::TrackerError;
+use crate::transport::{CoreTransport, Incoming};
 
 /// Where the core is.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -148,15 +149,6 @@ impl FromStr for LinkSpec {
     }
 }
 
-/// What the reader thread passes on.
-#[derive(Debug)]
-pub enum Incoming {
-    /// A message from the core.
-    Message(CoreToHost),
-    /// A frame from the core that failed to decode (the reader is in sync again).
-    Rejected(DecodeError),
-}
-
 /// The host's end of the link to a core, across reconnections: the current connection (if
 /// the link is up), and what it takes to make a new one (the spec, the in-process board,
 /// QEMU).
@@ -240,28 +232,28 @@ impl std::fmt::Debug for CoreLink {
 
 impl CoreLink {
     /// Opens the link (starting the simulated board or QEMU where asked).
-    pub fn open(spec: &LinkSpec) -> Result<Self, TrackError> {
+    pub fn open(spec: &LinkSpec) -> Result<Self, TrackerError> {
         Self::open_noisy(spec, None)
     }
 
     /// Opens the link with bit errors `(byte error rate, seed)` injected in both directions
     /// (the simulated board's link only).
-    pub fn open_noisy(spec: &LinkSpec, noise: Option<(f64, u64)>) -> Result<Self, TrackError> {
+    pub fn open_noisy(spec: &LinkSpec, noise: Option<(f64, u64)>) -> Result<Self, TrackerError> {
         if let Some((rate, _)) = noise {
             if !matches!(spec, LinkSpec::Sim(_)) {
-                return Err(TrackError::Option(format!(
+                return Err(TrackerError::Config(format!(
                     "--line-errors garbles the simulated board's line: use --link sim, not {spec:?}"
                 )));
             }
             if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
-                return Err(TrackError::Option(format!(
+                return Err(TrackerError::Config(format!(
                     "--line-errors is a probability per byte in [0, 1], got {rate}"
                 )));
             }
         }
         let spec = match spec {
             LinkSpec::QemuDefault => {
-                LinkSpec::Qemu(find_firmware_image().map_err(TrackError::Core)?)
+                LinkSpec::Qemu(find_firmware_image().map_err(TrackerError::Core)?)
             }
             other => other.clone(),
         };
@@ -270,7 +262,7 @@ impl CoreLink {
                 let (connect, connections) = channel();
                 let pin = ResetPin::default();
                 let handle = board::spawn_serving(connections, *precision, pin.clone())
-                    .map_err(|e| TrackError::Core(format!("starting the simulated board: {e}")))?;
+                    .map_err(|e| TrackerError::Core(format!("starting the simulated board: {e}")))?;
                 Some(SimBoard {
                     connect: Some(connect),
                     pin,
@@ -307,7 +299,7 @@ impl CoreLink {
     }
 
     /// Makes a new connection of the link's kind (after the current one, if any, is closed).
-    fn connect(&mut self) -> Result<(), TrackError> {
+    fn connect(&mut self) -> Result<(), TrackerError> {
         self.conn = None;
         let duplex = match &self.spec {
             LinkSpec::Sim(_) => {
@@ -330,7 +322,7 @@ impl CoreLink {
                     .and_then(|b| b.connect.as_ref())
                     .is_some_and(|c| c.send(board_end).is_ok());
                 if !sent {
-                    return Err(TrackError::Core("the simulated board has stopped".into()));
+                    return Err(TrackerError::Core("the simulated board has stopped".into()));
                 }
                 host
             }
@@ -352,7 +344,7 @@ impl CoreLink {
                 // A new connection to QEMU's UART is a new QEMU: the board boots again.
                 self.qemu = None;
                 let (q, duplex) = QemuBoard::start(image, Duration::from_secs(20))
-                    .map_err(|e| TrackError::Core(e.to_string()))?;
+                    .map_err(|e| TrackerError::Core(e.to_string()))?;
                 self.qemu = Some(q);
                 duplex
             }
@@ -367,11 +359,11 @@ impl CoreLink {
     /// Opens the link again after it was lost: a new pty to the simulated board, the serial
     /// device opened again, a new TCP connection, or QEMU started again (which boots the
     /// firmware: a reset).
-    /// Every failure is a [`TrackError::Link`]: the caller tries again later.
-    pub fn reconnect(&mut self) -> Result<(), TrackError> {
+    /// Every failure is a [`TrackerError::Link`]: the caller tries again later.
+    pub fn reconnect(&mut self) -> Result<(), TrackerError> {
         self.connect().map_err(|e| match e {
-            TrackError::Link(e) => TrackError::Link(e),
-            other => TrackError::Link(format!("reconnecting to {}: {other}", self.spec)),
+            TrackerError::Link(e) => TrackerError::Link(e),
+            other => TrackerError::Link(format!("reconnecting to {}: {other}", self.spec)),
         })
     }
 
@@ -388,7 +380,7 @@ impl CoreLink {
 
     /// Fault injection: resets the core (the simulated board's reset line, or QEMU killed:
     /// the next connection boots the firmware again).
-    pub fn reset_core(&mut self) -> Result<(), TrackError> {
+    pub fn reset_core(&mut self) -> Result<(), TrackerError> {
         if let Some(b) = &self.board {
             b.pin.pulse();
             return Ok(());
@@ -400,7 +392,7 @@ impl CoreLink {
         if self.qemu.take().is_some() {
             return Ok(());
         }
-        Err(TrackError::Option(format!(
+        Err(TrackerError::Config(format!(
             "the host cannot reset the core on {}: only sim, inproc and qemu links have a reset line",
             self.spec
         )))
@@ -411,20 +403,20 @@ impl CoreLink {
         &self.name
     }
 
-    fn conn(&self) -> Result<&Connection, TrackError> {
+    fn conn(&self) -> Result<&Connection, TrackerError> {
         self.conn
             .as_ref()
-            .ok_or_else(|| TrackError::Link(format!("link {} is down", self.name)))
+            .ok_or_else(|| TrackerError::Link(format!("link {} is down", self.name)))
     }
 
     /// Sends one message.
-    pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackError> {
+    pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackerError> {
         let name = &self.name;
         let conn = self
             .conn
             .as_mut()
-            .ok_or_else(|| TrackError::Link(format!("link {name} is down")))?;
-        let failed = |e: io::Error| TrackError::Link(format!("link {name}: write failed: {e}"));
+            .ok_or_else(|| TrackerError::Link(format!("link {name} is down")))?;
+        let failed = |e: io::Error| TrackerError::Link(format!("link {name}: write failed: {e}"));
         match conn {
             Connection::Threaded(t) => t.writer.send(msg).map_err(failed)?,
             Connection::InProcess { writer, answers } => {
@@ -433,7 +425,7 @@ impl CoreLink {
                 let (board, _) = self
                     .local
                     .as_mut()
-                    .ok_or_else(|| TrackError::Link(format!("link {name}: no board")))?;
+                    .ok_or_else(|| TrackerError::Link(format!("link {name}: no board")))?;
                 let mut out = Vec::new();
                 board.receive(&bytes, &mut out);
                 board.delivered(out.len());
@@ -454,9 +446,9 @@ impl CoreLink {
     }
 
     /// Waits up to `timeout` for the next item.
-    pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackError> {
+    pub fn recv(&self, timeout: Duration) -> Result<Incoming, TrackerError> {
         self.recv_within(timeout)?.ok_or_else(|| {
-            TrackError::Link(format!(
+            TrackerError::Link(format!(
                 "link {}: no answer from the core within {timeout:?}",
                 self.name
             ))
@@ -464,7 +456,7 @@ impl CoreLink {
     }
 
     /// Waits up to `timeout` for the next item; `None` if none came.
-    pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackError> {
+    pub fn recv_within(&self, timeout: Duration) -> Result<Option<Incoming>, TrackerError> {
         let t = match self.conn()? {
             Connection::Threaded(t) => t,
             // The core answered when it was called: what is not here will not come.
@@ -472,9 +464,9 @@ impl CoreLink {
         };
         match t.rx.recv_timeout(timeout) {
             Ok(Ok(m)) => Ok(Some(m)),
-            Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
+            Ok(Err(e)) => Err(TrackerError::Link(format!("link {}: {e}", self.name))),
             Err(RecvTimeoutError::Timeout) => Ok(None),
-            Err(RecvTimeoutError::Disconnected) => Err(TrackError::Link(format!(
+            Err(RecvTimeoutError::Disconnected) => Err(TrackerError::Link(format!(
                 "link {}: reader stopped",
                 self.name
             ))),
@@ -482,16 +474,16 @@ impl CoreLink {
     }
 
     /// The next item if one is waiting.
-    pub fn try_recv(&self) -> Result<Option<Incoming>, TrackError> {
+    pub fn try_recv(&self) -> Result<Option<Incoming>, TrackerError> {
         let t = match self.conn()? {
             Connection::Threaded(t) => t,
             Connection::InProcess { answers, .. } => return Ok(answers.borrow_mut().pop_front()),
         };
         match t.rx.try_recv() {
             Ok(Ok(m)) => Ok(Some(m)),
-            Ok(Err(e)) => Err(TrackError::Link(format!("link {}: {e}", self.name))),
+            Ok(Err(e)) => Err(TrackerError::Link(format!("link {}: {e}", self.name))),
             Err(TryRecvError::Empty) => Ok(None),
-            Err(TryRecvError::Disconnected) => Err(TrackError::Link(format!(
+            Err(TryRecvError::Disconnected) => Err(TrackerError::Link(format!(
                 "link {}: reader stopped",
                 self.name
             ))),
@@ -500,11 +492,11 @@ impl CoreLink {
 
     /// Closes the link and waits for the simulated board (whose report is returned) or
     /// stops QEMU.
-    pub fn close(mut self) -> Result<Option<BoardReport>, TrackError> {
+    pub fn close(mut self) -> Result<Option<BoardReport>, TrackerError> {
         self.shutdown()
     }
 
-    fn shutdown(&mut self) -> Result<Option<BoardReport>, TrackError> {
+    fn shutdown(&mut self) -> Result<Option<BoardReport>, TrackerError> {
         // Dropping our last descriptors of the line ends the board's session; dropping the
         // board's connection channel ends the board.
         self.conn = None;
@@ -524,14 +516,14 @@ impl CoreLink {
             std::thread::sleep(Duration::from_millis(5));
         }
         if !handle.is_finished() {
-            return Err(TrackError::Core(
+            return Err(TrackerError::Core(
                 "the simulated board did not end its session".into(),
             ));
         }
         match handle.join() {
             Ok(Ok(report)) => Ok(Some(report)),
-            Ok(Err(e)) => Err(TrackError::Core(format!("simulated board: {e}"))),
-            Err(_) => Err(TrackError::Core("simulated board panicked".into())),
+            Ok(Err(e)) => Err(TrackerError::Core(format!("simulated board: {e}"))),
+            Err(_) => Err(TrackerError::Core("simulated board panicked".into())),
         }
     }
 }
@@ -539,12 +531,12 @@ impl CoreLink {
 /// Opens the serial device `path`, or, if it is a pattern (`/dev/ttyUSB*`, as a USB adaptor
 /// plugged in again may come back under another name), the first device it matches that
 /// opens.
-fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackError> {
+fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackerError> {
     if !path.contains(['*', '?', '[']) {
         return Ok(transport::serial(path, baud)?);
     }
     let matches = glob::glob(path)
-        .map_err(|e| TrackError::Option(format!("--link serial:{path}: bad pattern: {e}")))?;
+        .map_err(|e| TrackerError::Config(format!("--link serial:{path}: bad pattern: {e}")))?;
     let mut failures = Vec::new();
     for m in matches.flatten() {
         let device = m.to_string_lossy().into_owned();
@@ -553,7 +545,7 @@ fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackError> {
             Err(e) => failures.push(e.to_string()),
         }
     }
-    Err(TrackError::Link(if failures.is_empty() {
+    Err(TrackerError::Link(if failures.is_empty() {
         format!("no serial device matches {path}")
     } else {
         format!("no device matching {path} opens: {}", failures.join("; "))
@@ -612,5 +604,31 @@ impl Threaded {
 impl Drop for CoreLink {
     fn drop(&mut self) {
         let _ = self.shutdown();
+    }
+}
+
+impl CoreTransport for CoreLink {
+    fn name(&self) -> &str {
+        CoreLink::name(self)
+    }
+
+    fn send(&mut self, msg: &HostToCore) -> Result<(), TrackerError> {
+        CoreLink::send(self, msg)
+    }
+
+    fn recv_within(&mut self, timeout: Duration) -> Result<Option<Incoming>, TrackerError> {
+        CoreLink::recv_within(self, timeout)
+    }
+
+    fn try_recv(&mut self) -> Result<Option<Incoming>, TrackerError> {
+        CoreLink::try_recv(self)
+    }
+
+    fn reconnect(&mut self) -> Result<(), TrackerError> {
+        CoreLink::reconnect(self)
+    }
+
+    fn lossy(&self) -> bool {
+        self.damage.is_some()
     }
 }

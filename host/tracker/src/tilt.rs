@@ -13,8 +13,8 @@ use std::collections::BTreeSet;
 
 use serde::Serialize;
 
-use crate::camera::CameraPose;
-use crate::locate::choice::{Comparison, TiltCheck};
+use camera::CameraPose;
+use locate::choice::{Comparison, TiltCheck};
 
 /// A flip to the other tilt of a face, with the evidence that decided it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
@@ -203,7 +203,7 @@ impl TiltBranch {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::track::Contrast;
+    use vision::Contrast;
     use nalgebra::{UnitQuaternion, Vector3};
     use std::cmp::Ordering;
 

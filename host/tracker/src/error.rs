@@ -1,0 +1,59 @@
+//! The tracker's error type.
+
+/// Why the tracker could not start, or stopped, or refused an input.
+#[derive(Debug, thiserror::Error)]
+pub enum TrackerError {
+    /// The model has no texture, and the tracker registers the texture.
+    #[error(
+        "the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow"
+    )]
+    Untextured,
+    /// The transport to the core could not be opened.
+    #[error(transparent)]
+    Transport(#[from] firmware_sim::transport::TransportError),
+    /// The core refused something, or answered what it should not.
+    #[error("core: {0}")]
+    Core(String),
+    /// The link to the core failed: closed, a transport error, or no answer in time.
+    #[error("core: {0}")]
+    Link(String),
+    /// A vision thread could not start, or stopped.
+    #[error("{0}")]
+    VisionThread(String),
+    /// A frame could not be analysed, or the renderer not made.
+    #[error(transparent)]
+    Vision(#[from] vision::VisionError),
+    /// The cold start's viewpoint database.
+    #[error("cold start: {0}")]
+    Database(#[from] locate::database::DatabaseError),
+    /// A setting that cannot work.
+    #[error("{0}")]
+    Config(String),
+    /// A frame whose size is not the camera's.
+    #[error("frame {index}: the image is {width}x{height} pixels, the camera's are {camera_width}x{camera_height}")]
+    ImageSize {
+        /// The frame's index in its input.
+        index: usize,
+        /// Its width [px].
+        width: u32,
+        /// Its height [px].
+        height: u32,
+        /// The camera's width [px].
+        camera_width: u32,
+        /// The camera's height [px].
+        camera_height: u32,
+    },
+    /// A frame or sample not after the one before it: the core's clock only goes forward.
+    #[error("{what} at {t_us} µs is not after the previous one at {previous_us} µs: the clock only goes forward")]
+    TimeBackwards {
+        /// What was pushed ("frame 12", "IMU sample").
+        what: String,
+        /// Its time [µs from the first].
+        t_us: i64,
+        /// The previous one's [µs].
+        previous_us: i64,
+    },
+    /// The tracker was finished, or stopped by an earlier error: it takes nothing more.
+    #[error("the tracker has stopped ({0}): make a new one")]
+    Stopped(String),
+}

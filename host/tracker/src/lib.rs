@@ -1,0 +1,35 @@
+#![deny(missing_docs)]
+#![warn(clippy::too_many_lines)]
+//! The tracking engine as a library. The vision host's side of the paper's system: frames
+//! in, the fusion core behind a [`CoreTransport`], poses out.
+//!
+//! - [`rig`], [`config`]: the sensors, and the core's configuration that follows from them;
+//! - [`transport`], [`link`]: the core at the other end of a link, or called in-process;
+//! - [`log`]: what the core said, and the exchanges that wait for its answers;
+//! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
+//! - [`search`], [`loss`], [`tilt`]: the cold start, the loss rule that sends searches, and
+//!   the tilt checks of tracked poses;
+//! - [`record`]: everything a run saw, for its reports;
+//! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
+//!   `relocate`, `finish`.
+//!
+//! Errors: [`TrackerError`].
+
+pub mod config;
+mod error;
+pub mod link;
+pub mod log;
+pub mod loss;
+pub mod record;
+pub mod rig;
+pub mod search;
+pub mod tilt;
+// pub mod tracker;
+pub mod transport;
+pub mod worker;
+
+pub use error::TrackerError;
+pub use link::{CoreLink, LinkSpec};
+pub use rig::{HandEye, ImuNoiseDensities, Rig};
+// pub use tracker::{Event, Frame, State, Tracker, TrackerConfig};
+pub use transport::{CoreTransport, Incoming};

@@ -1,0 +1,166 @@
+//! What a tracking run saw, kept for its reports: every message of the core, every frame's
+//! analysis and judgement, the searches and the tilt checks.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+use vision::{Assessment, FrameResult};
+
+use crate::error::TrackerError;
+use crate::log::CoreLog;
+use crate::rig::HandEye;
+use crate::search::{Recovery, Search};
+use crate::tilt::TiltBranch;
+use crate::transport::CoreTransport;
+
+/// Everything a run saw, in order.
+#[derive(Debug)]
+pub struct Record {
+    /// The mount the core was configured with: the rig's, or none (the camera is the sensor)
+    /// in vision-only runs.
+    pub core_hand_eye: HandEye,
+    /// Time stamp [ns, the input's clock] of every clock message sent, in order: the IMU
+    /// samples, or the vision-only ticks.
+    pub clock: Vec<u64>,
+    /// Per frame id, the vision-only frame's judgement at the pose estimated with its update.
+    pub assessments: BTreeMap<u32, Assessment>,
+    /// What the core said.
+    pub log: CoreLog,
+    /// Frame results with the id the core gave them.
+    pub results: Vec<(u32, FrameResult)>,
+    /// Frames that could not be analysed, with why: the number of results before them, and
+    /// the message.
+    pub frame_errors: Vec<(usize, String)>,
+    /// Correspondences sent.
+    pub sent_correspondences: usize,
+    /// Where the overlays draw the model's axes, and their length [m].
+    pub axes: (Vector3<f64>, f64),
+    /// The cold start's attempts, in order (runs with no start pose).
+    pub searches: Vec<Search>,
+    /// Searches after the model was lost, one entry per loss.
+    pub recoveries: Vec<Recovery>,
+    /// Where the searches' viewpoint database came from (read from the cache, or built and
+    /// why).
+    pub database: Option<locate::database::Provenance>,
+    /// The tilt checks of tracked poses and their flips (vision-only runs).
+    pub tilt: TiltBranch,
+    /// This run's name for its configuration of the core (`Config::session`): a core that
+    /// reports it in its `HelloAck` kept the state this run gave it.
+    pub session_id: u32,
+    /// When the run started.
+    pub started: Instant,
+}
+
+impl Record {
+    /// An empty record of a run with the core's mount `core_hand_eye`, named `session_id`.
+    pub fn new(core_hand_eye: HandEye, session_id: u32, axes: (Vector3<f64>, f64)) -> Self {
+        Self {
+            core_hand_eye,
+            clock: Vec::new(),
+            assessments: BTreeMap::new(),
+            log: CoreLog::default(),
+            results: Vec::new(),
+            frame_errors: Vec::new(),
+            sent_correspondences: 0,
+            axes,
+            searches: Vec::new(),
+            recoveries: Vec::new(),
+            database: None,
+            tilt: TiltBranch::default(),
+            session_id,
+            started: Instant::now(),
+        }
+    }
+
+    /// Seconds since the run started.
+    pub fn elapsed(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// Records a recovery search for a loss that began at `lost_at` [s].
+    pub fn record_recovery(&mut self, lost_at: f64, search: Search) {
+        let found = search.attempt.accepted();
+        let t = search.t;
+        let open = self
+            .recoveries
+            .last_mut()
+            .filter(|r| r.ended_at.is_none() && (r.lost_at - lost_at).abs() < 1e-9);
+        let r = match open {
+            Some(r) => r,
+            None => {
+                self.recoveries.push(Recovery {
+                    lost_at,
+                    searches: Vec::new(),
+                    ended_at: None,
+                });
+                let Some(r) = self.recoveries.last_mut() else {
+                    return;
+                };
+                r
+            }
+        };
+        r.searches.push(search);
+        if found {
+            r.ended_at = Some(t);
+        }
+    }
+
+    /// Keeps where the searches' database came from, told by the attempt that loaded it.
+    pub fn keep_provenance(&mut self, from: Option<locate::database::Provenance>) {
+        if self.database.is_none() {
+            self.database = from;
+        }
+    }
+
+    /// Closes an open recovery: tracking came back by itself at `t_us`.
+    pub fn end_recovery(&mut self, t_us: u64) {
+        if let Some(r) = self.recoveries.last_mut().filter(|r| r.ended_at.is_none()) {
+            r.ended_at = Some(t_us as f64 * 1e-6);
+        }
+    }
+
+    /// Sends the correspondences of the frame `frame_id` triggered at `trigger_us` to the core
+    /// and keeps its result. A frame whose image cannot be used is skipped (the core
+    /// dead-reckons) and reported; any other error stops the run.
+    pub fn deliver(
+        &mut self,
+        link: &mut impl CoreTransport,
+        frame_id: u32,
+        trigger_us: u64,
+        result: Result<FrameResult, TrackerError>,
+    ) -> Result<(), TrackerError> {
+        let result = match result {
+            Ok(r) => r,
+            Err(
+                e @ TrackerError::Vision(
+                    vision::VisionError::Image { .. } | vision::VisionError::ImageSize { .. },
+                ),
+            ) => {
+                self.frame_errors.push((self.results.len(), e.to_string()));
+                return Ok(());
+            }
+            Err(e) => return Err(e),
+        };
+        let items = &result.correspondences;
+        if !items.is_empty() {
+            let core_id = self.log.core_frame_id(frame_id);
+            let parts = protocol::Correspondences::split(core_id, trigger_us, items)
+                .map_err(|e| TrackerError::Core(format!("frame {frame_id}: {e:?}")))?;
+            for part in parts {
+                link.send(&protocol::HostToCore::Correspondences(part))?;
+            }
+            self.sent_correspondences += items.len();
+        }
+        self.results.push((frame_id, result));
+        Ok(())
+    }
+
+    /// Whether the frame `frame_id` counts as tracked: judged so by `rule`, and not withheld
+    /// by the tilt branch. `None` where it was not judged.
+    pub fn tracked(&self, frame_id: u32, rule: &vision::TrackedRule) -> Option<bool> {
+        self.assessments
+            .get(&frame_id)
+            .map(|a| rule.holds(a) && !self.tilt.record.withheld.contains(&frame_id))
+    }
+}
