@@ -12,23 +12,14 @@ pub mod video;
 
 use std::path::PathBuf;
 
-use image::GrayImage;
-
 pub use self::images::ImageFolder;
 pub use self::stats::DecodeStats;
 pub use self::video::{VideoFrames, VideoOptions};
 
-/// One grey frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Frame {
-    /// Position in the stream, from 0.
-    pub index: usize,
-    /// Time stamp [ns] on the source's own clock: the container's presentation time of a
-    /// video, `data.csv`'s stamp of a EuRoC folder, `index / fps` of a plain folder.
-    pub t_ns: i64,
-    /// The pixels.
-    pub image: GrayImage,
-}
+/// One frame: its index, time stamp [ns, the source's own clock: the container's
+/// presentation time of a video, `data.csv`'s stamp of a EuRoC folder, `index / fps` of a plain
+/// folder] and grey pixels.
+pub use tracker::Frame;
 
 /// Why frames cannot be read. Each names the file (or folder) and the problem.
 #[derive(Debug, thiserror::Error)]

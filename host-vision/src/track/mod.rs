@@ -41,16 +41,16 @@ pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, LinkSpec};
 pub use self::faults::{Faults, FaultyLink};
+pub use self::frame_row::FrameRow;
+pub use self::output::{Outage, OutageKind, Summary};
+pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 pub use tracker::Incoming;
 pub use tracker::log::CoreLog;
 pub use tracker::record::Record;
 pub use tracker::search::{Recovery, Search};
-pub use self::frame_row::FrameRow;
-pub use self::output::{Outage, OutageKind, Summary};
-pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 
 use crate::camera::{CalibError, CameraError};
-use crate::dataset::{Dataset, DatasetError, HandEye};
+use crate::dataset::{Dataset, DatasetError};
 use crate::features::ImageError;
 use crate::model::ModelError;
 use crate::out_folder::OutFolder;
@@ -196,9 +196,7 @@ impl Start {
         pose: &crate::camera::CameraPose,
         hand_eye: &crate::dataset::HandEye,
     ) -> (Vector3<f64>, UnitQuaternion<f64>) {
-        let q_sw = hand_eye.q_cs.inverse() * pose.q_cw;
-        let s_w = pose.c_w - q_sw.inverse() * hand_eye.c_s;
-        (s_w, q_sw)
+        hand_eye.sensor_pose_of_camera(pose)
     }
 }
 
@@ -543,23 +541,7 @@ pub fn run(
 ) -> Result<TrackRun, TrackError> {
     let dataset = vision_only::open_dataset(options)?;
     let end = options.check(&dataset)?;
-    let model_path = options
-        .model
-        .clone()
-        .or_else(|| dataset.model.clone())
-        .ok_or_else(|| {
-            TrackError::Option(if options.frames.is_some() {
-                format!(
-                    "{}: give the object's textured model with --model (OBJ or glTF)",
-                    dataset.root.display()
-                )
-            } else {
-                format!(
-                    "{}: no model/scene.obj in the dataset; give the model with --model",
-                    dataset.root.display()
-                )
-            })
-        })?;
+    let model_path = model_path(options, &dataset)?;
     // Vision-only frames: a video, camera or image folder, or the dataset's own cam0 (its IMU
     // withheld, or absent). Opened before anything is started: a bad input fails first.
     let mut frames = match (&options.frames, options.vision_only()) {
@@ -585,90 +567,67 @@ pub fn run(
         .faults
         .line_errors
         .map(|rate| (rate, options.faults.seed));
-    let mut link = FaultyLink::new(CoreLink::open_noisy(&options.link, noise)?, &options.faults);
-    // The vision worker owns the renderer: created once, on its own thread, and always shut
-    // down and joined before this function returns (a renderer torn down by the process's
-    // exit crashes in the driver).
-    let mut vision = options.vision;
-    vision.map.small_object_cells |= options.vision_only();
+    let link = FaultyLink::new(CoreLink::open_noisy(&options.link, noise)?, &options.faults);
     let model = crate::model::load(&model_path)?;
     if !tracker::worker::is_textured(&model) {
         return Err(TrackError::Untextured(model_path));
     }
-    let (mut worker, ready) = VisionWorker::start(dataset.camera.camera, model.clone(), vision)?;
-    // Searches for the model (the cold start, and after a loss) run on a thread of their own,
-    // with a renderer of their own, so that an attempt never holds up the frames.
-    let mut search = if options.vision_only() || options.start.is_cold(&dataset) {
-        Some(VisionWorker::start(dataset.camera.camera, model, vision)?.0)
-    } else {
-        None
+    let ran = match frames.as_mut() {
+        Some(source) => {
+            let (finished, outcome) = vision_only::track_frames(
+                options, &dataset, link, &model, source, &interrupt, progress,
+            )?;
+            let outcome = match (outcome, finished.result) {
+                (Err(e), _) => Err(e),
+                (Ok(completed), Ok(())) => Ok(completed),
+                (Ok(_), Err(e)) => Err(e.into()),
+            };
+            Ran {
+                host: HostRecord {
+                    injected_outliers: finished.core.injected,
+                    ..HostRecord::default()
+                },
+                record: finished.record,
+                adapter: finished.adapter,
+                outcome,
+                link: finished.core.into_inner(),
+            }
+        }
+        None => track_imu(options, &dataset, link, model, end, &interrupt, progress)?,
     };
-    let adapter = ready.adapter;
-    let mut session = Session {
-        options,
-        dataset: &dataset,
-        record: Record::new(
-            if options.vision_only() {
-                HandEye::IDENTITY
-            } else {
-                dataset.hand_eye
-            },
-            new_session_id(),
-            ready.axes,
-        ),
-        host: HostRecord::default(),
-    };
-    let outcome = match frames.as_mut() {
-        Some(source) => session.drive_vision(
-            &mut link,
-            &worker,
-            search.as_ref(),
-            source,
-            &interrupt,
-            progress,
-        ),
-        None => session.drive(
-            &mut link,
-            &worker,
-            search.as_ref(),
-            end,
-            &interrupt,
-            progress,
-        ),
-    };
-    worker.stop();
-    if let Some(s) = search.as_mut() {
-        s.stop();
-    }
-    session.host.injected_outliers = link.injected;
-    let link = link.into_inner();
+    let Ran {
+        record,
+        host,
+        adapter,
+        outcome,
+        link,
+    } = ran;
     let damage = link.damage.clone();
-    let closed = link.close();
-    if session.record.clock.is_empty() {
+    let closed = link.close().map_err(TrackError::from);
+    if record.clock.is_empty() {
         // Nothing was tracked (the handshake or the configuration failed): nothing to write.
-        let closed = closed.map_err(TrackError::from);
         return Err(match (outcome, closed) {
             (Err(e), _) | (Ok(_), Err(e)) => e,
-            (Ok(true), Ok(_)) if !session.record.searches.is_empty() => TrackError::NotFound {
-                attempts: session.record.searches.len(),
+            (Ok(true), Ok(_)) if !record.searches.is_empty() => TrackError::NotFound {
+                attempts: record.searches.len(),
             },
             (Ok(_), Ok(_)) => TrackError::Interrupted,
         });
     }
     // An inertial cold start that never found the model streamed its IMU to a core that was
     // never initialised: nothing was tracked either.
-    let found = session.record.searches.iter().any(|s| s.attempt.accepted());
-    if !options.vision_only() && !session.record.searches.is_empty() && !found && outcome.is_ok() {
+    let found = record.searches.iter().any(|s| s.attempt.accepted());
+    if !options.vision_only() && !record.searches.is_empty() && !found && outcome.is_ok() {
         if let Ok(false) = outcome {
             return Err(TrackError::Interrupted);
         }
         return Err(TrackError::NotFound {
-            attempts: session.record.searches.len(),
+            attempts: record.searches.len(),
         });
     }
     // Whatever happened, write what was tracked. A board that failed at the end of an
     // otherwise complete session fails the run too.
-    let outcome = match (outcome, closed.map_err(TrackError::from)) {
+    let outcome = match (outcome, closed) {
         (Ok(completed), Ok(board)) => Ok((completed, board)),
         (Ok(_), Err(e)) | (Err(e), _) => Err(e),
     };
@@ -680,9 +639,11 @@ pub fn run(
     let (frames, summary, written) = output::write_all(
         &dataset,
         options,
-        &session.record,
-        &session.host,
-        &adapter,
+        output::Seen {
+            record: &record,
+            host: &host,
+            adapter: &adapter,
+        },
         output::LinkEnd {
             board: board.as_ref(),
             noise: damage.as_ref(),
@@ -692,10 +653,91 @@ pub fn run(
     )?;
     outcome?;
     Ok(TrackRun {
-        log: session.record.log,
+        log: record.log,
         frames,
         summary,
         written,
+    })
+}
+
+/// The model file: `--model`, or the dataset's.
+fn model_path(options: &TrackOptions, dataset: &Dataset) -> Result<PathBuf, TrackError> {
+    options
+        .model
+        .clone()
+        .or_else(|| dataset.model.clone())
+        .ok_or_else(|| {
+            TrackError::Option(if options.frames.is_some() {
+                format!(
+                    "{}: give the object's textured model with --model (OBJ or glTF)",
+                    dataset.root.display()
+                )
+            } else {
+                format!(
+                    "{}: no model/scene.obj in the dataset; give the model with --model",
+                    dataset.root.display()
+                )
+            })
+        })
+}
+
+/// What a run leaves to write.
+struct Ran {
+    record: Record,
+    host: HostRecord,
+    adapter: String,
+    /// `Ok(false)` when interrupted.
+    outcome: Result<bool, TrackError>,
+    link: CoreLink,
+}
+
+/// Tracks a dataset with its IMU (the inertial models).
+fn track_imu(
+    options: &TrackOptions,
+    dataset: &Dataset,
+    mut link: FaultyLink,
+    model: crate::model::Model,
+    end: usize,
+    interrupt: &AtomicBool,
+    progress: Progress,
+) -> Result<Ran, TrackError> {
+    // The vision worker owns the renderer: created once, on its own thread, and always shut
+    // down and joined before this function returns (a renderer torn down by the process's
+    // exit crashes in the driver).
+    let (mut worker, ready) =
+        VisionWorker::start(dataset.camera.camera, model.clone(), options.vision)?;
+    // Searches for the model (the cold start, and after a loss) run on a thread of their own,
+    // with a renderer of their own, so that an attempt never holds up the frames.
+    let mut search = if options.start.is_cold(dataset) {
+        Some(VisionWorker::start(dataset.camera.camera, model, options.vision)?.0)
+    } else {
+        None
+    };
+    let mut session = Session {
+        options,
+        dataset,
+        record: Record::new(dataset.hand_eye, new_session_id(), ready.axes),
+        host: HostRecord::default(),
+    };
+    let outcome = session.drive(
+        &mut link,
+        &worker,
+        search.as_ref(),
+        end,
+        interrupt,
+        progress,
+    );
+    worker.stop();
+    if let Some(s) = search.as_mut() {
+        s.stop();
+    }
+    session.host.injected_outliers = link.injected;
+    Ok(Ran {
+        record: session.record,
+        host: session.host,
+        adapter: ready.adapter,
+        outcome,
+        link: link.into_inner(),
     })
 }
 
@@ -1060,14 +1102,20 @@ impl Session<'_> {
         }
         if let Some(p) = self.record.log.predictions.get(&t_us).copied() {
             let every = self.options.overlay_every;
-            let omega_c = self.record.log.states.last().filter(|s| s.t_us == t_us).map(|s| {
-                let w = Vector3::new(
-                    s.omega_s[0] as f64,
-                    s.omega_s[1] as f64,
-                    s.omega_s[2] as f64,
-                );
-                ds.hand_eye.q_cs * w
-            });
+            let omega_c = self
+                .record
+                .log
+                .states
+                .last()
+                .filter(|s| s.t_us == t_us)
+                .map(|s| {
+                    let w = Vector3::new(
+                        s.omega_s[0] as f64,
+                        s.omega_s[1] as f64,
+                        s.omega_s[2] as f64,
+                    );
+                    ds.hand_eye.q_cs * w
+                });
             let job = FrameJob {
                 index: f,
                 stamp: ds.frames[f].stamp,
@@ -1162,7 +1210,12 @@ impl Session<'_> {
             }
         }
         if let Some((s, w)) = searching {
-            let now_us = self.record.clock.len().checked_sub(1).map_or(0, |k| self.t_us(k));
+            let now_us = self
+                .record
+                .clock
+                .len()
+                .checked_sub(1)
+                .map_or(0, |k| self.t_us(k));
             self.poll_search(link, s, w, Some(usize::MAX), now_us)?;
         }
         self.barrier(link)
@@ -1182,21 +1235,14 @@ impl Session<'_> {
     }
 }
 
-/// IMU pose `(s_w, q_ws)` of a state report.
-pub fn state_pose(s: &StateReport) -> (Vector3<f64>, UnitQuaternion<f64>) {
-    let q = s.q_sw.map(f64::from);
-    let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
-    (Vector3::from(s.s_w.map(f64::from)), q_sw.inverse())
-}
+pub use tracker::rig::state_pose;
 
 /// Camera pose `(c_w, q_wc)` of a state report (eq. 5-6: `c_w = s_w + R(q_sw)ᵀ c_s`).
 pub fn camera_of_state(
     s: &StateReport,
     hand_eye: &crate::dataset::HandEye,
 ) -> (Vector3<f64>, UnitQuaternion<f64>) {
-    let (s_w, q_ws) = state_pose(s);
-    let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_ws);
-    (c_w, q_cw.inverse())
+    hand_eye.camera_of_state(s)
 }
 
 #[cfg(test)]

@@ -244,7 +244,10 @@ impl Session<'_> {
     }
 
     /// Asks a core for its mode and the time of its last sample.
-    pub(super) fn query(&mut self, link: &mut FaultyLink) -> Result<Option<(Mode, u64)>, TrackError> {
+    pub(super) fn query(
+        &mut self,
+        link: &mut FaultyLink,
+    ) -> Result<Option<(Mode, u64)>, TrackError> {
         let seen = self.record.log.statuses.len();
         link.send(&HostToCore::Query)?;
         self.barrier(link)?;

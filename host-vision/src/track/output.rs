@@ -14,7 +14,8 @@ use firmware_sim::board::BoardReport;
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
 use super::{
-    CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot, state_pose,
+    CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot,
+    state_pose,
 };
 use crate::dataset::{Dataset, HandEye};
 use crate::locate::database::Provenance;
@@ -818,17 +819,27 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     Some(v[v.len() / 2])
 }
 
+/// What a run saw, to write: the tracker's record, what the host added, and the renderer.
+pub(super) struct Seen<'a> {
+    pub record: &'a Record,
+    pub host: &'a HostRecord,
+    pub adapter: &'a str,
+}
+
 /// Builds the frame rows and the summary, and writes every output file.
 pub(super) fn write_all(
     dataset: &Dataset,
     options: &TrackOptions,
-    record: &Record,
-    host: &HostRecord,
-    adapter: &str,
+    seen: Seen,
     link: LinkEnd,
     stopped_early: bool,
     error: Option<String>,
 ) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
+    let Seen {
+        record,
+        host,
+        adapter,
+    } = seen;
     let board = link.board;
     let out = &options.out;
     let log = &record.log;
@@ -1069,11 +1080,7 @@ pub(super) fn write_all(
         duration_s,
         tracked_s: snapped_on_at.map_or(0.0, |t0| (duration_s - t0).max(0.0)),
         frames: rows.len(),
-        frame_errors: record
-            .frame_errors
-            .iter()
-            .map(|(_, e)| e.clone())
-            .collect(),
+        frame_errors: record.frame_errors.iter().map(|(_, e)| e.clone()).collect(),
         correspondences_sent: record.sent_correspondences,
         accepted: rows.iter().map(|r| r.accepted).sum(),
         gated: rows.iter().map(|r| r.gated).sum(),

@@ -55,12 +55,7 @@ impl Default for CoreTuning {
 
 /// The `Configure` message for `model` on `rig`, named `session` (non-zero: the host's id
 /// of this run, which the core reports back in every `HelloAck`).
-pub fn core_config(
-    rig: &Rig,
-    model: ModelKind,
-    tuning: &CoreTuning,
-    session: u32,
-) -> Config {
+pub fn core_config(rig: &Rig, model: ModelKind, tuning: &CoreTuning, session: u32) -> Config {
     let rate = rig.imu_rate_hz;
     let noise = rig.imu_noise;
     let (gyro_density, accel_density, gyro_walk, accel_walk) = match noise {
@@ -199,4 +194,3 @@ pub fn vision_config(camera_rate_hz: f64, tuning: &CoreTuning, session: u32) -> 
     c.state_every = 1;
     c
 }
-

@@ -30,7 +30,9 @@ pub enum TrackerError {
     #[error("{0}")]
     Config(String),
     /// A frame whose size is not the camera's.
-    #[error("frame {index}: the image is {width}x{height} pixels, the camera's are {camera_width}x{camera_height}")]
+    #[error(
+        "frame {index}: the image is {width}x{height} pixels, the camera's are {camera_width}x{camera_height}"
+    )]
     ImageSize {
         /// The frame's index in its input.
         index: usize,
@@ -44,7 +46,9 @@ pub enum TrackerError {
         camera_height: u32,
     },
     /// A frame or sample not after the one before it: the core's clock only goes forward.
-    #[error("{what} at {t_us} µs is not after the previous one at {previous_us} µs: the clock only goes forward")]
+    #[error(
+        "{what} at {t_us} µs is not after the previous one at {previous_us} µs: the clock only goes forward"
+    )]
     TimeBackwards {
         /// What was pushed ("frame 12", "IMU sample").
         what: String,

@@ -24,12 +24,14 @@ pub mod record;
 pub mod rig;
 pub mod search;
 pub mod tilt;
-// pub mod tracker;
+pub mod tracker;
 pub mod transport;
 pub mod worker;
 
 pub use error::TrackerError;
 pub use link::{CoreLink, LinkSpec};
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
-// pub use tracker::{Event, Frame, State, Tracker, TrackerConfig};
+pub use tracker::{
+    Answers, Event, Finished, Frame, FrameReport, Pose, State, Tracker, TrackerConfig,
+};
 pub use transport::{CoreTransport, Incoming};

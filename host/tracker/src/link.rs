@@ -261,8 +261,10 @@ impl CoreLink {
             LinkSpec::Sim(precision) => {
                 let (connect, connections) = channel();
                 let pin = ResetPin::default();
-                let handle = board::spawn_serving(connections, *precision, pin.clone())
-                    .map_err(|e| TrackerError::Core(format!("starting the simulated board: {e}")))?;
+                let handle =
+                    board::spawn_serving(connections, *precision, pin.clone()).map_err(|e| {
+                        TrackerError::Core(format!("starting the simulated board: {e}"))
+                    })?;
                 Some(SimBoard {
                     connect: Some(connect),
                     pin,

@@ -72,7 +72,6 @@ impl LossRule {
         if tracked {
             self.untracked_since = None;
             self.diverged = false;
-            self.since_search = SEARCH_EVERY;
         } else {
             self.untracked_since.get_or_insert(t_us);
         }

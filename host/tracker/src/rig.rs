@@ -57,6 +57,27 @@ impl HandEye {
         (s_w + q_ws * self.c_s, self.q_cs * q_ws.inverse())
     }
 
+    /// The IMU pose `(s_w, q_sw)` whose camera is at `pose` (eq. 5-6: `q_cw = q_cs q_sw`,
+    /// `c_w = s_w + R(q_sw)ᵀ c_s`).
+    pub fn sensor_pose_of_camera(
+        &self,
+        pose: &camera::CameraPose,
+    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let q_sw = self.q_cs.inverse() * pose.q_cw;
+        let s_w = pose.c_w - q_sw.inverse() * self.c_s;
+        (s_w, q_sw)
+    }
+
+    /// The camera pose `(c_w, q_wc)` of the core's state report `s`.
+    pub fn camera_of_state(
+        &self,
+        s: &protocol::StateReport,
+    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let (s_w, q_ws) = state_pose(s);
+        let (c_w, q_cw) = self.camera_pose(&s_w, &q_ws);
+        (c_w, q_cw.inverse())
+    }
+
     /// As the wire `HandEye`.
     pub fn to_wire(&self) -> protocol::HandEye {
         let q = self.q_cs.quaternion();
@@ -78,4 +99,11 @@ pub struct Rig {
     pub camera_rate_hz: Option<f64>,
     /// The camera's mount on the IMU.
     pub hand_eye: HandEye,
+}
+
+/// The IMU pose `(s_w, q_ws)` of the core's state report.
+pub fn state_pose(s: &protocol::StateReport) -> (Vector3<f64>, UnitQuaternion<f64>) {
+    let q = s.q_sw.map(f64::from);
+    let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+    (Vector3::from(s.s_w.map(f64::from)), q_sw.inverse())
 }

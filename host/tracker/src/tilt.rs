@@ -203,9 +203,9 @@ impl TiltBranch {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use vision::Contrast;
     use nalgebra::{UnitQuaternion, Vector3};
     use std::cmp::Ordering;
+    use vision::Contrast;
 
     fn pose(x: f64) -> CameraPose {
         CameraPose {

@@ -39,10 +39,7 @@ pub enum WorkerJob {
 }
 
 /// An attempt's answer, with the database's provenance on the attempt that loaded it.
-pub type Located = (
-    locate::Attempt,
-    Option<locate::database::Provenance>,
-);
+pub type Located = (locate::Attempt, Option<locate::database::Provenance>);
 
 /// What the vision thread answers, in the order of the jobs.
 pub enum WorkerDone {
@@ -321,4 +318,3 @@ pub fn model_axes(model: &model::Model) -> (Vector3<f64>, f64) {
     }
     ((lo + hi) * 0.5, ((hi - lo).max() * 0.25).max(0.02))
 }
-

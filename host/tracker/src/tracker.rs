@@ -1,0 +1,742 @@
+//! The push-driven [`Tracker`]: the program that owns the camera pushes each frame, and the
+//! tracker answers with events. It has no files and no clock of its own: time is the frames'.
+//!
+//! Each frame goes through named steps (as M3T's tracker loop does), in this order:
+//! 1. [`Tracker::check_frame`]: its size and time against the camera and the frame before;
+//! 2. [`Tracker::start_step`]: while no pose is known (*locating*), a cold-start attempt on
+//!    the frame, whose verified pose initialises the core;
+//! 3. [`Tracker::take_answers`]: the answers of the search and the tilt check sent at an
+//!    earlier frame (a verified pose re-initialises the core);
+//! 4. [`Tracker::search_step`]: while *lost*, a search every few frames
+//!    ([`crate::loss`]), on the search thread;
+//! 5. [`Tracker::tick`]: the core's clock to the frame's time, with the trigger: the core
+//!    answers with the frame's prediction;
+//! 6. [`Tracker::analyse`]: the frame at the prediction (rendering, KLT, correspondences),
+//!    its correspondences to the core, the clock just past the frame, and the pose
+//!    estimated with it judged (the tracked rule);
+//! 7. [`Tracker::check_step`]: a tilt check of a tracked pose every few frames;
+//! 8. [`Tracker::judge`]: the loss rule, the state, and the events.
+//!
+//! The core runs the vision-only model: its clock is the frames' (`Tick`s, protocol 2.1).
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::time::Duration;
+
+use camera::{Camera, CameraPose};
+use image::GrayImage;
+use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason, Tick};
+use vision::{FrameImage, FrameJob, TrackedRule, VisionOptions};
+
+use crate::config::{
+    CoreTuning, OBJECT_IN_HAND_ACCEL, OBJECT_IN_HAND_ANGULAR_NOISE, vision_config,
+};
+use crate::error::TrackerError;
+use crate::link::CoreLink;
+use crate::loss::LossRule;
+use crate::record::Record;
+use crate::rig::HandEye;
+use crate::search::Search;
+use crate::transport::CoreTransport;
+use crate::worker::{VisionWorker, is_textured};
+
+/// Longest interval between two ticks [µs]: frames further apart (a stalled camera, dropped
+/// frames) are bridged by ticks without a trigger, as the core refuses clock gaps of a
+/// second.
+const MAX_TICK_GAP_US: u64 = 500_000;
+
+/// While tracked, one tilt check every this many frames at most (docs/notes/issue15-cold-start.md
+/// §5.2): it runs on the search thread, one at a time, and costs about as much as an attempt.
+const TILT_CHECK_EVERY: usize = 5;
+
+/// One camera frame pushed into the tracker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Its number in its input, from 0 (for reports).
+    pub index: usize,
+    /// Its time stamp [ns] on the camera's clock.
+    pub t_ns: i64,
+    /// The grey pixels, of the camera's size.
+    pub image: GrayImage,
+}
+
+/// Where the tracker stands (M3T's detecting, starting and tracking, with the loss).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum State {
+    /// No pose yet: each frame gets a cold-start attempt.
+    Locating,
+    /// The core has a pose (given or found), and no frame has been tracked since.
+    Starting,
+    /// Frames are tracked (or were, less than the loss rule's half second ago).
+    Tracking,
+    /// The model is lost: searches run every few frames until one verifies a pose.
+    Lost,
+}
+
+/// A camera pose estimated by the core.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Its time [µs from the first frame].
+    pub t_us: u64,
+    /// The camera in the model's frame.
+    pub camera: CameraPose,
+    /// The core's mode then.
+    pub mode: Option<Mode>,
+}
+
+/// What one frame gave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameReport {
+    /// The frame's index in its input.
+    pub index: usize,
+    /// Its time [µs from the first frame].
+    pub t_us: u64,
+    /// The pose estimated with it, where the core estimated one.
+    pub pose: Option<CameraPose>,
+    /// Whether it counts as tracked (the tracked rule at the estimated pose); `None` where it
+    /// was not analysed (no pose yet, or an unusable image).
+    pub tracked: Option<bool>,
+    /// Correspondences sent to the core.
+    pub correspondences: usize,
+}
+
+/// What the tracker tells, in order ([`Tracker::poll`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// A pose of the core (two per frame: the prediction's time, and just after the update).
+    Pose(Pose),
+    /// A frame's outcome.
+    Frame(FrameReport),
+    /// A search's answer: its frame, and the pose it verified, if any.
+    Located {
+        /// The frame searched.
+        index: usize,
+        /// The verified pose.
+        pose: Option<CameraPose>,
+    },
+    /// The state changed.
+    State(State),
+    /// A frame could not be used, and why (the tracker goes on).
+    FrameSkipped {
+        /// The frame's index in its input.
+        index: usize,
+        /// Why.
+        why: String,
+    },
+}
+
+/// How a search's (or a tilt check's) answer is taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Answers {
+    /// At the next frame, waiting for it: a replay is the same every time.
+    AtNextFrame,
+    /// At the first frame where it is ready: a live camera is never held up.
+    WhenReady,
+}
+
+/// How the tracker runs.
+#[derive(Debug, Clone)]
+pub struct TrackerConfig {
+    /// The camera (its intrinsics and image size).
+    pub camera: Camera,
+    /// The frames' nominal rate [Hz]: the core's clock of ticks is twice it.
+    pub frame_rate_hz: f64,
+    /// Where tracking starts (the camera in the model's frame); `None`: the cold start finds
+    /// the model in the frames.
+    pub start: Option<CameraPose>,
+    /// The image analysis.
+    pub vision: VisionOptions,
+    /// The core's tuning.
+    pub tuning: CoreTuning,
+    /// Folder of the cold start's viewpoint database (built on the first search, read back
+    /// after).
+    pub cache: PathBuf,
+    /// Longest wait for an answer of the core.
+    pub timeout: Duration,
+    /// How searches' answers are taken.
+    pub answers: Answers,
+    /// Keep every this many frames' images in the record, for overlays (0: none).
+    pub keep_image_every: usize,
+    /// This run's name for its configuration of the core (non-zero).
+    pub session_id: u32,
+}
+
+impl TrackerConfig {
+    /// Defaults for `camera` at `frame_rate_hz`: an object turned in a hand, found by the
+    /// cold start, replayed deterministically.
+    pub fn new(camera: Camera, frame_rate_hz: f64, cache: PathBuf) -> Self {
+        let tuning = CoreTuning {
+            expected_accel: OBJECT_IN_HAND_ACCEL,
+            angular_noise: OBJECT_IN_HAND_ANGULAR_NOISE,
+            ..CoreTuning::default()
+        };
+        Self {
+            camera,
+            frame_rate_hz,
+            start: None,
+            vision: VisionOptions::default(),
+            tuning,
+            cache,
+            timeout: Duration::from_secs(10),
+            answers: Answers::AtNextFrame,
+            keep_image_every: 0,
+            session_id: 1,
+        }
+    }
+}
+
+/// A frame's pose estimated with it, and its judgement.
+#[derive(Debug, Clone, Copy)]
+pub struct Judged {
+    /// The pose estimated with the frame.
+    pub pose: CameraPose,
+    /// Whether it counts as tracked (the tracked rule).
+    pub tracked: bool,
+    /// The frame's id at the core.
+    pub frame_id: u32,
+}
+
+/// A search on the search thread: its frame's index and time [µs], and since when the model
+/// was lost [µs].
+#[derive(Debug, Clone, Copy)]
+struct InSearch {
+    index: usize,
+    t_us: u64,
+    lost_at: u64,
+}
+
+/// The tracker: frames in, events out, the core behind `T`.
+pub struct Tracker<T: CoreTransport = CoreLink> {
+    config: TrackerConfig,
+    core: T,
+    worker: VisionWorker,
+    search: VisionWorker,
+    adapter: String,
+    record: Record,
+    /// The core's outlier gate on `s_i`.
+    gate: f64,
+    rule: TrackedRule,
+    /// The first frame's time stamp [ns], which is the core's time 0.
+    t0_ns: Option<i64>,
+    /// The last tick's time [µs].
+    last_us: Option<u64>,
+    started: bool,
+    /// A frame has been tracked since the core was last given a pose.
+    tracked_since_start: bool,
+    loss: LossRule,
+    in_search: Option<InSearch>,
+    since_check: usize,
+    events: VecDeque<Event>,
+    state: State,
+    latest: Option<Pose>,
+    /// The core's state reports already told as events.
+    states_told: usize,
+    /// Why the tracker stopped, once it did.
+    stopped: Option<String>,
+}
+
+/// What [`Tracker::finish`] leaves.
+pub struct Finished<T> {
+    /// Everything the run saw.
+    pub record: Record,
+    /// The core's transport, to close.
+    pub core: T,
+    /// The renderer's adapter.
+    pub adapter: String,
+    /// Whether the run ended cleanly, or the error that stopped it.
+    pub result: Result<(), TrackerError>,
+}
+
+impl<T: CoreTransport> Tracker<T> {
+    /// Starts the tracker for `model` with the core behind `core`: the vision threads (each
+    /// with its renderer), the handshake, the core's `Configure`, and its `Init` where the
+    /// start pose is given.
+    pub fn new(
+        config: TrackerConfig,
+        model: &model::Model,
+        mut core: T,
+    ) -> Result<Self, TrackerError> {
+        if !(config.frame_rate_hz.is_finite() && config.frame_rate_hz > 0.0) {
+            return Err(TrackerError::Config(format!(
+                "the frame rate must be a positive number of frames per second, got {}",
+                config.frame_rate_hz
+            )));
+        }
+        if !is_textured(model) {
+            return Err(TrackerError::Untextured);
+        }
+        let mut vision = config.vision;
+        vision.map.small_object_cells = true;
+        let (worker, ready) = VisionWorker::start(config.camera, model.clone(), vision)?;
+        let (search, _) = VisionWorker::start(config.camera, model.clone(), vision)?;
+        let mut record = Record::new(HandEye::IDENTITY, config.session_id, ready.axes);
+        let timeout = config.timeout;
+        // Correspondences go out before the next tick: no latency to check against the
+        // core's buffers.
+        record.log.handshake(&mut core, timeout)?;
+        let core_config = vision_config(config.frame_rate_hz, &config.tuning, config.session_id);
+        record.log.send_confirmed(
+            &mut core,
+            &HostToCore::Configure(core_config),
+            StatusReason::Configured,
+            timeout,
+        )?;
+        if let Some(pose) = &config.start {
+            let init = HostToCore::Init(init_at(pose));
+            record
+                .log
+                .send_confirmed(&mut core, &init, StatusReason::HostRequest, timeout)?;
+        }
+        if let Some(e) = record.log.errors.first() {
+            return Err(TrackerError::Core(format!(
+                "refused the configuration: {}",
+                e.code
+            )));
+        }
+        let started = config.start.is_some();
+        Ok(Self {
+            gate: f64::from(core_config.gate),
+            rule: TrackedRule::default(),
+            t0_ns: None,
+            last_us: None,
+            started,
+            tracked_since_start: false,
+            loss: LossRule::default(),
+            in_search: None,
+            since_check: 0,
+            events: VecDeque::new(),
+            state: if started {
+                State::Starting
+            } else {
+                State::Locating
+            },
+            latest: None,
+            states_told: 0,
+            stopped: None,
+            adapter: ready.adapter,
+            config,
+            core,
+            worker,
+            search,
+            record,
+        })
+    }
+
+    /// Tracks one frame. A frame of another size than the camera's, or not after the frame
+    /// before, is refused with its error, and the tracker goes on. Any other error stops it:
+    /// it then refuses every later frame, and [`Self::finish`] returns what was tracked.
+    pub fn push_frame(&mut self, frame: Frame) -> Result<(), TrackerError> {
+        if let Some(why) = &self.stopped {
+            return Err(TrackerError::Stopped(why.clone()));
+        }
+        let t_us = match self.check_frame(&frame) {
+            Ok(t) => t,
+            Err(e) => {
+                // Refused, and recorded as a frame that could not be used.
+                let why = e.to_string();
+                self.record
+                    .frame_errors
+                    .push((self.record.results.len(), format!("{why}: skipped")));
+                self.events.push_back(Event::FrameSkipped {
+                    index: frame.index,
+                    why,
+                });
+                return Err(e);
+            }
+        };
+        let step = self.track(frame, t_us);
+        if let Err(e) = &step {
+            self.stopped = Some(e.to_string());
+        }
+        self.tell_poses();
+        step
+    }
+
+    /// Step 1: the frame's size and time. Returns its time [µs from the first frame].
+    pub fn check_frame(&mut self, frame: &Frame) -> Result<u64, TrackerError> {
+        let (w, h) = frame.image.dimensions();
+        let camera = &self.config.camera;
+        if (w, h) != (camera.width, camera.height) {
+            return Err(TrackerError::ImageSize {
+                index: frame.index,
+                width: w,
+                height: h,
+                camera_width: camera.width,
+                camera_height: camera.height,
+            });
+        }
+        let t0 = *self.t0_ns.get_or_insert(frame.t_ns);
+        let t_us = frame.t_ns.saturating_sub(t0) / 1000;
+        // The frame's tick must come after the last tick, which is 1 µs past the last frame.
+        if let Some(last) = self.last_us
+            && t_us <= last as i64 + 1
+        {
+            return Err(TrackerError::TimeBackwards {
+                what: format!("frame {}", frame.index),
+                t_us,
+                previous_us: last.saturating_sub(1) as i64,
+            });
+        }
+        Ok(u64::try_from(t_us).unwrap_or(0))
+    }
+
+    /// Steps 2 to 8 for a frame at `t_us`.
+    fn track(&mut self, frame: Frame, t_us: u64) -> Result<(), TrackerError> {
+        if !self.start_step(&frame, t_us)? {
+            return Ok(());
+        }
+        self.take_answers(t_us)?;
+        self.search_step(&frame, t_us)?;
+        self.tick(t_us)?;
+        let check_due = self.since_check >= TILT_CHECK_EVERY
+            && !self.record.tilt.in_flight()
+            && self.in_search.is_none()
+            && self.loss.untracked_since().is_none();
+        let check_image = check_due.then(|| frame.image.clone());
+        let analysed = self.analyse(frame.index, frame.image, t_us)?;
+        self.check_step(check_image, analysed, frame.index)?;
+        self.judge(analysed, frame.index, t_us);
+        Ok(())
+    }
+
+    /// Step 2: while no pose is known, a cold-start attempt on the frame (waited for). Returns
+    /// whether the frame goes on to be tracked: it does once a pose is verified, from that
+    /// pose.
+    pub fn start_step(&mut self, frame: &Frame, t_us: u64) -> Result<bool, TrackerError> {
+        if self.started {
+            return Ok(true);
+        }
+        let (a, from) = self
+            .search
+            .locate(frame.image.clone(), self.config.cache.clone())?;
+        self.record.keep_provenance(from);
+        self.record.searches.push(Search::new(frame.index, t_us, a));
+        self.events.push_back(Event::Located {
+            index: frame.index,
+            pose: a.pose,
+        });
+        let Some(pose) = a.pose else {
+            return Ok(false);
+        };
+        self.core.send(&HostToCore::Init(init_at(&pose)))?;
+        self.started = true;
+        self.set_state(State::Starting);
+        Ok(true)
+    }
+
+    /// Step 3: the answers of the search and the tilt check sent at an earlier frame: waited
+    /// for ([`Answers::AtNextFrame`]) or taken if ready. A verified pose of a search
+    /// re-initialises the core; so does a tilt check that found tracking on the other tilt of
+    /// a face (`crate::tilt`).
+    pub fn take_answers(&mut self, t_us: u64) -> Result<(), TrackerError> {
+        let block = self.config.answers == Answers::AtNextFrame;
+        // Divergences since the last frame lose the model at once.
+        self.loss.note_statuses(&self.record.log.statuses, t_us);
+        if let Some(s) = self.in_search {
+            let done = if block {
+                Some(self.search.locate_result()?)
+            } else {
+                self.search.try_locate()?
+            };
+            if let Some((a, from)) = done {
+                self.in_search = None;
+                self.record.keep_provenance(from);
+                self.record
+                    .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
+                self.events.push_back(Event::Located {
+                    index: s.index,
+                    pose: a.pose,
+                });
+                if let Some(pose) = a.pose {
+                    self.core.send(&HostToCore::Init(init_at(&pose)))?;
+                    self.record.tilt.restart();
+                    self.loss.found(None);
+                    self.tracked_since_start = false;
+                }
+            }
+        }
+        if self.record.tilt.in_flight()
+            && let Some(check) = self.search.tilt_result(block)?
+            && let Some(pose) = self.record.tilt.answer(&check, t_us as f64 * 1e-6)
+        {
+            self.core.send(&HostToCore::Init(init_at(&pose)))?;
+        }
+        Ok(())
+    }
+
+    /// Step 4: while lost, a search on the frame every few frames (one at a time, and not
+    /// beside a tilt check); while not, an open loss ends.
+    pub fn search_step(&mut self, frame: &Frame, t_us: u64) -> Result<(), TrackerError> {
+        if !self.loss.lost(t_us) {
+            self.record.end_recovery(t_us);
+            return Ok(());
+        }
+        self.set_state(State::Lost);
+        let busy = self.in_search.is_some() || self.record.tilt.in_flight();
+        if let Some(lost_at) = self.loss.search_due(t_us, busy) {
+            self.search
+                .send_locate(frame.image.clone(), self.config.cache.clone())?;
+            self.in_search = Some(InSearch {
+                index: frame.index,
+                t_us,
+                lost_at,
+            });
+        }
+        Ok(())
+    }
+
+    /// Step 5: the core's clock to the frame at `t_us`, bridging long gaps, with the trigger;
+    /// then everything the core answered.
+    pub fn tick(&mut self, t_us: u64) -> Result<(), TrackerError> {
+        if let Some(mut at) = self.last_us {
+            while t_us - at > MAX_TICK_GAP_US {
+                at += MAX_TICK_GAP_US;
+                self.send_tick(at, false)?;
+            }
+        }
+        self.send_tick(t_us, true)?;
+        self.record.log.barrier(&mut self.core, self.config.timeout)
+    }
+
+    /// Sends one tick at `t_us` and records its stamp.
+    fn send_tick(&mut self, t_us: u64, trigger: bool) -> Result<(), TrackerError> {
+        self.core.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
+        let t0 = u64::try_from(self.t0_ns.unwrap_or(0)).unwrap_or(0);
+        self.record.clock.push(t0 + t_us * 1000);
+        self.last_us = Some(t_us);
+        Ok(())
+    }
+
+    /// Step 6: the frame analysed at the core's prediction, its correspondences sent, the
+    /// clock moved just past it, and the pose estimated with it judged. Returns that pose and
+    /// whether it counts as tracked, where the frame was analysed.
+    pub fn analyse(
+        &mut self,
+        index: usize,
+        image: GrayImage,
+        t_us: u64,
+    ) -> Result<Option<Judged>, TrackerError> {
+        let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
+            return Ok(None);
+        };
+        let every = self.config.keep_image_every;
+        let omega_c = self
+            .record
+            .log
+            .states
+            .last()
+            .filter(|s| s.t_us == t_us)
+            .map(|s| nalgebra::Vector3::from(s.omega_s.map(f64::from)));
+        let t0 = u64::try_from(self.t0_ns.unwrap_or(0)).unwrap_or(0);
+        self.worker.send(FrameJob {
+            index,
+            stamp: t0 + t_us * 1000,
+            image: FrameImage::Decoded(image),
+            prediction: p,
+            keep_image: every > 0 && index.is_multiple_of(every),
+            omega_c,
+        })?;
+        let result = self.worker.recv()?;
+        let ok = result.is_ok();
+        let errors = self.record.frame_errors.len();
+        self.record
+            .deliver(&mut self.core, p.frame_id, t_us, result)?;
+        if let Some((_, why)) = self.record.frame_errors.get(errors) {
+            self.events.push_back(Event::FrameSkipped {
+                index,
+                why: why.clone(),
+            });
+        }
+        // The pose estimated with this frame, just after it.
+        self.send_tick(t_us + 1, false)?;
+        self.record
+            .log
+            .barrier(&mut self.core, self.config.timeout)?;
+        let updated = self.record.log.states.last().filter(|s| s.t_us == t_us + 1);
+        let (true, Some(s)) = (ok, updated) else {
+            return Ok(None);
+        };
+        let pose = pose_of_state(s);
+        // Which correspondences the core applied: its reports' residuals, part by part in
+        // the order sent, within the gate.
+        let mut reports = self
+            .record
+            .log
+            .updates
+            .get(&p.frame_id)
+            .cloned()
+            .unwrap_or_default();
+        reports.sort_by_key(|r| r.part);
+        let applied: Vec<bool> = reports
+            .iter()
+            .flat_map(|r| r.residuals.iter())
+            .map(|&s_i| f64::from(s_i) <= self.gate)
+            .collect();
+        let a = self.worker.assess(pose, applied)?;
+        self.record.assessments.insert(p.frame_id, a);
+        let tracked = self.rule.holds(&a);
+        self.record.tilt.judged(p.frame_id);
+        Ok(Some(Judged {
+            pose,
+            tracked,
+            frame_id: p.frame_id,
+        }))
+    }
+
+    /// Step 7: a tilt check of a tracked pose, when one is due (`image`: the frame, taken
+    /// before its analysis).
+    pub fn check_step(
+        &mut self,
+        image: Option<GrayImage>,
+        judged: Option<Judged>,
+        index: usize,
+    ) -> Result<(), TrackerError> {
+        match (image, judged) {
+            (Some(image), Some(j)) if j.tracked => {
+                self.search.send_tilt_check(image, j.pose)?;
+                self.record.tilt.sent(index, j.frame_id, j.pose);
+                self.since_check = 0;
+            }
+            _ => self.since_check += 1,
+        }
+        Ok(())
+    }
+
+    /// Step 8: the frame's judgement into the loss rule, the state, and the frame's event.
+    pub fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64) {
+        let tracked = judged.is_some_and(|j| j.tracked);
+        self.loss.frame(tracked, t_us);
+        if tracked {
+            self.tracked_since_start = true;
+        }
+        let state = if self.loss.lost(t_us) {
+            State::Lost
+        } else if self.tracked_since_start {
+            State::Tracking
+        } else {
+            State::Starting
+        };
+        self.set_state(state);
+        let correspondences = match self.record.results.last() {
+            Some((_, r)) if r.job.index == index => r.correspondences.len(),
+            _ => 0,
+        };
+        self.events.push_back(Event::Frame(FrameReport {
+            index,
+            t_us,
+            pose: judged.map(|j| j.pose),
+            tracked: judged.map(|j| j.tracked),
+            correspondences,
+        }));
+    }
+
+    /// The events since the last poll, in order.
+    pub fn poll(&mut self) -> impl Iterator<Item = Event> + '_ {
+        self.events.drain(..)
+    }
+
+    /// The core's latest pose.
+    pub fn latest(&self) -> Option<Pose> {
+        self.latest
+    }
+
+    /// Where the tracker stands.
+    pub fn state(&self) -> State {
+        self.state
+    }
+
+    /// Asks for a search at the next frame, whatever the frames say: the user knows the
+    /// model moved (a tracked pose that is wrong, an object put down elsewhere).
+    pub fn relocate(&mut self) {
+        if self.started {
+            let t_us = self.last_us.unwrap_or(0);
+            self.loss.force(t_us);
+            self.set_state(State::Lost);
+        }
+    }
+
+    /// Everything seen so far.
+    pub fn record(&self) -> &Record {
+        &self.record
+    }
+
+    /// The renderer's adapter.
+    pub fn adapter(&self) -> &str {
+        &self.adapter
+    }
+
+    /// Ends the run: the tilt check in flight is waited for (a flip not yet confirmed never
+    /// held), so is a search in flight, and everything the core still had to say is logged.
+    pub fn finish(mut self) -> Finished<T> {
+        let result = match self.stopped.take() {
+            Some(why) => Err(TrackerError::Stopped(why)),
+            None => self.wind_down(),
+        };
+        self.tell_poses();
+        self.worker.stop();
+        self.search.stop();
+        Finished {
+            record: self.record,
+            core: self.core,
+            adapter: self.adapter,
+            result,
+        }
+    }
+
+    /// See [`Self::finish`].
+    fn wind_down(&mut self) -> Result<(), TrackerError> {
+        if self.record.tilt.in_flight() {
+            self.search.tilt_result(true)?;
+        }
+        self.record.tilt.restart();
+        if let Some(s) = self.in_search.take() {
+            let (a, from) = self.search.locate_result()?;
+            self.record.keep_provenance(from);
+            self.record
+                .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
+        }
+        self.record.log.barrier(&mut self.core, self.config.timeout)
+    }
+
+    fn set_state(&mut self, state: State) {
+        if self.state != state {
+            self.state = state;
+            self.events.push_back(Event::State(state));
+        }
+    }
+
+    /// Tells the core's new state reports as poses.
+    fn tell_poses(&mut self) {
+        let log = &self.record.log;
+        for s in &log.states[self.states_told.min(log.states.len())..] {
+            let pose = Pose {
+                t_us: s.t_us,
+                camera: pose_of_state(s),
+                mode: log.mode(),
+            };
+            self.latest = Some(pose);
+            self.events.push_back(Event::Pose(pose));
+        }
+        self.states_told = log.states.len();
+    }
+}
+
+/// The camera pose of a vision-only state report (the camera is the sensor).
+fn pose_of_state(s: &protocol::StateReport) -> CameraPose {
+    let (c_w, q_wc) = HandEye::IDENTITY.camera_of_state(s);
+    CameraPose {
+        q_cw: q_wc.inverse(),
+        c_w,
+    }
+}
+
+/// The core's `Init` for the camera at `pose` (the vision-only model: the camera is the
+/// sensor).
+fn init_at(pose: &CameraPose) -> Init {
+    let (s_w, q_sw) = HandEye::IDENTITY.sensor_pose_of_camera(pose);
+    let q = q_sw.quaternion();
+    Init {
+        position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
+        attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
+    }
+}
