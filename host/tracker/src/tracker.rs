@@ -206,6 +206,15 @@ struct InSearch {
 }
 
 /// The tracker: frames in, events out, the core behind `T`.
+///
+/// A tracker exists only once [`Tracker::new`] has finished starting it (the handshake, the
+/// core's configuration and its initialisation), so no frame can be pushed before:
+///
+/// ```compile_fail
+/// let tracker: tracker::Tracker;
+/// // error[E0381]: used binding `tracker` isn't initialized
+/// tracker.push_frame(tracker::Frame { index: 0, t_ns: 0, image: image::GrayImage::new(1, 1) });
+/// ```
 pub struct Tracker<T: CoreTransport = CoreLink> {
     config: TrackerConfig,
     core: T,
