@@ -163,4 +163,15 @@ impl Record {
             .get(&frame_id)
             .map(|a| rule.holds(a) && !self.tilt.record.withheld.contains(&frame_id))
     }
+
+    /// How many of the frames judged count as tracked ([`Self::tracked`]): `(tracked,
+    /// judged)`.
+    pub fn tracked_count(&self, rule: &vision::TrackedRule) -> (usize, usize) {
+        let judged: Vec<bool> = self
+            .results
+            .iter()
+            .filter_map(|(id, _)| self.tracked(*id, rule))
+            .collect();
+        (judged.iter().filter(|&&t| t).count(), judged.len())
+    }
 }

@@ -94,7 +94,9 @@ pub struct FrameReport {
     /// The pose estimated with it, where the core estimated one.
     pub pose: Option<CameraPose>,
     /// Whether it counts as tracked (the tracked rule at the estimated pose); `None` where it
-    /// was not analysed (no pose yet, or an unusable image).
+    /// was not analysed (no pose yet, or an unusable image). A later tilt check may still
+    /// withhold it (the frames after a flip, until it is confirmed): the record's
+    /// [`Record::tracked`] is final.
     pub tracked: Option<bool>,
     /// Correspondences sent to the core.
     pub correspondences: usize,
