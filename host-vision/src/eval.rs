@@ -329,7 +329,10 @@ fn outputs() -> Vec<String> {
 pub fn run(options: &EvalOptions, progress: EvalProgress) -> Result<EvalReport, EvalError> {
     // As `track` checks it.
     let tuning = crate::track::config::CoreTuning::default();
-    if let Some(why) = options.duration.and_then(|d| tuning.duration_refusal(d)) {
+    if let Some(why) = options
+        .duration
+        .and_then(|d| track::config::duration_refusal(&tuning, d))
+    {
         return Err(EvalError::Option(why));
     }
     let mut out = OutFolder::prepare(&options.out, &outputs(), None, options.overwrite)?;

@@ -90,6 +90,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "tracker",
+        dir: "host/tracker/src",
+        module: &[],
+    },
+    Tree {
         name: "host-vision track",
         dir: "host-vision/src/track",
         module: &["track"],

@@ -1,11 +1,25 @@
-//! The core's configuration ([`tracker::config`]), and the command line's check of the
-//! correspondences' latency against what the core advertised.
+//! The core's configuration ([`tracker::config`]), and the command line's checks against it:
+//! the correspondences' latency against what the core advertised, and `--duration` against
+//! the core's initialisation.
+
+use std::path::PathBuf;
 
 use protocol::{Capacities, Config};
 
 pub use tracker::config::*;
 
 use super::TrackError;
+
+/// Why `--duration` `d` is refused, if it is: a run no longer than the core's still window
+/// (`tuning.still_seconds`) never snaps on (`track` and `eval` check it alike).
+pub fn duration_refusal(tuning: &CoreTuning, d: f64) -> Option<String> {
+    let still = tuning.still_seconds;
+    (!(d.is_finite() && d > still)).then(|| {
+        format!(
+            "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
+        )
+    })
+}
 
 /// Checks the correspondences' latency against what the core advertised in `HelloAck`: it
 /// keeps a frame's snapshot only so long, and refuses later correspondences as too old. (The
@@ -26,6 +40,26 @@ pub fn check_latency(latency_s: f64, caps: &Capacities, config: &Config) -> Resu
         )));
     }
     Ok(())
+}
+
+/// The firmware image's path inside the repository.
+const FIRMWARE_IMAGE: &str = "firmware/target/thumbv7em-none-eabihf/release/device";
+
+/// Where `qemu` finds the firmware image: in the current folder or one above it (run from the
+/// repository), else beside the program (`target/*/host-vision` in the repository).
+pub fn find_firmware_image() -> Result<PathBuf, String> {
+    let cwd = std::env::current_dir().ok();
+    let exe = std::env::current_exe().ok();
+    let roots = cwd.iter().chain(exe.iter()).flat_map(|p| p.ancestors());
+    for root in roots {
+        let image = root.join(FIRMWARE_IMAGE);
+        if image.is_file() {
+            return Ok(image);
+        }
+    }
+    Err(format!(
+        "link qemu: no firmware image {FIRMWARE_IMAGE} in the current folder, beside this program, or above either; build it with `cargo xtask firmware` in the repository and run from there, or give its path with --link qemu:IMAGE"
+    ))
 }
 
 #[cfg(test)]

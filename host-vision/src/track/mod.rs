@@ -306,7 +306,9 @@ impl TrackOptions {
         let stamp0 = dataset.imu[0].stamp;
         let data_s = (dataset.imu[dataset.imu.len() - 1].stamp - stamp0) as f64 / 1e9;
         let end = match self.duration {
-            Some(d) if let Some(why) = self.tuning.duration_refusal(d) => return bad(why),
+            Some(d) if let Some(why) = config::duration_refusal(&self.tuning, d) => {
+                return bad(why);
+            }
             Some(d) => dataset
                 .imu
                 .partition_point(|r| ((r.stamp - stamp0) as f64) / 1e9 <= d),
@@ -445,6 +447,19 @@ impl TrackOptions {
                 f.cut_seconds
             ));
         }
+        if let Some(rate) = f.line_errors {
+            if !matches!(self.link, LinkSpec::Sim(_)) {
+                return bad(format!(
+                    "--line-errors garbles the simulated board's line: use --link sim, not {:?}",
+                    self.link
+                ));
+            }
+            if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
+                return bad(format!(
+                    "--line-errors is a probability per byte in [0, 1], got {rate}"
+                ));
+            }
+        }
         if f.reset_core_at.is_some()
             && !matches!(
                 self.link,
@@ -567,7 +582,11 @@ pub fn run(
         .faults
         .line_errors
         .map(|rate| (rate, options.faults.seed));
-    let link = FaultyLink::new(CoreLink::open_noisy(&options.link, noise)?, &options.faults);
+    let spec = options
+        .link
+        .resolve_qemu(config::find_firmware_image)
+        .map_err(TrackError::Core)?;
+    let link = FaultyLink::new(CoreLink::open_noisy(&spec, noise)?, &options.faults);
     let model = crate::model::load(&model_path)?;
     if !tracker::worker::is_textured(&model) {
         return Err(TrackError::Untextured(model_path));

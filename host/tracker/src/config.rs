@@ -26,19 +26,6 @@ pub struct CoreTuning {
     pub still_seconds: f64,
 }
 
-impl CoreTuning {
-    /// Why `--duration` `d` is refused, if it is: a run no longer than the still window
-    /// never snaps on (`track` and `eval` check it alike).
-    pub fn duration_refusal(&self, d: f64) -> Option<String> {
-        let still = self.still_seconds;
-        (!(d.is_finite() && d > still)).then(|| {
-            format!(
-                "--duration must be a number of seconds longer than the core's {still:.2} s initialisation, got {d}"
-            )
-        })
-    }
-}
-
 impl Default for CoreTuning {
     fn default() -> Self {
         Self {

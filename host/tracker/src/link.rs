@@ -44,8 +44,8 @@ pub enum LinkSpec {
     Tcp(String),
     /// The firmware image under QEMU's Cortex-M4F board.
     Qemu(PathBuf),
-    /// The repository's firmware image under QEMU, found when the link opens (see
-    /// [`find_firmware_image`]).
+    /// The repository's firmware image under QEMU: the application finds it
+    /// ([`LinkSpec::resolve_qemu`]) before the link opens.
     QemuDefault,
 }
 
@@ -57,24 +57,18 @@ pub const LINK_FORMS: &str =
 /// needs, PROTOCOL.md §6).
 pub const DEFAULT_BAUD: u32 = 921_600;
 
-/// The firmware image's path inside the repository.
-const FIRMWARE_IMAGE: &str = "firmware/target/thumbv7em-none-eabihf/release/device";
-
-/// Where `qemu` finds the firmware image: in the current folder or one above it (run from the
-/// repository), else beside the program (`target/*/host-vision` in the repository).
-pub fn find_firmware_image() -> Result<PathBuf, String> {
-    let cwd = std::env::current_dir().ok();
-    let exe = std::env::current_exe().ok();
-    let roots = cwd.iter().chain(exe.iter()).flat_map(|p| p.ancestors());
-    for root in roots {
-        let image = root.join(FIRMWARE_IMAGE);
-        if image.is_file() {
-            return Ok(image);
+impl LinkSpec {
+    /// This spec with the repository's firmware image in place of [`LinkSpec::QemuDefault`],
+    /// found by `find`; any other spec as it is.
+    pub fn resolve_qemu(
+        &self,
+        find: impl FnOnce() -> Result<PathBuf, String>,
+    ) -> Result<LinkSpec, String> {
+        match self {
+            LinkSpec::QemuDefault => find().map(LinkSpec::Qemu),
+            other => Ok(other.clone()),
         }
     }
-    Err(format!(
-        "link qemu: no firmware image {FIRMWARE_IMAGE} in the current folder, beside this program, or above either; build it with `cargo xtask firmware` in the repository and run from there, or give its path with --link qemu:IMAGE"
-    ))
 }
 
 impl std::fmt::Display for LinkSpec {
@@ -242,18 +236,20 @@ impl CoreLink {
         if let Some((rate, _)) = noise {
             if !matches!(spec, LinkSpec::Sim(_)) {
                 return Err(TrackerError::Config(format!(
-                    "--line-errors garbles the simulated board's line: use --link sim, not {spec:?}"
+                    "bit errors are injected on the simulated board's line only (the sim link), not on {spec}"
                 )));
             }
             if !(rate.is_finite() && (0.0..=1.0).contains(&rate)) {
                 return Err(TrackerError::Config(format!(
-                    "--line-errors is a probability per byte in [0, 1], got {rate}"
+                    "the line's bit error rate is a probability per byte in [0, 1], got {rate}"
                 )));
             }
         }
         let spec = match spec {
             LinkSpec::QemuDefault => {
-                LinkSpec::Qemu(find_firmware_image().map_err(TrackerError::Core)?)
+                return Err(TrackerError::Config(
+                    "link qemu: which firmware image? Give its path (LinkSpec::Qemu), or resolve the default one first (LinkSpec::resolve_qemu)".into(),
+                ));
             }
             other => other.clone(),
         };
@@ -538,7 +534,7 @@ fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackerError> {
         return Ok(transport::serial(path, baud)?);
     }
     let matches = glob::glob(path)
-        .map_err(|e| TrackerError::Config(format!("--link serial:{path}: bad pattern: {e}")))?;
+        .map_err(|e| TrackerError::Config(format!("serial:{path}: bad pattern: {e}")))?;
     let mut failures = Vec::new();
     for m in matches.flatten() {
         let device = m.to_string_lossy().into_owned();
