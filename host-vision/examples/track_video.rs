@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use firmware_sim::board::Precision;
 use host_vision::frames::{FrameInput, VideoOptions};
-use tracker::{CoreLink, Event, LinkSpec, Tracker, TrackerConfig};
+use tracker::{CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
 
 fn main() -> anyhow::Result<()> {
     let data = PathBuf::from("../shared/data/visp-cube");
@@ -29,12 +29,12 @@ fn main() -> anyhow::Result<()> {
         frames.nominal_rate_hz().unwrap_or(30.0),
         locate::database::default_cache_dir(),
     );
-    config.start = Some(host_vision::start_pose::read_start_pose(&pose)?);
+    config.start = Start::Camera(host_vision::start_pose::read_start_pose(&pose)?);
     let core = CoreLink::open(&LinkSpec::InProcess(Precision::F32))?;
     let mut tracker = Tracker::new(config, &model::load(&model)?, core)?;
     println!("# frame t_s tracked c_w[m] q_cw[w x y z] (frames with a pose)");
     for frame in frames {
-        tracker.push_frame(frame?)?;
+        tracker.push_frame(frame?.into())?;
         for event in tracker.poll() {
             let Event::Frame(f) = event else { continue };
             let Some((c, q)) = f.pose.map(|p| (p.c_w, *p.q_cw.quaternion())) else {

@@ -10,16 +10,30 @@ pub mod showinfo;
 pub mod stats;
 pub mod video;
 
+use image::GrayImage;
 use std::path::PathBuf;
 
 pub use self::images::ImageFolder;
 pub use self::stats::DecodeStats;
 pub use self::video::{VideoFrames, VideoOptions};
 
-/// One frame: its index, time stamp [ns, the source's own clock: the container's
-/// presentation time of a video, `data.csv`'s stamp of a EuRoC folder, `index / fps` of a plain
-/// folder] and grey pixels.
-pub use tracker::Frame;
+/// One grey frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Position in the stream, from 0.
+    pub index: usize,
+    /// Time stamp [ns] on the source's own clock: the container's presentation time of a
+    /// video, `data.csv`'s stamp of a EuRoC folder, `index / fps` of a plain folder.
+    pub t_ns: i64,
+    /// The pixels.
+    pub image: GrayImage,
+}
+
+impl From<Frame> for tracker::Frame {
+    fn from(f: Frame) -> Self {
+        tracker::Frame::decoded(f.index, f.t_ns, f.image)
+    }
+}
 
 /// Why frames cannot be read. Each names the file (or folder) and the problem.
 #[derive(Debug, thiserror::Error)]

@@ -6,7 +6,10 @@ use std::path::PathBuf;
 
 use protocol::{Capacities, Config};
 
-pub use tracker::config::*;
+pub use tracker::config::{
+    CoreTuning, OBJECT_IN_HAND_ACCEL, OBJECT_IN_HAND_ANGULAR_NOISE, PUSH_SECONDS, core_config,
+    vision_config,
+};
 
 use super::TrackError;
 
@@ -21,25 +24,11 @@ pub fn duration_refusal(tuning: &CoreTuning, d: f64) -> Option<String> {
     })
 }
 
-/// Checks the correspondences' latency against what the core advertised in `HelloAck`: it
-/// keeps a frame's snapshot only so long, and refuses later correspondences as too old. (The
-/// host's own rule, below one frame period, is stricter today; this guards a core with fewer
-/// buffers.)
+/// Checks the correspondences' latency against what the core advertised in `HelloAck`
+/// ([`tracker::config::check_latency`]), naming `--latency`. (The host's own rule, below one
+/// frame period, is stricter today; this guards a core with fewer buffers.)
 pub fn check_latency(latency_s: f64, caps: &Capacities, config: &Config) -> Result<(), TrackError> {
-    let limit_us = caps.max_latency_us(config.imu_rate_hz, config.camera_rate_hz);
-    if latency_s * 1e6 > limit_us as f64 {
-        return Err(TrackError::Option(format!(
-            "--latency {latency_s} s is longer than the core can wait for a frame's \
-             correspondences: {:.3} s at {} Hz IMU and {} Hz camera ({} frames, {} IMU samples \
-             kept)",
-            limit_us as f64 * 1e-6,
-            config.imu_rate_hz,
-            config.camera_rate_hz,
-            caps.max_pending_frames,
-            caps.delay_buffer_samples,
-        )));
-    }
-    Ok(())
+    Ok(tracker::config::check_latency(latency_s, caps, config)?)
 }
 
 /// The firmware image's path inside the repository.

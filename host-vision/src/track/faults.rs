@@ -1,7 +1,8 @@
 //! Faults the application injects into a run, for tests of the tracker's and the core's
-//! robustness: outliers among the correspondences (a wrapper around the link, [`FaultyLink`]),
-//! and frames replaced by noise (a frame filter, [`Faults::noise_frame`]). The line's bit
-//! errors, the core's reset and the pulled cable are the link's own ([`CoreLink`]).
+//! robustness: outliers among the correspondences and a pulled cable (a wrapper around the
+//! link, [`FaultyLink`]), frames replaced by noise (a frame filter, [`Faults::noise_frame`]),
+//! and the core reset or the cable pulled at a given time ([`Injector`]). The line's bit
+//! errors and the reset line are the link's own ([`CoreLink`]).
 
 use std::time::Duration;
 
@@ -9,7 +10,7 @@ use nalgebra::Vector3;
 use protocol::{Correspondence, HostToCore};
 use rand::rngs::StdRng;
 use rand::{RngExt as _, SeedableRng};
-use tracker::{CoreLink, CoreTransport, Incoming, TrackerError};
+use tracker::{CoreLink, CoreTransport, Incoming, Tracker, TrackerError};
 
 /// Faults injected by the host, for tests of the core's robustness.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
@@ -81,6 +82,9 @@ pub struct FaultyLink {
     rng: StdRng,
     /// Correspondences replaced by outliers.
     pub injected: usize,
+    /// The input's time now [µs], and until when the cable is out.
+    now_us: u64,
+    unplugged_until_us: Option<u64>,
 }
 
 impl FaultyLink {
@@ -91,7 +95,16 @@ impl FaultyLink {
             faults: *faults,
             rng: StdRng::seed_from_u64(faults.seed),
             injected: 0,
+            now_us: 0,
+            unplugged_until_us: None,
         }
+    }
+
+    /// Pulls the cable until `until_us` of the input's time: the host's end is closed, and
+    /// reconnecting fails until then, as a serial adaptor that is gone does.
+    pub fn unplug(&mut self, until_us: u64) {
+        self.link.cut();
+        self.unplugged_until_us = Some(until_us);
     }
 
     /// The link itself.
@@ -157,10 +170,64 @@ impl CoreTransport for FaultyLink {
     }
 
     fn reconnect(&mut self) -> Result<(), TrackerError> {
+        if self
+            .unplugged_until_us
+            .is_some_and(|until| self.now_us < until)
+        {
+            return Err(TrackerError::Link("the cable is out (injected)".into()));
+        }
         self.link.reconnect()
     }
 
     fn lossy(&self) -> bool {
         self.link.damage.is_some()
+    }
+
+    fn is_connected(&self) -> bool {
+        self.link.is_connected()
+    }
+
+    fn disconnect(&mut self) {
+        self.link.cut();
+    }
+}
+
+/// The core reset and the cable pulled at their times (`--reset-core-at`, `--cut-link-at`),
+/// once each, while the core is there.
+#[derive(Debug, Default)]
+pub struct Injector {
+    reset_done: bool,
+    cut_done: bool,
+}
+
+impl Injector {
+    /// Injects what is due at the sample of time `t_us` into `tracker`'s link.
+    pub fn inject(
+        &mut self,
+        faults: &Faults,
+        tracker: &mut Tracker<FaultyLink>,
+        t_us: u64,
+    ) -> Result<(), TrackerError> {
+        tracker.core_mut().now_us = t_us;
+        if tracker.in_outage() {
+            return Ok(());
+        }
+        let t = t_us as f64 * 1e-6;
+        if let Some(at) = faults
+            .reset_core_at
+            .filter(|&at| t >= at && !self.reset_done)
+        {
+            self.reset_done = true;
+            tracker.inject(at, |link| link.reset_core())?;
+        }
+        if let Some(at) = faults.cut_link_at.filter(|&at| t >= at && !self.cut_done) {
+            self.cut_done = true;
+            let until = t_us + (faults.cut_seconds.max(0.0) * 1e6) as u64;
+            tracker.inject(at, |link| {
+                link.unplug(until);
+                Ok(())
+            })?;
+        }
+        Ok(())
     }
 }

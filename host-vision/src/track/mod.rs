@@ -13,11 +13,9 @@
 //!   as soon as the worker has them.
 
 pub use ::vision::assess;
-mod cold_start;
 pub mod config;
 mod faults;
 mod frame_row;
-mod outage;
 pub mod output;
 pub mod overlay;
 pub mod plot;
@@ -26,26 +24,26 @@ mod vision_only;
 pub use tracker::link as core;
 pub use tracker::tilt;
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use nalgebra::{UnitQuaternion, Vector3};
-use protocol::{HostToCore, Init, InitAttitude, ModelKind, StateReport};
-use tracker::TrackerError;
-use tracker::worker::VisionWorker;
+use protocol::{ModelKind, StateReport};
+use tracker::{Answers, Finished, ImuSample, Tracker, TrackerConfig, TrackerError};
 
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
 pub use self::core::{CoreLink, LinkSpec};
 pub use self::faults::{Faults, FaultyLink};
 pub use self::frame_row::FrameRow;
-pub use self::output::{Outage, OutageKind, Summary};
+pub use self::output::Summary;
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 pub use tracker::Incoming;
 pub use tracker::log::CoreLog;
+pub use tracker::outage::{Outage, OutageKind};
 pub use tracker::record::Record;
 pub use tracker::search::{Recovery, Search};
 
@@ -146,6 +144,18 @@ impl From<TrackerError> for TrackError {
             TrackerError::Vision(e) => TrackError::Vision(e),
             TrackerError::Database(e) => TrackError::Database(e),
             TrackerError::Config(m) => TrackError::Option(m),
+            TrackerError::LatencyTooLong {
+                latency_s,
+                limit_s,
+                imu_rate_hz,
+                camera_rate_hz,
+                frames,
+                samples,
+            } => TrackError::Option(format!(
+                "--latency {latency_s} s is longer than the core can wait for a frame's \
+                 correspondences: {limit_s:.3} s at {imu_rate_hz} Hz IMU and {camera_rate_hz} Hz \
+                 camera ({frames} frames, {samples} IMU samples kept)"
+            )),
             other => TrackError::Tracker(other),
         }
     }
@@ -596,23 +606,9 @@ pub fn run(
             let (finished, outcome) = vision_only::track_frames(
                 options, &dataset, link, &model, source, &interrupt, progress,
             )?;
-            let outcome = match (outcome, finished.result) {
-                (Err(e), _) => Err(e),
-                (Ok(completed), Ok(())) => Ok(completed),
-                (Ok(_), Err(e)) => Err(e.into()),
-            };
-            Ran {
-                host: HostRecord {
-                    injected_outliers: finished.core.injected,
-                    ..HostRecord::default()
-                },
-                record: finished.record,
-                adapter: finished.adapter,
-                outcome,
-                link: finished.core.into_inner(),
-            }
+            Ran::of(finished, outcome)
         }
-        None => track_imu(options, &dataset, link, model, end, &interrupt, progress)?,
+        None => track_imu(options, &dataset, link, &model, end, &interrupt, progress)?,
     };
     let Ran {
         record,
@@ -710,54 +706,162 @@ struct Ran {
     link: CoreLink,
 }
 
-/// Tracks a dataset with its IMU (the inertial models).
+impl Ran {
+    /// What the tracker left, with the loop's `outcome`: an error of the loop before the
+    /// tracker's own.
+    fn of(finished: Finished<FaultyLink>, outcome: Result<bool, TrackError>) -> Self {
+        let outcome = match (outcome, finished.result) {
+            (Err(e), _) => Err(e),
+            (Ok(completed), Ok(())) => Ok(completed),
+            (Ok(_), Err(e)) => Err(e.into()),
+        };
+        Ran {
+            host: HostRecord {
+                injected_outliers: finished.core.injected,
+            },
+            record: finished.record,
+            adapter: finished.adapter,
+            outcome,
+            link: finished.core.into_inner(),
+        }
+    }
+}
+
+/// Tracks a dataset with its IMU (the inertial models): every sample pushed into the
+/// library's [`Tracker`], each frame just before the sample that triggered it, with the
+/// application's faults put in on the way.
 fn track_imu(
     options: &TrackOptions,
     dataset: &Dataset,
-    mut link: FaultyLink,
-    model: crate::model::Model,
+    link: FaultyLink,
+    model: &crate::model::Model,
     end: usize,
     interrupt: &AtomicBool,
     progress: Progress,
 ) -> Result<Ran, TrackError> {
-    // The vision worker owns the renderer: created once, on its own thread, and always shut
-    // down and joined before this function returns (a renderer torn down by the process's
-    // exit crashes in the driver).
-    let (mut worker, ready) =
-        VisionWorker::start(dataset.camera.camera, model.clone(), options.vision)?;
-    // Searches for the model (the cold start, and after a loss) run on a thread of their own,
-    // with a renderer of their own, so that an attempt never holds up the frames.
-    let mut search = if options.start.is_cold(dataset) {
-        Some(VisionWorker::start(dataset.camera.camera, model, options.vision)?.0)
-    } else {
-        None
-    };
-    let mut session = Session {
-        options,
-        dataset,
-        record: Record::new(dataset.hand_eye, new_session_id(), ready.axes),
-        host: HostRecord::default(),
-    };
-    let outcome = session.drive(
-        &mut link,
-        &worker,
-        search.as_ref(),
-        end,
-        interrupt,
-        progress,
-    );
-    worker.stop();
-    if let Some(s) = search.as_mut() {
-        s.stop();
+    let config = inertial_config(options, dataset)?;
+    let mut tracker = Tracker::new(config, model, link)?;
+    let stamp0 = dataset.imu[0].stamp;
+    let triggers: BTreeMap<usize, usize> = dataset
+        .triggers()
+        .into_iter()
+        .map(|(f, k)| (k, f))
+        .collect();
+    let cam = &dataset.camera.camera;
+    let start = Instant::now();
+    let mut injector = faults::Injector::default();
+    let mut outcome = Ok(true);
+    for k in 0..end {
+        if interrupt.load(Ordering::Relaxed) {
+            outcome = Ok(false);
+            break;
+        }
+        let row = &dataset.imu[k];
+        if options.pacing == Pacing::RealTime {
+            let due = start + Duration::from_nanos(row.stamp - stamp0);
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
+        let t_us = (row.stamp - stamp0) / 1000;
+        let step = injector
+            .inject(&options.faults, &mut tracker, t_us)
+            .and_then(|()| match triggers.get(&k) {
+                Some(&f) => {
+                    let frame = &dataset.frames[f];
+                    let image = if options.faults.blind_at(output::seconds(t_us)) {
+                        FrameImage::Decoded(options.faults.noise_frame(cam.width, cam.height, f))
+                    } else {
+                        FrameImage::File(frame.path.clone())
+                    };
+                    tracker.push_frame(tracker::Frame {
+                        index: f,
+                        t_ns: frame.stamp as i64,
+                        image,
+                    })
+                }
+                None => Ok(()),
+            })
+            .and_then(|()| {
+                tracker.push_imu(ImuSample {
+                    t_ns: row.stamp,
+                    gyro: row.gyro.into(),
+                    accel: row.accel.into(),
+                })
+            });
+        if let Err(e) = step {
+            outcome = Err(e.into());
+            break;
+        }
+        if k % 50 == 0 || k + 1 == end {
+            let r = tracker.record();
+            progress(k + 1, end, r.results.len(), r.log.mode());
+        }
     }
-    session.host.injected_outliers = link.injected;
-    Ok(Ran {
-        record: session.record,
-        host: session.host,
-        adapter: ready.adapter,
-        outcome,
-        link: link.into_inner(),
+    let finished = match outcome {
+        Ok(false) => tracker.abandon(),
+        _ => tracker.finish(),
+    };
+    let r = &finished.record;
+    progress(end, end, r.results.len(), r.log.mode());
+    Ok(Ran::of(finished, outcome))
+}
+
+/// The tracker's settings of a run with an IMU.
+fn inertial_config(options: &TrackOptions, dataset: &Dataset) -> Result<TrackerConfig, TrackError> {
+    let rig = dataset.rig();
+    Ok(TrackerConfig {
+        camera: dataset.camera.camera,
+        model: options.filter,
+        rig,
+        frame_rate_hz: rig.camera_rate_hz.unwrap_or(20.0),
+        start: if options.start.is_cold(dataset) {
+            tracker::Start::Locate
+        } else {
+            inertial_start(options, dataset)?
+        },
+        latency_s: options.latency,
+        attach: options.attach,
+        vision: options.vision,
+        tuning: options.tuning,
+        cache: options.cache.clone(),
+        timeout: options.timeout,
+        answers: match options.pacing {
+            Pacing::LockStep => Answers::AtNextFrame,
+            Pacing::RealTime => Answers::WhenReady,
+        },
+        keep_image_every: options.overlay_every,
+        session_id: new_session_id(),
     })
+}
+
+/// Where a run with an IMU starts: the given camera pose, or the IMU's position and yaw as
+/// given or from the ground truth at the first sample (roll and pitch from gravity).
+fn inertial_start(options: &TrackOptions, dataset: &Dataset) -> Result<tracker::Start, TrackError> {
+    if let Some(pose) = options.start.pose {
+        return Ok(tracker::Start::Camera(pose));
+    }
+    let gt = dataset.groundtruth_at(dataset.imu[0].stamp);
+    let position = match (options.start.position, gt) {
+        (Some(p), _) => p,
+        (None, Some((p, _))) => [p.x, p.y, p.z],
+        (None, None) => {
+            return Err(TrackError::Option(
+                "the dataset has no ground truth: give the start position (--start-position)"
+                    .into(),
+            ));
+        }
+    };
+    let yaw = match (options.start.yaw, gt) {
+        (Some(y), _) => y,
+        (None, Some((_, q))) => q.euler_angles().2,
+        (None, None) => {
+            return Err(TrackError::Option(
+                "the dataset has no ground truth: give the start yaw (--start-yaw)".into(),
+            ));
+        }
+    };
+    Ok(tracker::Start::GravityAndYaw { position, yaw })
 }
 
 /// A session id for this run: non-zero, and different from run to run (the clock's
@@ -770,488 +874,11 @@ fn new_session_id() -> u32 {
     (nanos ^ std::process::id().rotate_left(16)).max(1)
 }
 
-/// A frame whose correspondences are awaited.
-#[derive(Debug, Clone, Copy)]
-struct Pending {
-    frame_id: u32,
-    trigger_us: u64,
-    due: usize,
-}
-
-/// One tracking session's state.
-pub struct Session<'a> {
-    options: &'a TrackOptions,
-    dataset: &'a Dataset,
-    /// What the run saw.
-    pub record: Record,
-    /// What the host did to it: faults injected, outages, an attach.
-    pub host: HostRecord,
-}
-
-/// What the application adds to the tracker's [`Record`]: the faults it injected, the
-/// link's outages, and an attach to a running core (runs with an IMU).
+/// What the application adds to the tracker's [`Record`]: the faults it injected.
 #[derive(Debug, Default)]
 pub struct HostRecord {
-    /// Outages of the link or the core, and how each ended (protocol/PROTOCOL.md §8).
-    pub outages: Vec<Outage>,
-    /// With `--attach`: the first sample sent, the one after the core's last.
-    pub attached_at: Option<usize>,
-    /// With `--attach`: what the host found, and what it did.
-    pub attach_note: Option<String>,
     /// Correspondences replaced by outliers.
     pub injected_outliers: usize,
-}
-
-impl Session<'_> {
-    /// Micro-seconds since the first IMU sample.
-    fn t_us(&self, k: usize) -> u64 {
-        (self.dataset.imu[k].stamp - self.dataset.imu[0].stamp) / 1000
-    }
-
-    fn handshake(&mut self, link: &mut FaultyLink) -> Result<protocol::HelloAck, TrackError> {
-        Ok(self.record.log.handshake(link, self.options.timeout)?)
-    }
-
-    /// Sends `Hello` and collects everything up to its answer.
-    fn barrier(&mut self, link: &mut FaultyLink) -> Result<(), TrackError> {
-        Ok(self.record.log.barrier(link, self.options.timeout)?)
-    }
-
-    /// Sends a `Configure` or `Init` and collects the answers (confirmed on a noisy line).
-    fn send_confirmed(
-        &mut self,
-        link: &mut FaultyLink,
-        msg: &HostToCore,
-        reason: protocol::StatusReason,
-    ) -> Result<(), TrackError> {
-        Ok(self
-            .record
-            .log
-            .send_confirmed(link, msg, reason, self.options.timeout)?)
-    }
-
-    fn drain(&mut self, link: &mut FaultyLink) -> Result<(), TrackError> {
-        Ok(self.record.log.drain(link)?)
-    }
-
-    fn init_message(&self) -> Result<Init, TrackError> {
-        if let Some(pose) = &self.options.start.pose {
-            let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.dataset.hand_eye);
-            let q = q_sw.quaternion();
-            return Ok(Init {
-                position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
-                attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
-            });
-        }
-        let gt = self.dataset.groundtruth_at(self.dataset.imu[0].stamp);
-        let position = match (self.options.start.position, gt) {
-            (Some(p), _) => p,
-            (None, Some((p, _))) => [p.x, p.y, p.z],
-            (None, None) => {
-                return Err(TrackError::Option(
-                    "the dataset has no ground truth: give the start position (--start-position)"
-                        .into(),
-                ));
-            }
-        };
-        let yaw = match (self.options.start.yaw, gt) {
-            (Some(y), _) => y,
-            (None, Some((_, q))) => q.euler_angles().2,
-            (None, None) => {
-                return Err(TrackError::Option(
-                    "the dataset has no ground truth: give the start yaw (--start-yaw)".into(),
-                ));
-            }
-        };
-        Ok(Init {
-            position: position.map(|v| v as f32),
-            attitude: InitAttitude::GravityAndYaw(yaw as f32),
-        })
-    }
-
-    /// Runs the session; `Ok(false)` when interrupted.
-    fn drive(
-        &mut self,
-        link: &mut FaultyLink,
-        worker: &VisionWorker,
-        search: Option<&VisionWorker>,
-        end: usize,
-        interrupt: &AtomicBool,
-        progress: Progress,
-    ) -> Result<bool, TrackError> {
-        let ack = self.handshake(link)?;
-        let config = core_config(
-            &self.dataset.rig(),
-            self.options.filter,
-            &self.options.tuning,
-            self.record.session_id,
-        );
-        check_latency(self.options.latency, &ack.capacities, &config)?;
-        let attached = if self.options.attach {
-            self.attach(link, &ack)?
-        } else {
-            None
-        };
-        // A cold start initialises the core once the model is found (and then searches again
-        // after a loss).
-        let mut searcher = (attached.is_none() && self.options.start.is_cold(self.dataset))
-            .then(cold_start::Searcher::default);
-        if attached.is_none() {
-            self.send_confirmed(
-                link,
-                &HostToCore::Configure(config),
-                protocol::StatusReason::Configured,
-            )?;
-            if searcher.is_none() {
-                let init = HostToCore::Init(self.init_message()?);
-                self.send_confirmed(link, &init, protocol::StatusReason::HostRequest)?;
-            }
-        }
-        if let Some(e) = self.record.log.errors.first() {
-            return Err(TrackError::Core(format!(
-                "refused the configuration: {}",
-                e.code
-            )));
-        }
-
-        let ds = self.dataset;
-        let stamp0 = ds.imu[0].stamp;
-        let triggers: BTreeMap<usize, usize> =
-            ds.triggers().into_iter().map(|(f, k)| (k, f)).collect();
-        let latency_samples = (self.options.latency * ds.imu_rate_hz).round() as usize;
-        let mut pending: VecDeque<Pending> = VecDeque::new();
-        let start = Instant::now();
-        let mut frames_done = 0usize;
-        let mut injected = outage::Injected::default();
-        let mut open: Option<outage::Open> = None;
-        for k in attached.unwrap_or(0)..end {
-            if interrupt.load(Ordering::Relaxed) {
-                if open.is_none() {
-                    self.finish(link, &mut pending, worker, None, true)?;
-                }
-                return Ok(false);
-            }
-            let lock_step = self.options.pacing == Pacing::LockStep;
-            if !lock_step {
-                let due = start + Duration::from_nanos(ds.imu[k].stamp - stamp0);
-                if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                    std::thread::sleep(wait);
-                }
-            }
-            let t_us = self.t_us(k);
-            let refusals = self.record.log.errors.len();
-            // Faults are injected while the core is there; while it is not, the sample waits
-            // for an attempt to reach it.
-            let ready = match open.as_mut() {
-                None => self.inject_faults(link, &mut injected, t_us).map(|()| true),
-                Some(o) => match self.attempt_resume(link, o, &injected, k, &triggers)? {
-                    outage::Attempt::Waiting => Ok(false),
-                    outage::Attempt::Resumed => {
-                        open = None;
-                        Ok(true)
-                    }
-                },
-            };
-            let step = ready.and_then(|ready| {
-                if !ready {
-                    return Ok(());
-                }
-                self.sample_step(
-                    link,
-                    worker,
-                    search,
-                    searcher.as_mut(),
-                    &mut pending,
-                    &mut frames_done,
-                    (k, lock_step, triggers.get(&k).copied()),
-                    latency_samples,
-                )
-            });
-            // A link that failed, or a core that forgot us, is an outage: the frames in
-            // flight are dropped, and the host tries to reach the core again.
-            let cause = match step {
-                Ok(()) if open.is_none() && self.core_forgot(refusals) => Some(
-                    "the core answered as one not configured since it started: it was reset"
-                        .to_string(),
-                ),
-                Ok(()) => None,
-                Err(TrackError::Link(e)) if open.is_none() => Some(e),
-                Err(e) => return Err(e),
-            };
-            if let Some(cause) = cause {
-                open = Some(self.begin_outage(cause, t_us, &mut injected, &mut pending, worker)?);
-            }
-            if k % 50 == 0 || k + 1 == end {
-                progress(k + 1, end, frames_done, self.record.log.mode());
-            }
-        }
-        // A core not reached again before the end has nothing left to collect.
-        if open.is_none() {
-            let searching = searcher.as_mut().zip(search);
-            self.finish(link, &mut pending, worker, searching, false)?;
-        }
-        self.close_outages();
-        progress(end, end, self.record.results.len(), self.record.log.mode());
-        // An outage that the input outlasted is a failed run, as one that outlasts the retry
-        // window is: the samples after it were never tracked.
-        if let Some(o) = open {
-            let outage = &self.host.outages[o.index];
-            return Err(TrackError::Link(format!(
-                "link {}: the core was not reached again before the input ended, {:.2} s after \
-                 the outage began ({} attempts): {}",
-                link.name(),
-                output::seconds(self.t_us(end.saturating_sub(1))) - outage.noticed_s,
-                outage.attempts,
-                outage.cause
-            )));
-        }
-        Ok(true)
-    }
-
-    /// Sends the IMU sample `k`, with the camera's trigger if it fired there.
-    fn send_sample(
-        &mut self,
-        link: &mut FaultyLink,
-        k: usize,
-        trigger: bool,
-    ) -> Result<(), TrackError> {
-        let row = &self.dataset.imu[k];
-        link.send(&HostToCore::Imu(protocol::ImuSample {
-            t_us: self.t_us(k),
-            gyro: [row.gyro.x as f32, row.gyro.y as f32, row.gyro.z as f32],
-            accel: [row.accel.x as f32, row.accel.y as f32, row.accel.z as f32],
-            trigger,
-        }))?;
-        self.record.clock.push(row.stamp);
-        Ok(())
-    }
-
-    /// One IMU sample of [`Self::drive`]: the frames due, the search, the sample, and at a
-    /// trigger the frame's prediction and its analysis. `at` is the sample's index, whether
-    /// the run is in lock-step, and the frame triggered at it.
-    #[allow(clippy::too_many_arguments)]
-    fn sample_step(
-        &mut self,
-        link: &mut FaultyLink,
-        worker: &VisionWorker,
-        search: Option<&VisionWorker>,
-        mut searcher: Option<&mut cold_start::Searcher>,
-        pending: &mut VecDeque<Pending>,
-        frames_done: &mut usize,
-        at: (usize, bool, Option<usize>),
-        latency_samples: usize,
-    ) -> Result<(), TrackError> {
-        let (k, lock_step, frame) = at;
-        let ds = self.dataset;
-        if lock_step {
-            while pending.front().is_some_and(|p| p.due <= k) {
-                let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                let r = worker.recv()?;
-                self.deliver(link, p, r)?;
-                *frames_done += 1;
-            }
-        } else {
-            while !pending.is_empty() {
-                match worker.try_recv() {
-                    Some(r) => {
-                        let p = pending.pop_front().unwrap_or_else(|| unreachable!());
-                        self.deliver(link, p, r)?;
-                        *frames_done += 1;
-                    }
-                    None => break,
-                }
-            }
-        }
-        if let (Some(s), Some(w)) = (searcher.as_deref_mut(), search) {
-            self.poll_search(link, s, w, Some(k).filter(|_| lock_step), self.t_us(k))?;
-        }
-        let t_us = self.t_us(k);
-        self.send_sample(link, k, frame.is_some())?;
-        let Some(f) = frame else {
-            return self.drain(link);
-        };
-        if lock_step {
-            self.barrier(link)?;
-        } else {
-            // Real time: the prediction is usually back within a millisecond.
-            let deadline = Instant::now() + Duration::from_millis(20);
-            while !self.record.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
-                if let Ok(item) = link.recv(Duration::from_millis(2)) {
-                    self.record.log.take(item);
-                }
-            }
-        }
-        let blind = self.options.faults.blind_at(output::seconds(t_us));
-        let cam = &ds.camera.camera;
-        let noise = || self.options.faults.noise_frame(cam.width, cam.height, f);
-        let step = searcher
-            .as_deref_mut()
-            .map_or(cold_start::AtTrigger::Wait, |s| {
-                s.at_trigger(&self.record.log.statuses, t_us)
-            });
-        if step == cold_start::AtTrigger::Tracking {
-            self.record.end_recovery(t_us);
-        }
-        if let (Some(s), Some(w)) = (searcher, search)
-            && let cold_start::AtTrigger::Attempt(lost_at) = step
-        {
-            let path = &ds.frames[f].path;
-            let image = if blind {
-                Ok(noise())
-            } else {
-                image::open(path).map(|i| i.into_luma8())
-            };
-            match image {
-                Ok(image) => {
-                    w.send_locate(image, self.options.cache.clone())?;
-                    s.sent(cold_start::LocateJob {
-                        index: f,
-                        t_us,
-                        due: k + latency_samples.max(1),
-                        lost_at,
-                    });
-                }
-                // An unreadable frame is no attempt, as it is no analysis: reported, and the
-                // next frame is tried.
-                Err(e) => self.record.frame_errors.push((
-                    self.record.results.len(),
-                    format!("{}: {e} (no search on it)", path.display()),
-                )),
-            }
-        }
-        if let Some(p) = self.record.log.predictions.get(&t_us).copied() {
-            let every = self.options.overlay_every;
-            let omega_c = self
-                .record
-                .log
-                .states
-                .last()
-                .filter(|s| s.t_us == t_us)
-                .map(|s| {
-                    let w = Vector3::new(
-                        s.omega_s[0] as f64,
-                        s.omega_s[1] as f64,
-                        s.omega_s[2] as f64,
-                    );
-                    ds.hand_eye.q_cs * w
-                });
-            let job = FrameJob {
-                index: f,
-                stamp: ds.frames[f].stamp,
-                image: if blind {
-                    FrameImage::Decoded(noise())
-                } else {
-                    FrameImage::File(ds.frames[f].path.clone())
-                },
-                prediction: p,
-                keep_image: every > 0 && f % every == 0,
-                omega_c,
-            };
-            worker.send(job)?;
-            pending.push_back(Pending {
-                frame_id: p.frame_id,
-                trigger_us: t_us,
-                due: k + latency_samples.max(1),
-            });
-        }
-        Ok(())
-    }
-
-    /// With `--attach`: a core that runs our model under a session, and is still tracking,
-    /// is taken over as it is. Returns the first sample to send (the one after the core's
-    /// last), or `None` when there is nothing to take over and the core is configured anew.
-    fn attach(
-        &mut self,
-        link: &mut FaultyLink,
-        ack: &protocol::HelloAck,
-    ) -> Result<Option<usize>, TrackError> {
-        if ack.session == 0 || ack.model != Some(self.options.filter) {
-            self.host.attach_note = Some(format!(
-                "the core ran no {:?} session (model {:?}, session {}): configured anew",
-                self.options.filter, ack.model, ack.session
-            ));
-            return Ok(None);
-        }
-        let Some((mode, last_us)) = self.query(link)? else {
-            return Err(TrackError::Core(
-                "--attach: the core did not answer the query for its state".into(),
-            ));
-        };
-        if !matches!(
-            mode,
-            protocol::Mode::Tracking | protocol::Mode::DeadReckoning
-        ) {
-            self.host.attach_note = Some(format!(
-                "the core was {mode:?}, not tracking: configured and initialised anew"
-            ));
-            return Ok(None);
-        }
-        let ds = self.dataset;
-        let next = (0..ds.imu.len()).find(|&k| self.t_us(k) > last_us);
-        match next {
-            Some(k) if self.t_us(k) - last_us <= outage::MAX_BACKLOG_US => {
-                self.record.session_id = ack.session;
-                self.host.attached_at = Some(k);
-                self.host.attach_note = Some(format!(
-                    "attached to session {:#010x}, {mode:?} at t = {:.3} s: went on from there",
-                    ack.session,
-                    last_us as f64 * 1e-6
-                ));
-                Ok(Some(k))
-            }
-            _ => Err(TrackError::Core(format!(
-                "--attach: the core's last sample is at t = {:.3} s, which is not in this dataset's {:.3} s: is it the dataset the core was tracking?",
-                last_us as f64 * 1e-6,
-                self.t_us(ds.imu.len() - 1) as f64 * 1e-6
-            ))),
-        }
-    }
-
-    /// Delivers the frames still in flight, applies a search still running, and collects
-    /// the last answers.
-    fn finish(
-        &mut self,
-        link: &mut FaultyLink,
-        pending: &mut VecDeque<Pending>,
-        worker: &VisionWorker,
-        searching: Option<(&mut cold_start::Searcher, &VisionWorker)>,
-        interrupted: bool,
-    ) -> Result<(), TrackError> {
-        while let Some(p) = pending.pop_front() {
-            let r = worker.recv()?;
-            if interrupted {
-                // Record the analysis; the core has no samples left to apply it to.
-                if let Ok(r) = r {
-                    self.record.results.push((p.frame_id, r));
-                }
-            } else {
-                self.deliver(link, p, r)?;
-            }
-        }
-        if let Some((s, w)) = searching {
-            let now_us = self
-                .record
-                .clock
-                .len()
-                .checked_sub(1)
-                .map_or(0, |k| self.t_us(k));
-            self.poll_search(link, s, w, Some(usize::MAX), now_us)?;
-        }
-        self.barrier(link)
-    }
-
-    /// Sends a frame's correspondences (outliers, where asked, are injected on the way:
-    /// [`FaultyLink`]).
-    fn deliver(
-        &mut self,
-        link: &mut FaultyLink,
-        p: Pending,
-        result: Result<FrameResult, TrackerError>,
-    ) -> Result<(), TrackError> {
-        Ok(self
-            .record
-            .deliver(link, p.frame_id, p.trigger_us, result)?)
-    }
 }
 
 pub use tracker::rig::state_pose;

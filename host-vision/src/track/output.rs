@@ -13,6 +13,8 @@ use firmware_sim::board::BoardReport;
 
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
+use tracker::outage::Outage;
+
 use super::{
     CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot,
     state_pose,
@@ -337,48 +339,6 @@ pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
         });
     }
     out
-}
-
-/// What an outage of the link or the core turned out to be once the host reached the core
-/// again (host-vision/src/track/outage.rs; protocol/PROTOCOL.md §8).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutageKind {
-    /// The core had lost its configuration (reset, or never configured by us): configured and
-    /// initialised again from the last good pose.
-    CoreReset,
-    /// The core kept its state: it was sent the samples it missed and went on.
-    LinkLost,
-    /// Not resolved by the end of the run.
-    Unresolved,
-}
-
-/// One outage of the link or the core, from its notice to the core's return.
-#[derive(Debug, Clone, Serialize)]
-pub struct Outage {
-    /// What it was.
-    pub kind: OutageKind,
-    /// What revealed it.
-    pub cause: String,
-    /// The input's time of the sample being sent when it was noticed [s].
-    pub noticed_s: f64,
-    /// For an injected fault: when it was injected [s], and the wall-clock time until the
-    /// host noticed it [ms].
-    pub injected_s: Option<f64>,
-    /// Wall-clock time from the injection to the notice [ms] (injected faults).
-    pub notice_wall_ms: Option<f64>,
-    /// Reconnection attempts (the last one succeeded, if it did).
-    pub attempts: u32,
-    /// Why the last failed attempt failed.
-    pub last_failure: Option<String>,
-    /// When the host reached the core again [s].
-    pub resumed_s: Option<f64>,
-    /// The device or address it reached it on (a serial pattern's match, say).
-    pub resumed_on: Option<String>,
-    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
-    pub backlog: usize,
-    /// When the core reported `Tracking` again after the return [s].
-    pub tracking_s: Option<f64>,
 }
 
 /// Summary of a run.
@@ -844,7 +804,7 @@ pub(super) fn write_all(
     let out = &options.out;
     let log = &record.log;
     // Times count from the input's first sample, also where an attached run began later.
-    let stamp0 = match host.attached_at {
+    let stamp0 = match record.attached_at {
         Some(_) => dataset.imu.first().map_or(0, |r| r.stamp),
         None => record.clock.first().copied().unwrap_or(0),
     };
@@ -858,7 +818,7 @@ pub(super) fn write_all(
     let path = out.join("trajectory.tum");
     // Outages: the poses around them come from a core that had its state (protocol/PROTOCOL.md
     // §8); the hole between is marked.
-    let gaps: Vec<(u64, String)> = host
+    let gaps: Vec<(u64, String)> = record
         .outages
         .iter()
         .map(|o| {
@@ -1127,8 +1087,8 @@ pub(super) fn write_all(
             refused: record.tilt.record.refused.clone(),
             withheld: record.tilt.record.withheld.len(),
         },
-        outages: host.outages.clone(),
-        attach: host.attach_note.clone(),
+        outages: record.outages.clone(),
+        attach: record.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
         mean_frame_ms: if rows.is_empty() {
             0.0

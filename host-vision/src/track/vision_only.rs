@@ -105,12 +105,10 @@ pub(super) fn track_frames(
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
     let config = TrackerConfig {
-        camera: *camera,
-        frame_rate_hz: rate,
-        start: vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0)),
+        start: vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0))
+            .map_or(tracker::Start::Locate, tracker::Start::Camera),
         vision: options.vision,
         tuning: options.tuning,
-        cache: options.cache.clone(),
         timeout: options.timeout,
         answers: if source.is_live() {
             Answers::WhenReady
@@ -119,6 +117,7 @@ pub(super) fn track_frames(
         },
         keep_image_every: options.overlay_every,
         session_id: super::new_session_id(),
+        ..TrackerConfig::new(*camera, rate, options.cache.clone())
     };
     let t0_ns = first.t_ns;
     let mut tracker = Tracker::new(config, model, link)?;
@@ -146,7 +145,7 @@ pub(super) fn track_frames(
         {
             break Ok(true);
         }
-        match tracker.push_frame(frame) {
+        match tracker.push_frame(frame.into()) {
             Ok(()) => frames += 1,
             // Refused and recorded: the next frame is tried.
             Err(TrackerError::TimeBackwards { .. } | TrackerError::ImageSize { .. }) => {}
@@ -157,7 +156,10 @@ pub(super) fn track_frames(
             progress(frames, total, r.results.len(), r.log.mode());
         }
     };
-    let finished = tracker.finish();
+    let finished = match outcome {
+        Ok(false) => tracker.abandon(),
+        _ => tracker.finish(),
+    };
     let r = &finished.record;
     progress(frames, total.max(frames), r.results.len(), r.log.mode());
     Ok((finished, outcome))

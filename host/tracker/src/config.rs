@@ -2,7 +2,9 @@
 //! from the rig ([`crate::rig::Rig`]), and the process noise tuned per model as the paper did
 //! (the constant-velocity models need a much larger motion noise than the acc model).
 
-use protocol::{Config, DivergenceParams, InitSigma, ModelKind, NoiseParams, validate};
+use protocol::{Capacities, Config, DivergenceParams, InitSigma, ModelKind, NoiseParams, validate};
+
+use crate::error::TrackerError;
 
 use crate::rig::{HandEye, Rig};
 
@@ -180,4 +182,25 @@ pub fn vision_config(camera_rate_hz: f64, tuning: &CoreTuning, session: u32) -> 
     c.still_samples = 1;
     c.state_every = 1;
     c
+}
+
+/// Checks the correspondences' latency against what the core advertised in `HelloAck`: it
+/// keeps a frame's snapshot only so long, and refuses later correspondences as too old.
+pub fn check_latency(
+    latency_s: f64,
+    caps: &Capacities,
+    config: &Config,
+) -> Result<(), TrackerError> {
+    let limit_us = caps.max_latency_us(config.imu_rate_hz, config.camera_rate_hz);
+    if latency_s * 1e6 > limit_us as f64 {
+        return Err(TrackerError::LatencyTooLong {
+            latency_s,
+            limit_s: limit_us as f64 * 1e-6,
+            imu_rate_hz: config.imu_rate_hz,
+            camera_rate_hz: config.camera_rate_hz,
+            frames: caps.max_pending_frames,
+            samples: caps.delay_buffer_samples,
+        });
+    }
+    Ok(())
 }

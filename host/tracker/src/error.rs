@@ -57,6 +57,33 @@ pub enum TrackerError {
         /// The previous one's [µs].
         previous_us: i64,
     },
+    /// A frame pushed while another waits for its trigger (runs with an IMU: a frame is
+    /// triggered by the next sample pushed, one frame per sample).
+    #[error(
+        "frame {index}: another frame already waits for the next IMU sample, its trigger: push one frame per sample, just before it"
+    )]
+    NoTrigger {
+        /// The frame's index in its input.
+        index: usize,
+    },
+    /// The correspondences' latency is longer than the core can wait for them.
+    #[error(
+        "a latency of {latency_s} s is longer than the core can wait for a frame's correspondences: {limit_s:.3} s at {imu_rate_hz} Hz IMU and {camera_rate_hz} Hz camera ({frames} frames, {samples} IMU samples kept)"
+    )]
+    LatencyTooLong {
+        /// The latency asked for [s].
+        latency_s: f64,
+        /// The core's limit [s].
+        limit_s: f64,
+        /// The IMU rate [Hz].
+        imu_rate_hz: f32,
+        /// The camera rate [Hz].
+        camera_rate_hz: f32,
+        /// Frames the core keeps.
+        frames: u16,
+        /// IMU samples the core keeps.
+        samples: u16,
+    },
     /// The tracker was finished, or stopped by an earlier error: it takes nothing more.
     #[error("the tracker has stopped ({0}): make a new one")]
     Stopped(String),

@@ -629,4 +629,12 @@ impl CoreTransport for CoreLink {
     fn lossy(&self) -> bool {
         self.damage.is_some()
     }
+
+    fn is_connected(&self) -> bool {
+        CoreLink::is_connected(self)
+    }
+
+    fn disconnect(&mut self) {
+        self.cut();
+    }
 }

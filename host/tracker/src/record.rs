@@ -48,6 +48,12 @@ pub struct Record {
     /// This run's name for its configuration of the core (`Config::session`): a core that
     /// reports it in its `HelloAck` kept the state this run gave it.
     pub session_id: u32,
+    /// Outages of the link or the core, and how each ended (protocol/PROTOCOL.md §8).
+    pub outages: Vec<crate::outage::Outage>,
+    /// Attached to a running core: the first sample sent, the one after the core's last.
+    pub attached_at: Option<usize>,
+    /// Attach asked for: what the tracker found, and what it did.
+    pub attach_note: Option<String>,
     /// When the run started.
     pub started: Instant,
 }
@@ -69,6 +75,9 @@ impl Record {
             database: None,
             tilt: TiltBranch::default(),
             session_id,
+            outages: Vec::new(),
+            attached_at: None,
+            attach_note: None,
             started: Instant::now(),
         }
     }

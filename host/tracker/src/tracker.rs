@@ -1,7 +1,12 @@
-//! The push-driven [`Tracker`]: the program that owns the camera pushes each frame, and the
-//! tracker answers with events. It has no files and no clock of its own: time is the frames'.
+//! The push-driven [`Tracker`]: the program that owns the camera (and the IMU) pushes each
+//! frame (and each IMU sample), and the tracker answers with events. It has no files and no
+//! clock of its own: time is the sensors'.
 //!
-//! Each frame goes through named steps (as M3T's tracker loop does), in this order:
+//! With an IMU (an inertial model) the program pushes every sample with
+//! [`Tracker::push_imu`], and each frame just before the sample that triggered it; the steps
+//! of a sample are in `crate::inertial`. Without one (the vision-only model) the frames are
+//! the clock, and each frame goes through named steps (as M3T's tracker loop does), in this
+//! order:
 //! 1. [`Tracker::check_frame`]: its size and time against the camera and the frame before;
 //! 2. [`Tracker::start_step`]: while no pose is known (*locating*), a cold-start attempt on
 //!    the frame, whose verified pose initialises the core;
@@ -21,21 +26,22 @@
 
 use std::collections::VecDeque;
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use camera::{Camera, CameraPose};
 use image::GrayImage;
-use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason, Tick};
+use protocol::{HostToCore, Init, InitAttitude, Mode, ModelKind, StatusReason, Tick};
 use vision::{FrameImage, FrameJob, TrackedRule, VisionOptions};
 
 use crate::config::{
     CoreTuning, OBJECT_IN_HAND_ACCEL, OBJECT_IN_HAND_ANGULAR_NOISE, vision_config,
 };
 use crate::error::TrackerError;
+use crate::inertial::Inertial;
 use crate::link::CoreLink;
 use crate::loss::LossRule;
 use crate::record::Record;
-use crate::rig::HandEye;
+use crate::rig::{HandEye, Rig};
 use crate::search::Search;
 use crate::transport::CoreTransport;
 use crate::worker::{VisionWorker, is_textured};
@@ -50,14 +56,43 @@ const MAX_TICK_GAP_US: u64 = 500_000;
 const TILT_CHECK_EVERY: usize = 5;
 
 /// One camera frame pushed into the tracker.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone)]
 pub struct Frame {
     /// Its number in its input, from 0 (for reports).
     pub index: usize,
     /// Its time stamp [ns] on the camera's clock.
     pub t_ns: i64,
-    /// The grey pixels, of the camera's size.
-    pub image: GrayImage,
+    /// Its grey pixels, of the camera's size, or the image file that holds them (read on the
+    /// vision thread).
+    pub image: FrameImage,
+}
+
+impl Frame {
+    /// Frame `index` at `t_ns` with its grey pixels.
+    pub fn decoded(index: usize, t_ns: i64, image: GrayImage) -> Self {
+        Self {
+            index,
+            t_ns,
+            image: FrameImage::Decoded(image),
+        }
+    }
+}
+
+/// Where tracking starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Start {
+    /// Nowhere given: the cold start finds the model in the frames.
+    Locate,
+    /// The camera's whole pose in the model's frame (`cMo`).
+    Camera(CameraPose),
+    /// The IMU's position [m] and yaw [rad] in the model's frame, roll and pitch from gravity
+    /// (the paper's semi-automatic initialisation; inertial models only).
+    GravityAndYaw {
+        /// The IMU's position [m].
+        position: [f64; 3],
+        /// Its yaw [rad].
+        yaw: f64,
+    },
 }
 
 /// Where the tracker stands (M3T's detecting, starting and tracking, with the loss).
@@ -141,11 +176,21 @@ pub enum Answers {
 pub struct TrackerConfig {
     /// The camera (its intrinsics and image size).
     pub camera: Camera,
-    /// The frames' nominal rate [Hz]: the core's clock of ticks is twice it.
+    /// The core's filter model: the vision-only one (the frames are its clock), or an
+    /// inertial one (the IMU samples are).
+    pub model: ModelKind,
+    /// The sensors of an inertial model: the IMU's rate and noise, the camera's rate and mount.
+    pub rig: Rig,
+    /// The frames' nominal rate [Hz] of the vision-only model: its clock of ticks is twice it.
     pub frame_rate_hz: f64,
-    /// Where tracking starts (the camera in the model's frame); `None`: the cold start finds
-    /// the model in the frames.
-    pub start: Option<CameraPose>,
+    /// Where tracking starts.
+    pub start: Start,
+    /// Inertial models, in a replay: the correspondences of a frame are sent this long after
+    /// its trigger [s], counted in IMU samples.
+    pub latency_s: f64,
+    /// Inertial models: take over a core that is already tracking our model
+    /// (protocol/PROTOCOL.md §8) instead of configuring it anew.
+    pub attach: bool,
     /// The image analysis.
     pub vision: VisionOptions,
     /// The core's tuning.
@@ -164,8 +209,8 @@ pub struct TrackerConfig {
 }
 
 impl TrackerConfig {
-    /// Defaults for `camera` at `frame_rate_hz`: an object turned in a hand, found by the
-    /// cold start, replayed deterministically.
+    /// Defaults of the vision-only model for `camera` at `frame_rate_hz`: an object turned in
+    /// a hand, found by the cold start, replayed deterministically.
     pub fn new(camera: Camera, frame_rate_hz: f64, cache: PathBuf) -> Self {
         let tuning = CoreTuning {
             expected_accel: OBJECT_IN_HAND_ACCEL,
@@ -174,8 +219,17 @@ impl TrackerConfig {
         };
         Self {
             camera,
+            model: ModelKind::Vision,
+            rig: Rig {
+                imu_rate_hz: 2.0 * frame_rate_hz,
+                imu_noise: None,
+                camera_rate_hz: Some(frame_rate_hz),
+                hand_eye: HandEye::IDENTITY,
+            },
             frame_rate_hz,
-            start: None,
+            start: Start::Locate,
+            latency_s: 0.0,
+            attach: false,
             vision: VisionOptions::default(),
             tuning,
             cache,
@@ -218,32 +272,40 @@ struct InSearch {
 /// tracker.push_frame(tracker::Frame { index: 0, t_ns: 0, image: image::GrayImage::new(1, 1) });
 /// ```
 pub struct Tracker<T: CoreTransport = CoreLink> {
-    config: TrackerConfig,
-    core: T,
-    worker: VisionWorker,
-    search: VisionWorker,
+    pub(crate) config: TrackerConfig,
+    pub(crate) core: T,
+    pub(crate) worker: VisionWorker,
+    /// The searches' vision thread: vision-only runs, and inertial runs that start cold.
+    pub(crate) search: Option<VisionWorker>,
     adapter: String,
-    record: Record,
+    pub(crate) record: Record,
     /// The core's outlier gate on `s_i`.
     gate: f64,
     rule: TrackedRule,
-    /// The first frame's time stamp [ns], which is the core's time 0.
+    /// Vision-only: the first frame's time stamp [ns], which is the core's time 0.
     t0_ns: Option<i64>,
-    /// The last tick's time [µs].
+    /// Vision-only: the last tick's time [µs].
     last_us: Option<u64>,
+    /// Vision-only: whether the core has a pose.
     started: bool,
-    /// A frame has been tracked since the core was last given a pose.
+    /// Vision-only: a frame has been tracked since the core was last given a pose.
     tracked_since_start: bool,
+    /// Vision-only: the loss rule, with the tracked rule's verdicts.
     loss: LossRule,
     in_search: Option<InSearch>,
     since_check: usize,
-    events: VecDeque<Event>,
-    state: State,
+    /// Runs with an IMU: their state.
+    pub(crate) inertial: Option<Inertial>,
+    /// An injected fault not yet noticed: when it was injected [s of input], and on the wall
+    /// clock.
+    pub(crate) injected: Option<(f64, Instant)>,
+    pub(crate) events: VecDeque<Event>,
+    pub(crate) state: State,
     latest: Option<Pose>,
     /// The core's state reports already told as events.
     states_told: usize,
     /// Why the tracker stopped, once it did.
-    stopped: Option<String>,
+    pub(crate) stopped: Option<String>,
 }
 
 /// What [`Tracker::finish`] leaves.
@@ -261,101 +323,140 @@ pub struct Finished<T> {
 impl<T: CoreTransport> Tracker<T> {
     /// Starts the tracker for `model` with the core behind `core`: the vision threads (each
     /// with its renderer), the handshake, the core's `Configure`, and its `Init` where the
-    /// start pose is given.
-    pub fn new(
-        config: TrackerConfig,
-        model: &model::Model,
-        mut core: T,
-    ) -> Result<Self, TrackerError> {
-        if !(config.frame_rate_hz.is_finite() && config.frame_rate_hz > 0.0) {
-            return Err(TrackerError::Config(format!(
-                "the frame rate must be a positive number of frames per second, got {}",
-                config.frame_rate_hz
-            )));
-        }
+    /// start pose is given (with an IMU: or an attach to a core already tracking).
+    pub fn new(config: TrackerConfig, model: &model::Model, core: T) -> Result<Self, TrackerError> {
+        let vision_only = config.model == ModelKind::Vision;
+        check_config(&config)?;
         if !is_textured(model) {
             return Err(TrackerError::Untextured);
         }
         let mut vision = config.vision;
-        vision.map.small_object_cells = true;
+        vision.map.small_object_cells |= vision_only;
         let (worker, ready) = VisionWorker::start(config.camera, model.clone(), vision)?;
-        let (search, _) = VisionWorker::start(config.camera, model.clone(), vision)?;
-        let mut record = Record::new(HandEye::IDENTITY, config.session_id, ready.axes);
-        let timeout = config.timeout;
-        // Correspondences go out before the next tick: no latency to check against the
-        // core's buffers.
-        record.log.handshake(&mut core, timeout)?;
-        let core_config = vision_config(config.frame_rate_hz, &config.tuning, config.session_id);
-        record.log.send_confirmed(
-            &mut core,
+        let search = if vision_only || config.start == Start::Locate {
+            Some(VisionWorker::start(config.camera, model.clone(), vision)?.0)
+        } else {
+            None
+        };
+        let hand_eye = if vision_only {
+            HandEye::IDENTITY
+        } else {
+            config.rig.hand_eye
+        };
+        let mut tracker = Self {
+            gate: 0.0,
+            rule: TrackedRule::default(),
+            t0_ns: None,
+            last_us: None,
+            started: config.start != Start::Locate,
+            tracked_since_start: false,
+            loss: LossRule::default(),
+            in_search: None,
+            since_check: 0,
+            inertial: None,
+            injected: None,
+            events: VecDeque::new(),
+            state: State::Locating,
+            latest: None,
+            states_told: 0,
+            stopped: None,
+            adapter: ready.adapter,
+            record: Record::new(hand_eye, config.session_id, ready.axes),
+            config,
+            core,
+            worker,
+            search,
+        };
+        if vision_only {
+            tracker.start_vision()?;
+        } else {
+            tracker.start_inertial()?;
+        }
+        Ok(tracker)
+    }
+
+    /// The start of a vision-only run: the handshake, the `Configure`, and the `Init` where
+    /// the start pose is given. Correspondences go out before the next tick: no latency to
+    /// check against the core's buffers.
+    fn start_vision(&mut self) -> Result<(), TrackerError> {
+        self.record
+            .log
+            .handshake(&mut self.core, self.config.timeout)?;
+        let c = &self.config;
+        let core_config = vision_config(c.frame_rate_hz, &c.tuning, c.session_id);
+        self.gate = f64::from(core_config.gate);
+        self.send_confirmed(
             &HostToCore::Configure(core_config),
             StatusReason::Configured,
-            timeout,
         )?;
-        if let Some(pose) = &config.start {
+        if let Start::Camera(pose) = &self.config.start {
             let init = HostToCore::Init(init_at(pose));
-            record
-                .log
-                .send_confirmed(&mut core, &init, StatusReason::HostRequest, timeout)?;
+            self.send_confirmed(&init, StatusReason::HostRequest)?;
         }
-        if let Some(e) = record.log.errors.first() {
+        if let Some(e) = self.record.log.errors.first() {
             return Err(TrackerError::Core(format!(
                 "refused the configuration: {}",
                 e.code
             )));
         }
-        let started = config.start.is_some();
-        Ok(Self {
-            gate: f64::from(core_config.gate),
-            rule: TrackedRule::default(),
-            t0_ns: None,
-            last_us: None,
-            started,
-            tracked_since_start: false,
-            loss: LossRule::default(),
-            in_search: None,
-            since_check: 0,
-            events: VecDeque::new(),
-            state: if started {
-                State::Starting
-            } else {
-                State::Locating
-            },
-            latest: None,
-            states_told: 0,
-            stopped: None,
-            adapter: ready.adapter,
-            config,
-            core,
-            worker,
-            search,
-            record,
-        })
+        self.state = if self.started {
+            State::Starting
+        } else {
+            State::Locating
+        };
+        Ok(())
     }
 
-    /// Tracks one frame. A frame of another size than the camera's, or not after the frame
-    /// before, is refused with its error, and the tracker goes on. Any other error stops it:
-    /// it then refuses every later frame, and [`Self::finish`] returns what was tracked.
+    /// Sends `Hello` and logs everything the core says up to its answer.
+    pub(crate) fn barrier(&mut self) -> Result<(), TrackerError> {
+        self.record.log.barrier(&mut self.core, self.config.timeout)
+    }
+
+    /// Sends a `Configure` or `Init` and logs the answers (confirmed on a lossy line).
+    pub(crate) fn send_confirmed(
+        &mut self,
+        msg: &HostToCore,
+        reason: StatusReason,
+    ) -> Result<(), TrackerError> {
+        self.record
+            .log
+            .send_confirmed(&mut self.core, msg, reason, self.config.timeout)
+    }
+
+    /// The transport, for what the program does to it directly (fault injection, say).
+    pub fn core_mut(&mut self) -> &mut T {
+        &mut self.core
+    }
+
+    /// Tracks one frame. A frame of another size than the camera's, not after the frame
+    /// before, or unreadable, is refused with its error, and the tracker goes on. Any other
+    /// error stops it: it then refuses every later frame and sample, and [`Self::finish`]
+    /// returns what was tracked.
+    ///
+    /// With an IMU the frame waits for the next sample pushed, which triggered it.
     pub fn push_frame(&mut self, frame: Frame) -> Result<(), TrackerError> {
         if let Some(why) = &self.stopped {
             return Err(TrackerError::Stopped(why.clone()));
         }
-        let t_us = match self.check_frame(&frame) {
-            Ok(t) => t,
+        let index = frame.index;
+        let checked = match &self.inertial {
+            Some(_) => self.queue_frame(frame).map(|()| None),
+            None => self.check_frame(frame).map(Some),
+        };
+        let (t_us, image) = match checked {
+            Ok(Some(c)) => c,
+            Ok(None) => return Ok(()),
             Err(e) => {
                 // Refused, and recorded as a frame that could not be used.
                 let why = e.to_string();
                 self.record
                     .frame_errors
                     .push((self.record.results.len(), format!("{why}: skipped")));
-                self.events.push_back(Event::FrameSkipped {
-                    index: frame.index,
-                    why,
-                });
+                self.events.push_back(Event::FrameSkipped { index, why });
                 return Err(e);
             }
         };
-        let step = self.track(frame, t_us);
+        let step = self.track(index, image, t_us);
         if let Err(e) = &step {
             self.stopped = Some(e.to_string());
         }
@@ -363,19 +464,45 @@ impl<T: CoreTransport> Tracker<T> {
         step
     }
 
-    /// Step 1: the frame's size and time. Returns its time [µs from the first frame].
-    pub fn check_frame(&mut self, frame: &Frame) -> Result<u64, TrackerError> {
-        let (w, h) = frame.image.dimensions();
+    /// With an IMU: the frame waits for its trigger, the next sample.
+    fn queue_frame(&mut self, frame: Frame) -> Result<(), TrackerError> {
+        if let FrameImage::Decoded(image) = &frame.image {
+            self.check_size(frame.index, image)?;
+        }
+        let inertial = self.imu_mut()?;
+        if inertial.queued.is_some() {
+            return Err(TrackerError::NoTrigger { index: frame.index });
+        }
+        inertial.queued = Some(frame);
+        Ok(())
+    }
+
+    /// Whether `image` is of the camera's size.
+    fn check_size(&self, index: usize, image: &GrayImage) -> Result<(), TrackerError> {
+        let (w, h) = image.dimensions();
         let camera = &self.config.camera;
         if (w, h) != (camera.width, camera.height) {
             return Err(TrackerError::ImageSize {
-                index: frame.index,
+                index,
                 width: w,
                 height: h,
                 camera_width: camera.width,
                 camera_height: camera.height,
             });
         }
+        Ok(())
+    }
+
+    /// Step 1 (vision-only): the frame's pixels, size and time. Returns its time [µs from
+    /// the first frame] and pixels.
+    pub fn check_frame(&mut self, frame: Frame) -> Result<(u64, GrayImage), TrackerError> {
+        let image = match frame.image {
+            FrameImage::Decoded(image) => image,
+            FrameImage::File(path) => image::open(&path)
+                .map_err(|source| vision::VisionError::Image { path, source })?
+                .into_luma8(),
+        };
+        self.check_size(frame.index, &image)?;
         let t0 = *self.t0_ns.get_or_insert(frame.t_ns);
         let t_us = frame.t_ns.saturating_sub(t0) / 1000;
         // The frame's tick must come after the last tick, which is 1 µs past the last frame.
@@ -388,44 +515,46 @@ impl<T: CoreTransport> Tracker<T> {
                 previous_us: last.saturating_sub(1) as i64,
             });
         }
-        Ok(u64::try_from(t_us).unwrap_or(0))
+        Ok((u64::try_from(t_us).unwrap_or(0), image))
     }
 
-    /// Steps 2 to 8 for a frame at `t_us`.
-    fn track(&mut self, frame: Frame, t_us: u64) -> Result<(), TrackerError> {
-        if !self.start_step(&frame, t_us)? {
+    /// Steps 2 to 8 for the frame `index` at `t_us`.
+    fn track(&mut self, index: usize, image: GrayImage, t_us: u64) -> Result<(), TrackerError> {
+        if !self.start_step(index, &image, t_us)? {
             return Ok(());
         }
         self.take_answers(t_us)?;
-        self.search_step(&frame, t_us)?;
+        self.search_step(index, &image, t_us)?;
         self.tick(t_us)?;
         let check_due = self.since_check >= TILT_CHECK_EVERY
             && !self.record.tilt.in_flight()
             && self.in_search.is_none()
             && self.loss.untracked_since().is_none();
-        let check_image = check_due.then(|| frame.image.clone());
-        let analysed = self.analyse(frame.index, frame.image, t_us)?;
-        self.check_step(check_image, analysed, frame.index)?;
-        self.judge(analysed, frame.index, t_us);
+        let check_image = check_due.then(|| image.clone());
+        let analysed = self.analyse(index, image, t_us)?;
+        self.check_step(check_image, analysed, index)?;
+        self.judge(analysed, index, t_us);
         Ok(())
     }
 
     /// Step 2: while no pose is known, a cold-start attempt on the frame (waited for). Returns
     /// whether the frame goes on to be tracked: it does once a pose is verified, from that
     /// pose.
-    pub fn start_step(&mut self, frame: &Frame, t_us: u64) -> Result<bool, TrackerError> {
+    pub fn start_step(
+        &mut self,
+        index: usize,
+        image: &GrayImage,
+        t_us: u64,
+    ) -> Result<bool, TrackerError> {
         if self.started {
             return Ok(true);
         }
         let (a, from) = self
-            .search
-            .locate(frame.image.clone(), self.config.cache.clone())?;
+            .searcher()?
+            .locate(image.clone(), self.config.cache.clone())?;
         self.record.keep_provenance(from);
-        self.record.searches.push(Search::new(frame.index, t_us, a));
-        self.events.push_back(Event::Located {
-            index: frame.index,
-            pose: a.pose,
-        });
+        self.record.searches.push(Search::new(index, t_us, a));
+        self.tell_located(index, a.pose);
         let Some(pose) = a.pose else {
             return Ok(false);
         };
@@ -445,19 +574,16 @@ impl<T: CoreTransport> Tracker<T> {
         self.loss.note_statuses(&self.record.log.statuses, t_us);
         if let Some(s) = self.in_search {
             let done = if block {
-                Some(self.search.locate_result()?)
+                Some(self.searcher()?.locate_result()?)
             } else {
-                self.search.try_locate()?
+                self.searcher()?.try_locate()?
             };
             if let Some((a, from)) = done {
                 self.in_search = None;
                 self.record.keep_provenance(from);
                 self.record
                     .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
-                self.events.push_back(Event::Located {
-                    index: s.index,
-                    pose: a.pose,
-                });
+                self.tell_located(s.index, a.pose);
                 if let Some(pose) = a.pose {
                     self.core.send(&HostToCore::Init(init_at(&pose)))?;
                     self.record.tilt.restart();
@@ -467,7 +593,7 @@ impl<T: CoreTransport> Tracker<T> {
             }
         }
         if self.record.tilt.in_flight()
-            && let Some(check) = self.search.tilt_result(block)?
+            && let Some(check) = self.searcher()?.tilt_result(block)?
             && let Some(pose) = self.record.tilt.answer(&check, t_us as f64 * 1e-6)
         {
             self.core.send(&HostToCore::Init(init_at(&pose)))?;
@@ -477,7 +603,12 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 4: while lost, a search on the frame every few frames (one at a time, and not
     /// beside a tilt check); while not, an open loss ends.
-    pub fn search_step(&mut self, frame: &Frame, t_us: u64) -> Result<(), TrackerError> {
+    pub fn search_step(
+        &mut self,
+        index: usize,
+        image: &GrayImage,
+        t_us: u64,
+    ) -> Result<(), TrackerError> {
         if !self.loss.lost(t_us) {
             self.record.end_recovery(t_us);
             return Ok(());
@@ -485,10 +616,10 @@ impl<T: CoreTransport> Tracker<T> {
         self.set_state(State::Lost);
         let busy = self.in_search.is_some() || self.record.tilt.in_flight();
         if let Some(lost_at) = self.loss.search_due(t_us, busy) {
-            self.search
-                .send_locate(frame.image.clone(), self.config.cache.clone())?;
+            self.searcher()?
+                .send_locate(image.clone(), self.config.cache.clone())?;
             self.in_search = Some(InSearch {
-                index: frame.index,
+                index,
                 t_us,
                 lost_at,
             });
@@ -604,7 +735,7 @@ impl<T: CoreTransport> Tracker<T> {
     ) -> Result<(), TrackerError> {
         match (image, judged) {
             (Some(image), Some(j)) if j.tracked => {
-                self.search.send_tilt_check(image, j.pose)?;
+                self.searcher()?.send_tilt_check(image, j.pose)?;
                 self.record.tilt.sent(index, j.frame_id, j.pose);
                 self.since_check = 0;
             }
@@ -676,16 +807,31 @@ impl<T: CoreTransport> Tracker<T> {
         &self.adapter
     }
 
-    /// Ends the run: the tilt check in flight is waited for (a flip not yet confirmed never
-    /// held), so is a search in flight, and everything the core still had to say is logged.
-    pub fn finish(mut self) -> Finished<T> {
+    /// Ends the run: what is in flight is waited for and applied (the frames with the vision
+    /// thread, the tilt check, whose unconfirmed flip never held, a search), and everything
+    /// the core still had to say is logged.
+    pub fn finish(self) -> Finished<T> {
+        self.end(false)
+    }
+
+    /// Ends the run at once (an interrupt): the frames in flight are recorded, not delivered,
+    /// and a search or a tilt check in flight is dropped.
+    pub fn abandon(self) -> Finished<T> {
+        self.end(true)
+    }
+
+    fn end(mut self, interrupted: bool) -> Finished<T> {
         let result = match self.stopped.take() {
             Some(why) => Err(TrackerError::Stopped(why)),
+            None if self.inertial.is_some() => self.finish_inertial(interrupted),
+            None if interrupted => self.barrier(),
             None => self.wind_down(),
         };
         self.tell_poses();
         self.worker.stop();
-        self.search.stop();
+        if let Some(s) = &mut self.search {
+            s.stop();
+        }
         Finished {
             record: self.record,
             core: self.core,
@@ -694,35 +840,52 @@ impl<T: CoreTransport> Tracker<T> {
         }
     }
 
-    /// See [`Self::finish`].
+    /// See [`Self::finish`] (vision-only).
     fn wind_down(&mut self) -> Result<(), TrackerError> {
         if self.record.tilt.in_flight() {
-            self.search.tilt_result(true)?;
+            self.searcher()?.tilt_result(true)?;
         }
         self.record.tilt.restart();
         if let Some(s) = self.in_search.take() {
-            let (a, from) = self.search.locate_result()?;
+            let (a, from) = self.searcher()?.locate_result()?;
             self.record.keep_provenance(from);
             self.record
                 .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
         }
-        self.record.log.barrier(&mut self.core, self.config.timeout)
+        self.barrier()
     }
 
-    fn set_state(&mut self, state: State) {
+    /// The searches' vision thread.
+    fn searcher(&self) -> Result<&VisionWorker, TrackerError> {
+        self.search
+            .as_ref()
+            .ok_or_else(|| TrackerError::VisionThread("no search thread".into()))
+    }
+
+    pub(crate) fn set_state(&mut self, state: State) {
         if self.state != state {
             self.state = state;
             self.events.push_back(Event::State(state));
         }
     }
 
+    /// Tells a search's answer.
+    pub(crate) fn tell_located(&mut self, index: usize, pose: Option<CameraPose>) {
+        self.events.push_back(Event::Located { index, pose });
+    }
+
     /// Tells the core's new state reports as poses.
-    fn tell_poses(&mut self) {
+    pub(crate) fn tell_poses(&mut self) {
         let log = &self.record.log;
+        let hand_eye = self.record.core_hand_eye;
         for s in &log.states[self.states_told.min(log.states.len())..] {
+            let (c_w, q_wc) = hand_eye.camera_of_state(s);
             let pose = Pose {
                 t_us: s.t_us,
-                camera: pose_of_state(s),
+                camera: CameraPose {
+                    q_cw: q_wc.inverse(),
+                    c_w,
+                },
                 mode: log.mode(),
             };
             self.latest = Some(pose);
@@ -730,6 +893,41 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.states_told = log.states.len();
     }
+}
+
+/// Checks what no run can work with.
+fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
+    let bad = |m: String| Err(TrackerError::Config(m));
+    if config.model == ModelKind::Vision {
+        if !(config.frame_rate_hz.is_finite() && config.frame_rate_hz > 0.0) {
+            return bad(format!(
+                "the frame rate must be a positive number of frames per second, got {}",
+                config.frame_rate_hz
+            ));
+        }
+        if matches!(config.start, Start::GravityAndYaw { .. }) {
+            return bad(
+                "the vision-only model has no gravity for roll and pitch: start it from the camera's whole pose".into(),
+            );
+        }
+        if config.attach {
+            return bad("attaching to a running core is for runs with an IMU".into());
+        }
+        return Ok(());
+    }
+    let rate = config.rig.imu_rate_hz;
+    if !(rate.is_finite() && rate > 0.0) {
+        return bad(format!(
+            "the IMU rate must be a positive number of samples per second, got {rate}"
+        ));
+    }
+    if !(config.latency_s.is_finite() && config.latency_s >= 0.0) {
+        return bad(format!(
+            "the latency must be a non-negative number of seconds, got {}",
+            config.latency_s
+        ));
+    }
+    Ok(())
 }
 
 /// The camera pose of a vision-only state report (the camera is the sensor).

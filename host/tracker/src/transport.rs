@@ -49,6 +49,15 @@ pub trait CoreTransport {
     /// Opens the link again after it was lost.
     fn reconnect(&mut self) -> Result<(), TrackerError>;
 
+    /// Whether a connection is open (the next exchange needs no [`Self::reconnect`]).
+    fn is_connected(&self) -> bool {
+        true
+    }
+
+    /// Drops the connection after a failed exchange, so that the next attempt starts over
+    /// with [`Self::reconnect`].
+    fn disconnect(&mut self) {}
+
     /// Whether messages may be lost on the way (a line with bit errors): a `Hello` unanswered
     /// is then sent again, and a `Configure` or `Init` until it is confirmed.
     fn lossy(&self) -> bool {

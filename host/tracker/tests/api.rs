@@ -12,7 +12,8 @@ use image::GrayImage;
 use nalgebra::Vector3;
 use protocol::HostToCore;
 use tracker::{
-    CoreLink, CoreTransport, Frame, Incoming, LinkSpec, State, Tracker, TrackerConfig, TrackerError,
+    CoreLink, CoreTransport, Frame, Incoming, LinkSpec, Start, State, Tracker, TrackerConfig,
+    TrackerError,
 };
 
 fn camera() -> Camera {
@@ -22,7 +23,7 @@ fn camera() -> Camera {
 /// The tracker at a given pose over the standard test scene, with the in-process core.
 fn config(cache: &std::path::Path) -> TrackerConfig {
     let mut c = TrackerConfig::new(camera(), 30.0, cache.to_owned());
-    c.start = Some(
+    c.start = Start::Camera(
         CameraPose::look_at(
             Vector3::new(1.2, -1.2, 1.0),
             Vector3::new(0.0, 0.0, 0.2),
@@ -39,13 +40,10 @@ fn inproc() -> CoreLink {
 }
 
 fn frame(index: usize, t_ms: i64, width: u32, height: u32) -> Frame {
-    Frame {
-        index,
-        t_ns: t_ms * 1_000_000,
-        image: GrayImage::from_fn(width, height, |x, y| {
-            image::Luma([((x * 7 + y * 3) % 251) as u8])
-        }),
-    }
+    let image = GrayImage::from_fn(width, height, |x, y| {
+        image::Luma([((x * 7 + y * 3) % 251) as u8])
+    });
+    Frame::decoded(index, t_ms * 1_000_000, image)
 }
 
 #[test]

@@ -1,13 +1,13 @@
 //! The cold start and the recovery of an inertial run (issue 15; the method is in
 //! docs/notes/issue15-cold-start.md, §6):
 //!
-//! - **Start.** With no start pose given (`--cold-start`, or no ground truth and no
-//!   `--start-position`/`--start-yaw`), the core is configured but not initialised. At each
+//! - **Start.** With no start pose given ([`crate::tracker::Start::Locate`]), the core is
+//!   configured but not initialised. At each
 //!   trigger with no attempt in flight the frame goes to the vision thread for an attempt
 //!   ([`crate::locate`]); the IMU stream goes on meanwhile. The first verified pose gives the
 //!   core its `Init`: position and yaw from the pose, roll and pitch from gravity
 //!   (`InitAttitude::KeepTilt`, which a core not yet running takes from its still window).
-//! - **Loss.** The model is lost by the one loss rule of every run ([`tracker::loss`]), here
+//! - **Loss.** The model is lost by the one loss rule of every run ([`crate::loss`]), here
 //!   with the core's mode as the frames' judgement: after a divergence, or when the core has
 //!   not been tracking for half a second. While lost, attempts follow at intervals; a
 //!   verified pose re-anchors the running filter at once (`KeepTilt`: position and yaw from
@@ -25,14 +25,17 @@
 use nalgebra::UnitQuaternion;
 use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
 
-use tracker::loss::LossRule;
+use camera::CameraPose;
 
-use super::{FaultyLink, Search, Session, Start, TrackError, VisionWorker};
-use crate::camera::CameraPose;
+use crate::error::TrackerError;
+use crate::loss::LossRule;
+use crate::search::Search;
+use crate::tracker::Tracker;
+use crate::transport::CoreTransport;
 
 /// An attempt sent to the vision thread.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct LocateJob {
+pub(crate) struct LocateJob {
     /// The frame's index.
     pub index: usize,
     /// Its trigger time [µs].
@@ -45,7 +48,7 @@ pub(super) struct LocateJob {
 
 /// The search state of an inertial run that started cold.
 #[derive(Debug, Default)]
-pub(super) struct Searcher {
+pub(crate) struct Searcher {
     /// Whether the core has been given a found pose.
     started: bool,
     /// The attempt with the search thread.
@@ -56,7 +59,7 @@ pub(super) struct Searcher {
 
 /// What to do at a trigger.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum AtTrigger {
+pub(crate) enum AtTrigger {
     /// Send an attempt: for the start (`None`), or for the loss since this time [µs].
     Attempt(Option<u64>),
     /// The core is tracking.
@@ -88,6 +91,16 @@ impl Searcher {
         }
     }
 
+    /// Whether the core has been given a found pose.
+    pub fn started(&self) -> bool {
+        self.started
+    }
+
+    /// Whether the model is lost at `t_us`.
+    pub fn lost(&self, t_us: u64) -> bool {
+        self.loss.lost(t_us)
+    }
+
     /// Records the attempt just sent.
     pub fn sent(&mut self, job: LocateJob) {
         self.job = Some(job);
@@ -100,19 +113,19 @@ fn state_at(states: &[StateReport], t_us: u64) -> Option<&StateReport> {
     i.checked_sub(1).and_then(|i| states.get(i))
 }
 
-impl Session<'_> {
-    /// Applies the attempt with the search thread `search` if it is due: in lock-step
+impl<T: CoreTransport> Tracker<T> {
+    /// Applies the attempt with the search thread if it is due: in lock-step
     /// (`lock_step_k`, the IMU sample now) once its due sample is reached, waiting for it; in
     /// real time as soon as it is ready.
-    pub(super) fn poll_search(
+    pub(crate) fn poll_search(
         &mut self,
-        link: &mut FaultyLink,
-        searcher: &mut Searcher,
-        search: &VisionWorker,
         lock_step_k: Option<usize>,
         now_us: u64,
-    ) -> Result<(), TrackError> {
-        let Some(job) = searcher.job else {
+    ) -> Result<(), TrackerError> {
+        let Some(job) = self.searcher_mut().and_then(|s| s.job) else {
+            return Ok(());
+        };
+        let Some(search) = &self.search else {
             return Ok(());
         };
         let (attempt, from) = match lock_step_k {
@@ -124,32 +137,35 @@ impl Session<'_> {
             },
         };
         self.record.keep_provenance(from);
-        searcher.job = None;
-        self.found(link, searcher, job, attempt, now_us)
+        if let Some(s) = self.searcher_mut() {
+            s.job = None;
+        }
+        self.found(job, attempt, now_us)
     }
 
     /// Applies an attempt's answer: records it, and gives the core a verified pose.
     fn found(
         &mut self,
-        link: &mut FaultyLink,
-        searcher: &mut Searcher,
         job: LocateJob,
-        attempt: crate::locate::Attempt,
+        attempt: locate::Attempt,
         now_us: u64,
-    ) -> Result<(), TrackError> {
+    ) -> Result<(), TrackerError> {
         let search = Search::new(job.index, job.t_us, attempt);
         match job.lost_at {
             None => self.record.searches.push(search),
             Some(since) => self.record.record_recovery(since as f64 * 1e-6, search),
         }
+        self.tell_located(job.index, attempt.pose);
         let Some(pose) = attempt.pose else {
             return Ok(());
         };
         let init = self.keep_tilt_init(&pose, job.t_us, now_us);
-        link.send(&HostToCore::Init(init))?;
-        searcher.started = true;
-        // The new start gets the same grace as a loss before it counts as lost.
-        searcher.loss.found(Some(now_us));
+        self.core.send(&HostToCore::Init(init))?;
+        if let Some(s) = self.searcher_mut() {
+            s.started = true;
+            // The new start gets the same grace as a loss before it counts as lost.
+            s.loss.found(Some(now_us));
+        }
         Ok(())
     }
 
@@ -157,13 +173,13 @@ impl Session<'_> {
     /// the IMU's position as found, its yaw carried forward by the core's rotation since the
     /// frame (when the core was running then).
     fn keep_tilt_init(&self, pose: &CameraPose, frame_us: u64, now_us: u64) -> Init {
-        let (s_w, q_sw) = Start::imu_pose_of_camera(pose, &self.dataset.hand_eye);
+        let (s_w, q_sw) = self.config.rig.hand_eye.sensor_pose_of_camera(pose);
         let q_ws_found = q_sw.inverse();
         let states = &self.record.log.states;
         let q_ws = match (state_at(states, frame_us), state_at(states, now_us)) {
             (Some(then), Some(now)) if then.t_us < now.t_us => {
-                let (_, q_then) = super::state_pose(then);
-                let (_, q_now) = super::state_pose(now);
+                let (_, q_then) = crate::rig::state_pose(then);
+                let (_, q_now) = crate::rig::state_pose(now);
                 // The body's rotation from the frame to now, in the body frame.
                 let turn: UnitQuaternion<f64> = q_then.inverse() * q_now;
                 q_ws_found * turn

@@ -3,13 +3,59 @@
 //! where tracking was: the samples it missed if it kept its state, or a new configuration and
 //! an initialisation from the last good pose if it did not.
 
-use std::collections::VecDeque;
-use std::time::Instant;
-
 use protocol::{ErrorCode, HostToCore, Init, InitAttitude, Mode, Resume, StatusReason};
+use serde::Serialize;
 
-use super::output::{Outage, OutageKind, seconds};
-use super::{FaultyLink, Pending, Session, TrackError, VisionWorker};
+use crate::error::TrackerError;
+use crate::tracker::{Answers, Tracker};
+use crate::transport::CoreTransport;
+
+/// Seconds of `t_us`.
+fn seconds(t_us: u64) -> f64 {
+    t_us as f64 / 1e6
+}
+
+/// What an outage of the link or the core turned out to be once the host reached the core
+/// again (protocol/PROTOCOL.md §8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutageKind {
+    /// The core had lost its configuration (reset, or never configured by us): configured and
+    /// initialised again from the last good pose.
+    CoreReset,
+    /// The core kept its state: it was sent the samples it missed and went on.
+    LinkLost,
+    /// Not resolved by the end of the run.
+    Unresolved,
+}
+
+/// One outage of the link or the core, from its notice to the core's return.
+#[derive(Debug, Clone, Serialize)]
+pub struct Outage {
+    /// What it was.
+    pub kind: OutageKind,
+    /// What revealed it.
+    pub cause: String,
+    /// The input's time of the sample being sent when it was noticed [s].
+    pub noticed_s: f64,
+    /// For an injected fault: when it was injected [s], and the wall-clock time until the
+    /// host noticed it [ms].
+    pub injected_s: Option<f64>,
+    /// Wall-clock time from the injection to the notice [ms] (injected faults).
+    pub notice_wall_ms: Option<f64>,
+    /// Reconnection attempts (the last one succeeded, if it did).
+    pub attempts: u32,
+    /// Why the last failed attempt failed.
+    pub last_failure: Option<String>,
+    /// When the host reached the core again [s].
+    pub resumed_s: Option<f64>,
+    /// The device or address it reached it on (a serial pattern's match, say).
+    pub resumed_on: Option<String>,
+    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
+    pub backlog: usize,
+    /// When the core reported `Tracking` again after the return [s].
+    pub tracking_s: Option<f64>,
+}
 
 /// The first wait before reconnecting [µs of the input's clock]; it doubles after each failed
 /// attempt, up to [`MAX_BACKOFF_US`].
@@ -31,66 +77,25 @@ const RESUME_WITHIN_US: u64 = 500_000;
 
 /// An outage in progress: the record, and when to try again.
 #[derive(Debug)]
-pub(super) struct Open {
-    pub index: usize,
+pub(crate) struct Open {
+    pub(crate) index: usize,
     next_attempt_us: u64,
     backoff_us: u64,
     since_us: u64,
 }
 
 /// The outcome of one attempt to reach the core.
-pub(super) enum Attempt {
+pub(crate) enum Attempt {
     /// Not yet: the link is still down, or it is not time to try.
     Waiting,
     /// The core is back and up to date; go on with the current sample.
     Resumed,
 }
 
-/// Injected faults pending at a sample: when they were injected, for the notice's time.
-#[derive(Debug, Default)]
-pub(super) struct Injected {
-    reset_done: bool,
-    cut_done: bool,
-    /// The last injection not yet noticed: `(input time [s], wall clock)`.
-    pending: Option<(f64, Instant)>,
-    /// Until when [µs] the cable is out.
-    cut_until_us: Option<u64>,
-}
-
-impl Session<'_> {
-    /// Injects the faults due at the sample of time `t_us` (`--reset-core-at`,
-    /// `--cut-link-at`).
-    pub(super) fn inject_faults(
-        &mut self,
-        link: &mut FaultyLink,
-        injected: &mut Injected,
-        t_us: u64,
-    ) -> Result<(), TrackError> {
-        let t = seconds(t_us);
-        let f = self.options.faults;
-        if let Some(at) = f
-            .reset_core_at
-            .filter(|&at| t >= at && !injected.reset_done)
-        {
-            injected.reset_done = true;
-            // Everything sent before the reset reaches the core first: a repeatable cut.
-            self.barrier(link)?;
-            link.reset_core()?;
-            injected.pending = Some((at, Instant::now()));
-        }
-        if let Some(at) = f.cut_link_at.filter(|&at| t >= at && !injected.cut_done) {
-            injected.cut_done = true;
-            self.barrier(link)?;
-            link.cut();
-            injected.cut_until_us = Some(t_us + (f.cut_seconds.max(0.0) * 1e6) as u64);
-            injected.pending = Some((at, Instant::now()));
-        }
-        Ok(())
-    }
-
+impl<T: CoreTransport> Tracker<T> {
     /// Whether the core refused a message for want of a handshake or a configuration since
     /// `seen` refusals: it was reset.
-    pub(super) fn core_forgot(&self, seen: usize) -> bool {
+    pub(crate) fn core_forgot(&self, seen: usize) -> bool {
         self.record.log.errors[seen.min(self.record.log.errors.len())..]
             .iter()
             .any(|e| matches!(e.code, ErrorCode::NoHandshake | ErrorCode::NotConfigured))
@@ -99,24 +104,17 @@ impl Session<'_> {
     /// Records an outage noticed at the sample of time `t_us` because of `cause`. The frames
     /// in flight are recorded but not delivered: their predictions may come from a core that
     /// is gone.
-    pub(super) fn begin_outage(
-        &mut self,
-        cause: String,
-        t_us: u64,
-        injected: &mut Injected,
-        pending: &mut VecDeque<Pending>,
-        worker: &VisionWorker,
-    ) -> Result<Open, TrackError> {
-        while let Some(p) = pending.pop_front() {
-            if let Ok(r) = worker.recv()? {
+    pub(crate) fn begin_outage(&mut self, cause: String, t_us: u64) -> Result<Open, TrackerError> {
+        while let Some(p) = self.imu_mut()?.pending.pop_front() {
+            if let Ok(r) = self.worker.recv()? {
                 self.record.results.push((p.frame_id, r));
             }
         }
-        let (injected_s, notice_wall_ms) = match injected.pending.take() {
+        let (injected_s, notice_wall_ms) = match self.injected.take() {
             Some((at, wall)) => (Some(at), Some(wall.elapsed().as_secs_f64() * 1e3)),
             None => (None, None),
         };
-        self.host.outages.push(Outage {
+        self.record.outages.push(Outage {
             kind: OutageKind::Unresolved,
             cause,
             noticed_s: seconds(t_us),
@@ -130,59 +128,52 @@ impl Session<'_> {
             tracking_s: None,
         });
         Ok(Open {
-            index: self.host.outages.len() - 1,
+            index: self.record.outages.len() - 1,
             next_attempt_us: t_us,
             backoff_us: FIRST_BACKOFF_US,
             since_us: t_us,
         })
     }
 
-    /// Tries to reach the core again at the sample `k` (of time `t_us`): reconnects if the
-    /// link is down, shakes hands, and then either sends a core that kept our session the
-    /// samples it missed, or configures and initialises a core that lost it. Between failed
-    /// attempts it waits, in the input's time, twice as long as before.
-    pub(super) fn attempt_resume(
+    /// Tries to reach the core again at the sample of time `t_us`: reconnects if the link is
+    /// down, shakes hands, and then either sends a core that kept our session the samples it
+    /// missed, or configures and initialises a core that lost it. Between failed attempts it
+    /// waits, in the input's time, twice as long as before.
+    pub(crate) fn attempt_resume(
         &mut self,
-        link: &mut FaultyLink,
         open: &mut Open,
-        injected: &Injected,
-        k: usize,
-        triggers: &std::collections::BTreeMap<usize, usize>,
-    ) -> Result<Attempt, TrackError> {
-        let t_us = self.t_us(k);
+        t_us: u64,
+    ) -> Result<Attempt, TrackerError> {
         if t_us < open.next_attempt_us {
             return Ok(Attempt::Waiting);
         }
+        let outage = open.index;
         if t_us.saturating_sub(open.since_us) > GIVE_UP_US {
-            return Err(TrackError::Link(format!(
+            return Err(TrackerError::Link(format!(
                 "link {}: the core could not be reached for {:.1} s ({} attempts): {}",
-                link.name(),
+                self.core.name(),
                 GIVE_UP_US as f64 * 1e-6,
-                self.host.outages[open.index].attempts,
-                self.host.outages[open.index].cause
+                self.record.outages[outage].attempts,
+                self.record.outages[outage].cause
             )));
         }
-        self.host.outages[open.index].attempts += 1;
-        let reached = if injected.cut_until_us.is_some_and(|until| t_us < until) {
-            // The cable is out: the device is gone, as a serial adaptor's is.
-            Err(TrackError::Link("the cable is out (injected)".into()))
-        } else {
-            self.reach(link)
-                .and_then(|ack| self.bring_up_to_date(link, open.index, &ack, k, triggers))
-        };
+        self.record.outages[outage].attempts += 1;
+        let reached = self
+            .reach()
+            .and_then(|ack| self.bring_up_to_date(outage, &ack, t_us));
         match reached {
             Ok(()) => {
-                self.host.outages[open.index].resumed_s = Some(seconds(t_us));
-                self.host.outages[open.index].resumed_on = Some(link.name().to_string());
+                self.record.outages[outage].resumed_s = Some(seconds(t_us));
+                self.record.outages[outage].resumed_on = Some(self.core.name().to_string());
                 Ok(Attempt::Resumed)
             }
             // Not there, or lost again on the way: the next attempt starts over.
-            Err(TrackError::Link(e)) => {
-                self.host.outages[open.index].last_failure = Some(e);
-                link.cut();
+            Err(TrackerError::Link(e)) => {
+                self.record.outages[outage].last_failure = Some(e);
+                self.core.disconnect();
                 open.next_attempt_us = t_us + open.backoff_us;
-                if self.options.pacing == super::Pacing::LockStep {
-                    // A device comes back in real time: in lock-step the wait passes on the
+                if self.config.answers == Answers::AtNextFrame {
+                    // A device comes back in real time: in a replay the wait passes on the
                     // wall clock too, so that the outage is as long on both.
                     std::thread::sleep(std::time::Duration::from_micros(open.backoff_us));
                 }
@@ -193,19 +184,16 @@ impl Session<'_> {
         }
     }
 
-    /// After the handshake `ack` at sample `k`: sends a core that kept our session the
-    /// samples it missed, or configures and initialises one that lost it.
+    /// After the handshake `ack` at the sample of time `t_us`: sends a core that kept our
+    /// session the samples it missed, or configures and initialises one that lost it.
     fn bring_up_to_date(
         &mut self,
-        link: &mut FaultyLink,
         outage: usize,
         ack: &protocol::HelloAck,
-        k: usize,
-        triggers: &std::collections::BTreeMap<usize, usize>,
-    ) -> Result<(), TrackError> {
-        let t_us = self.t_us(k);
+        t_us: u64,
+    ) -> Result<(), TrackerError> {
         let kept = if ack.session == self.record.session_id {
-            self.query(link)?
+            self.query()?
         } else {
             None
         };
@@ -216,41 +204,43 @@ impl Session<'_> {
             Some((_, last_us)) => {
                 // The core went on without us: bring it up to date. Its predictions for the
                 // frames of the gap come too late for vision: it dead-reckons through them.
-                let missed: Vec<usize> = (0..k)
-                    .rev()
-                    .take_while(|&j| self.t_us(j) > last_us)
+                let missed: Vec<_> = self
+                    .imu_mut()?
+                    .recent
+                    .iter()
+                    .filter(|s| s.t_us > last_us && s.t_us < t_us)
+                    .copied()
                     .collect();
-                for &j in missed.iter().rev() {
-                    self.send_sample(link, j, triggers.contains_key(&j))?;
+                for s in &missed {
+                    self.send_sample(s)?;
                 }
-                self.barrier(link)?;
-                self.host.outages[outage].backlog = missed.len();
-                self.host.outages[outage].kind = OutageKind::LinkLost;
+                self.barrier()?;
+                self.record.outages[outage].backlog = missed.len();
+                self.record.outages[outage].kind = OutageKind::LinkLost;
             }
             None => {
-                self.configure_again(link, t_us)?;
-                self.host.outages[outage].kind = OutageKind::CoreReset;
+                self.configure_again(t_us)?;
+                self.record.outages[outage].kind = OutageKind::CoreReset;
             }
         }
         Ok(())
     }
 
     /// Reconnects if needed and shakes hands.
-    fn reach(&mut self, link: &mut FaultyLink) -> Result<protocol::HelloAck, TrackError> {
-        if !link.is_connected() {
-            link.reconnect()?;
+    fn reach(&mut self) -> Result<protocol::HelloAck, TrackerError> {
+        if !self.core.is_connected() {
+            self.core.reconnect()?;
         }
-        self.handshake(link)
+        self.record
+            .log
+            .handshake(&mut self.core, self.config.timeout)
     }
 
     /// Asks a core for its mode and the time of its last sample.
-    pub(super) fn query(
-        &mut self,
-        link: &mut FaultyLink,
-    ) -> Result<Option<(Mode, u64)>, TrackError> {
+    pub(crate) fn query(&mut self) -> Result<Option<(Mode, u64)>, TrackerError> {
         let seen = self.record.log.statuses.len();
-        link.send(&HostToCore::Query)?;
-        self.barrier(link)?;
+        self.core.send(&HostToCore::Query)?;
+        self.barrier()?;
         Ok(self.record.log.statuses[seen..]
             .iter()
             .rev()
@@ -262,19 +252,15 @@ impl Session<'_> {
     /// state it reported while tracking (`Resume`), if that is recent; else from that state's
     /// position and yaw with roll and pitch from gravity again (or from the run's start, if it
     /// never tracked).
-    fn configure_again(&mut self, link: &mut FaultyLink, t_us: u64) -> Result<(), TrackError> {
-        let config = super::core_config(
-            &self.dataset.rig(),
-            self.options.filter,
-            &self.options.tuning,
+    fn configure_again(&mut self, t_us: u64) -> Result<(), TrackerError> {
+        let config = crate::config::core_config(
+            &self.config.rig,
+            self.config.model,
+            &self.config.tuning,
             self.record.session_id,
         );
         let errors = self.record.log.errors.len();
-        self.send_confirmed(
-            link,
-            &HostToCore::Configure(config),
-            StatusReason::Configured,
-        )?;
+        self.send_confirmed(&HostToCore::Configure(config), StatusReason::Configured)?;
         // The new core numbers its frames from 0 again.
         self.record.log.new_core();
         let last_good = self
@@ -290,7 +276,7 @@ impl Session<'_> {
             }
             Some(s) => {
                 // The yaw of the sensor in the world, as `Init` takes it (`q_ws`, not `q_sw`).
-                let (_, q_ws) = super::state_pose(s);
+                let (_, q_ws) = crate::rig::state_pose(s);
                 HostToCore::Init(Init {
                     position: s.s_w,
                     attitude: InitAttitude::GravityAndYaw(q_ws.euler_angles().2 as f32),
@@ -298,9 +284,9 @@ impl Session<'_> {
             }
             None => HostToCore::Init(self.init_message()?),
         };
-        self.send_confirmed(link, &start, StatusReason::HostRequest)?;
+        self.send_confirmed(&start, StatusReason::HostRequest)?;
         if let Some(e) = self.record.log.errors.get(errors) {
-            return Err(TrackError::Core(format!(
+            return Err(TrackerError::Core(format!(
                 "refused the configuration again: {}",
                 e.code
             )));
@@ -310,8 +296,8 @@ impl Session<'_> {
 
     /// Fills in, from the statuses, when the core reported `Tracking` again after each
     /// outage.
-    pub(super) fn close_outages(&mut self) {
-        for o in &mut self.host.outages {
+    pub(crate) fn close_outages(&mut self) {
+        for o in &mut self.record.outages {
             let Some(resumed) = o.resumed_s else {
                 continue;
             };
