@@ -199,17 +199,6 @@ impl Start {
     }
 }
 
-impl Start {
-    /// The IMU pose `(s_w, q_sw)` the core expects for the camera pose `pose`, through the
-    /// camera's mount (eq. 5-6: `q_cw = q_cs q_sw`, `c_w = s_w + R(q_sw)ᵀ c_s`).
-    pub fn imu_pose_of_camera(
-        pose: &crate::camera::CameraPose,
-        hand_eye: &crate::dataset::HandEye,
-    ) -> (Vector3<f64>, UnitQuaternion<f64>) {
-        hand_eye.sensor_pose_of_camera(pose)
-    }
-}
-
 /// Everything `track` needs.
 #[derive(Debug, Clone)]
 pub struct TrackOptions {
@@ -889,27 +878,4 @@ pub fn camera_of_state(
     hand_eye: &crate::dataset::HandEye,
 ) -> (Vector3<f64>, UnitQuaternion<f64>) {
     hand_eye.camera_of_state(s)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::camera::CameraPose;
-    use crate::dataset::HandEye;
-
-    #[test]
-    fn a_start_pose_maps_to_the_imu_pose_whose_camera_it_is() {
-        let hand_eye = HandEye {
-            q_cs: UnitQuaternion::from_euler_angles(-1.5, 0.1, 0.2),
-            c_s: Vector3::new(0.03, -0.01, 0.05),
-        };
-        let pose = CameraPose {
-            q_cw: UnitQuaternion::from_euler_angles(0.4, -0.7, 2.1),
-            c_w: Vector3::new(0.5, 1.0, -0.3),
-        };
-        let (s_w, q_sw) = Start::imu_pose_of_camera(&pose, &hand_eye);
-        let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_sw.inverse());
-        assert!((c_w - pose.c_w).norm() < 1e-12);
-        assert!(q_cw.angle_to(&pose.q_cw) < 1e-12);
-    }
 }

@@ -149,7 +149,7 @@ fn frame_period(rows: &[FrameRow]) -> f64 {
 }
 
 /// The tilt checks of a vision-only run (docs/notes/issue15-cold-start.md §5.2,
-/// `track/tilt.rs`).
+/// `tracker::tilt`).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct TiltChecks {
     /// Checks run.

@@ -331,7 +331,7 @@ impl TiltCheck {
 /// mirror decisively, the mirror is verified in its turn; it is the flip when it passes
 /// `rule` (the cold start's: a flip re-initialises the core as a found pose does) and the
 /// image favours it over the tracked pose again. Whether a flip is applied is tracking's
-/// decision (host-vision's `track/tilt.rs`: it must hold).
+/// decision (the tracker's `tilt.rs`: it must hold).
 ///
 /// Tracking follows a face that turns through face on along either branch of the two-fold
 /// ambiguity, and can leave on the wrong one: on the cube video, 150 mm and 18° off for a

@@ -10,6 +10,7 @@
 //! - [`search`], [`loss`], [`tilt`], [`cold_start`]: the searches, the loss rule that sends
 //!   them, the tilt checks of tracked poses, and the inertial run's cold start;
 //! - [`outage`]: a lost link or a reset core noticed, reached again and brought up to date;
+//! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells;
 //! - [`record`]: everything a run saw, for its reports;
 //! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
 //!   `relocate`, `finish`; [`inertial`]: its runs with an IMU (`push_imu`).
@@ -19,6 +20,7 @@
 pub mod cold_start;
 pub mod config;
 mod error;
+pub mod event;
 pub mod inertial;
 pub mod link;
 pub mod log;
@@ -27,6 +29,7 @@ pub mod outage;
 pub mod record;
 pub mod rig;
 pub mod search;
+pub mod settings;
 pub mod tilt;
 pub mod tracker;
 pub mod transport;

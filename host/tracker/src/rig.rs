@@ -107,3 +107,24 @@ pub fn state_pose(s: &protocol::StateReport) -> (Vector3<f64>, UnitQuaternion<f6
     let q_sw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
     (Vector3::from(s.s_w.map(f64::from)), q_sw.inverse())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_camera_pose_maps_to_the_imu_pose_whose_camera_it_is() {
+        let hand_eye = HandEye {
+            q_cs: UnitQuaternion::from_euler_angles(-1.5, 0.1, 0.2),
+            c_s: Vector3::new(0.03, -0.01, 0.05),
+        };
+        let pose = camera::CameraPose {
+            q_cw: UnitQuaternion::from_euler_angles(0.4, -0.7, 2.1),
+            c_w: Vector3::new(0.5, 1.0, -0.3),
+        };
+        let (s_w, q_sw) = hand_eye.sensor_pose_of_camera(&pose);
+        let (c_w, q_cw) = hand_eye.camera_pose(&s_w, &q_sw.inverse());
+        assert!((c_w - pose.c_w).norm() < 1e-12);
+        assert!(q_cw.angle_to(&pose.q_cw) < 1e-12);
+    }
+}

@@ -25,24 +25,24 @@
 //! The core runs the vision-only model: its clock is the frames' (`Tick`s, protocol 2.1).
 
 use std::collections::VecDeque;
-use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use camera::{Camera, CameraPose};
+use camera::CameraPose;
 use image::GrayImage;
-use protocol::{HostToCore, Init, InitAttitude, Mode, ModelKind, StatusReason, Tick};
-use vision::{FrameImage, FrameJob, TrackedRule, VisionOptions};
+use protocol::{HostToCore, Init, InitAttitude, ModelKind, StatusReason, Tick};
+use vision::{FrameImage, FrameJob, TrackedRule};
 
-use crate::config::{
-    CoreTuning, OBJECT_IN_HAND_ACCEL, OBJECT_IN_HAND_ANGULAR_NOISE, vision_config,
-};
+use crate::config::vision_config;
 use crate::error::TrackerError;
+pub use crate::event::{Event, FrameReport, Pose, State};
 use crate::inertial::Inertial;
 use crate::link::CoreLink;
 use crate::loss::LossRule;
 use crate::record::Record;
-use crate::rig::{HandEye, Rig};
+use crate::rig::HandEye;
 use crate::search::Search;
+use crate::settings::check_config;
+pub use crate::settings::{Answers, Frame, Start, TrackerConfig};
 use crate::transport::CoreTransport;
 use crate::worker::{VisionWorker, is_textured};
 
@@ -54,192 +54,6 @@ const MAX_TICK_GAP_US: u64 = 500_000;
 /// While tracked, one tilt check every this many frames at most (docs/notes/issue15-cold-start.md
 /// §5.2): it runs on the search thread, one at a time, and costs about as much as an attempt.
 const TILT_CHECK_EVERY: usize = 5;
-
-/// One camera frame pushed into the tracker.
-#[derive(Debug, Clone)]
-pub struct Frame {
-    /// Its number in its input, from 0 (for reports).
-    pub index: usize,
-    /// Its time stamp [ns] on the camera's clock.
-    pub t_ns: i64,
-    /// Its grey pixels, of the camera's size, or the image file that holds them (read on the
-    /// vision thread).
-    pub image: FrameImage,
-}
-
-impl Frame {
-    /// Frame `index` at `t_ns` with its grey pixels.
-    pub fn decoded(index: usize, t_ns: i64, image: GrayImage) -> Self {
-        Self {
-            index,
-            t_ns,
-            image: FrameImage::Decoded(image),
-        }
-    }
-}
-
-/// Where tracking starts.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Start {
-    /// Nowhere given: the cold start finds the model in the frames.
-    Locate,
-    /// The camera's whole pose in the model's frame (`cMo`).
-    Camera(CameraPose),
-    /// The IMU's position [m] and yaw [rad] in the model's frame, roll and pitch from gravity
-    /// (the paper's semi-automatic initialisation; inertial models only).
-    GravityAndYaw {
-        /// The IMU's position [m].
-        position: [f64; 3],
-        /// Its yaw [rad].
-        yaw: f64,
-    },
-}
-
-/// Where the tracker stands (M3T's detecting, starting and tracking, with the loss).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum State {
-    /// No pose yet: each frame gets a cold-start attempt.
-    Locating,
-    /// The core has a pose (given or found), and no frame has been tracked since.
-    Starting,
-    /// Frames are tracked (or were, less than the loss rule's half second ago).
-    Tracking,
-    /// The model is lost: searches run every few frames until one verifies a pose.
-    Lost,
-}
-
-/// A camera pose estimated by the core.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pose {
-    /// Its time [µs from the first frame].
-    pub t_us: u64,
-    /// The camera in the model's frame.
-    pub camera: CameraPose,
-    /// The core's mode then.
-    pub mode: Option<Mode>,
-}
-
-/// What one frame gave.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameReport {
-    /// The frame's index in its input.
-    pub index: usize,
-    /// Its time [µs from the first frame].
-    pub t_us: u64,
-    /// The pose estimated with it, where the core estimated one.
-    pub pose: Option<CameraPose>,
-    /// Whether it counts as tracked (the tracked rule at the estimated pose); `None` where it
-    /// was not analysed (no pose yet, or an unusable image). A later tilt check may still
-    /// withhold it (the frames after a flip, until it is confirmed): the record's
-    /// [`Record::tracked`] is final.
-    pub tracked: Option<bool>,
-    /// Correspondences sent to the core.
-    pub correspondences: usize,
-}
-
-/// What the tracker tells, in order ([`Tracker::poll`]).
-#[derive(Debug, Clone, PartialEq)]
-pub enum Event {
-    /// A pose of the core (two per frame: the prediction's time, and just after the update).
-    Pose(Pose),
-    /// A frame's outcome.
-    Frame(FrameReport),
-    /// A search's answer: its frame, and the pose it verified, if any.
-    Located {
-        /// The frame searched.
-        index: usize,
-        /// The verified pose.
-        pose: Option<CameraPose>,
-    },
-    /// The state changed.
-    State(State),
-    /// A frame could not be used, and why (the tracker goes on).
-    FrameSkipped {
-        /// The frame's index in its input.
-        index: usize,
-        /// Why.
-        why: String,
-    },
-}
-
-/// How a search's (or a tilt check's) answer is taken.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Answers {
-    /// At the next frame, waiting for it: a replay is the same every time.
-    AtNextFrame,
-    /// At the first frame where it is ready: a live camera is never held up.
-    WhenReady,
-}
-
-/// How the tracker runs.
-#[derive(Debug, Clone)]
-pub struct TrackerConfig {
-    /// The camera (its intrinsics and image size).
-    pub camera: Camera,
-    /// The core's filter model: the vision-only one (the frames are its clock), or an
-    /// inertial one (the IMU samples are).
-    pub model: ModelKind,
-    /// The sensors of an inertial model: the IMU's rate and noise, the camera's rate and mount.
-    pub rig: Rig,
-    /// The frames' nominal rate [Hz] of the vision-only model: its clock of ticks is twice it.
-    pub frame_rate_hz: f64,
-    /// Where tracking starts.
-    pub start: Start,
-    /// Inertial models, in a replay: the correspondences of a frame are sent this long after
-    /// its trigger [s], counted in IMU samples.
-    pub latency_s: f64,
-    /// Inertial models: take over a core that is already tracking our model
-    /// (protocol/PROTOCOL.md §8) instead of configuring it anew.
-    pub attach: bool,
-    /// The image analysis.
-    pub vision: VisionOptions,
-    /// The core's tuning.
-    pub tuning: CoreTuning,
-    /// Folder of the cold start's viewpoint database (built on the first search, read back
-    /// after).
-    pub cache: PathBuf,
-    /// Longest wait for an answer of the core.
-    pub timeout: Duration,
-    /// How searches' answers are taken.
-    pub answers: Answers,
-    /// Keep every this many frames' images in the record, for overlays (0: none).
-    pub keep_image_every: usize,
-    /// This run's name for its configuration of the core (non-zero).
-    pub session_id: u32,
-}
-
-impl TrackerConfig {
-    /// Defaults of the vision-only model for `camera` at `frame_rate_hz`: an object turned in
-    /// a hand, found by the cold start, replayed deterministically.
-    pub fn new(camera: Camera, frame_rate_hz: f64, cache: PathBuf) -> Self {
-        let tuning = CoreTuning {
-            expected_accel: OBJECT_IN_HAND_ACCEL,
-            angular_noise: OBJECT_IN_HAND_ANGULAR_NOISE,
-            ..CoreTuning::default()
-        };
-        Self {
-            camera,
-            model: ModelKind::Vision,
-            rig: Rig {
-                imu_rate_hz: 2.0 * frame_rate_hz,
-                imu_noise: None,
-                camera_rate_hz: Some(frame_rate_hz),
-                hand_eye: HandEye::IDENTITY,
-            },
-            frame_rate_hz,
-            start: Start::Locate,
-            latency_s: 0.0,
-            attach: false,
-            vision: VisionOptions::default(),
-            tuning,
-            cache,
-            timeout: Duration::from_secs(10),
-            answers: Answers::AtNextFrame,
-            keep_image_every: 0,
-            session_id: 1,
-        }
-    }
-}
 
 /// A frame's pose estimated with it, and its judgement.
 #[derive(Debug, Clone, Copy)]
@@ -893,41 +707,6 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.states_told = log.states.len();
     }
-}
-
-/// Checks what no run can work with.
-fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
-    let bad = |m: String| Err(TrackerError::Config(m));
-    if config.model == ModelKind::Vision {
-        if !(config.frame_rate_hz.is_finite() && config.frame_rate_hz > 0.0) {
-            return bad(format!(
-                "the frame rate must be a positive number of frames per second, got {}",
-                config.frame_rate_hz
-            ));
-        }
-        if matches!(config.start, Start::GravityAndYaw { .. }) {
-            return bad(
-                "the vision-only model has no gravity for roll and pitch: start it from the camera's whole pose".into(),
-            );
-        }
-        if config.attach {
-            return bad("attaching to a running core is for runs with an IMU".into());
-        }
-        return Ok(());
-    }
-    let rate = config.rig.imu_rate_hz;
-    if !(rate.is_finite() && rate > 0.0) {
-        return bad(format!(
-            "the IMU rate must be a positive number of samples per second, got {rate}"
-        ));
-    }
-    if !(config.latency_s.is_finite() && config.latency_s >= 0.0) {
-        return bad(format!(
-            "the latency must be a non-negative number of seconds, got {}",
-            config.latency_s
-        ));
-    }
-    Ok(())
 }
 
 /// The camera pose of a vision-only state report (the camera is the sensor).

@@ -1,0 +1,72 @@
+//! What the tracker tells ([`crate::Tracker::poll`]): poses, frames' outcomes, searches'
+//! answers and its state.
+
+use camera::CameraPose;
+use protocol::Mode;
+
+/// Where the tracker stands (M3T's detecting, starting and tracking, with the loss).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum State {
+    /// No pose yet: each frame gets a cold-start attempt.
+    Locating,
+    /// The core has a pose (given or found), and no frame has been tracked since.
+    Starting,
+    /// Frames are tracked (or were, less than the loss rule's half second ago).
+    Tracking,
+    /// The model is lost: searches run every few frames until one verifies a pose.
+    Lost,
+}
+
+/// A camera pose estimated by the core.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Its time [µs from the first frame].
+    pub t_us: u64,
+    /// The camera in the model's frame.
+    pub camera: CameraPose,
+    /// The core's mode then.
+    pub mode: Option<Mode>,
+}
+
+/// What one frame gave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameReport {
+    /// The frame's index in its input.
+    pub index: usize,
+    /// Its time [µs from the first frame].
+    pub t_us: u64,
+    /// The pose estimated with it, where the core estimated one.
+    pub pose: Option<CameraPose>,
+    /// Whether it counts as tracked (the tracked rule at the estimated pose); `None` where it
+    /// was not analysed (no pose yet, or an unusable image). A later tilt check may still
+    /// withhold it (the frames after a flip, until it is confirmed): the record's
+    /// [`Record::tracked`] is final.
+    pub tracked: Option<bool>,
+    /// Correspondences sent to the core.
+    pub correspondences: usize,
+}
+
+/// What the tracker tells, in order ([`crate::Tracker::poll`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Event {
+    /// A pose of the core (two per frame: the prediction's time, and just after the update).
+    Pose(Pose),
+    /// A frame's outcome.
+    Frame(FrameReport),
+    /// A search's answer: its frame, and the pose it verified, if any.
+    Located {
+        /// The frame searched.
+        index: usize,
+        /// The verified pose.
+        pose: Option<CameraPose>,
+    },
+    /// The state changed.
+    State(State),
+    /// A frame could not be used, and why (the tracker goes on).
+    FrameSkipped {
+        /// The frame's index in its input.
+        index: usize,
+        /// Why.
+        why: String,
+    },
+}

@@ -1,0 +1,168 @@
+//! How a [`crate::Tracker`] runs: the model, the sensors, where it starts, and the frames
+//! it takes ([`Frame`]).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use camera::{Camera, CameraPose};
+use image::GrayImage;
+use protocol::ModelKind;
+use vision::{FrameImage, VisionOptions};
+
+use crate::config::{CoreTuning, OBJECT_IN_HAND_ACCEL, OBJECT_IN_HAND_ANGULAR_NOISE};
+use crate::error::TrackerError;
+use crate::rig::{HandEye, Rig};
+
+/// One camera frame pushed into the tracker.
+#[derive(Debug, Clone)]
+pub struct Frame {
+    /// Its number in its input, from 0 (for reports).
+    pub index: usize,
+    /// Its time stamp [ns] on the camera's clock.
+    pub t_ns: i64,
+    /// Its grey pixels, of the camera's size, or the image file that holds them (read on the
+    /// vision thread).
+    pub image: FrameImage,
+}
+
+impl Frame {
+    /// Frame `index` at `t_ns` with its grey pixels.
+    pub fn decoded(index: usize, t_ns: i64, image: GrayImage) -> Self {
+        Self {
+            index,
+            t_ns,
+            image: FrameImage::Decoded(image),
+        }
+    }
+}
+
+/// Where tracking starts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Start {
+    /// Nowhere given: the cold start finds the model in the frames.
+    Locate,
+    /// The camera's whole pose in the model's frame (`cMo`).
+    Camera(CameraPose),
+    /// The IMU's position [m] and yaw [rad] in the model's frame, roll and pitch from gravity
+    /// (the paper's semi-automatic initialisation; inertial models only).
+    GravityAndYaw {
+        /// The IMU's position [m].
+        position: [f64; 3],
+        /// Its yaw [rad].
+        yaw: f64,
+    },
+}
+
+/// How a search's (or a tilt check's) answer is taken.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Answers {
+    /// At the next frame, waiting for it: a replay is the same every time.
+    AtNextFrame,
+    /// At the first frame where it is ready: a live camera is never held up.
+    WhenReady,
+}
+
+/// How the tracker runs.
+#[derive(Debug, Clone)]
+pub struct TrackerConfig {
+    /// The camera (its intrinsics and image size).
+    pub camera: Camera,
+    /// The core's filter model: the vision-only one (the frames are its clock), or an
+    /// inertial one (the IMU samples are).
+    pub model: ModelKind,
+    /// The sensors of an inertial model: the IMU's rate and noise, the camera's rate and mount.
+    pub rig: Rig,
+    /// The frames' nominal rate [Hz] of the vision-only model: its clock of ticks is twice it.
+    pub frame_rate_hz: f64,
+    /// Where tracking starts.
+    pub start: Start,
+    /// Inertial models, in a replay: the correspondences of a frame are sent this long after
+    /// its trigger [s], counted in IMU samples.
+    pub latency_s: f64,
+    /// Inertial models: take over a core that is already tracking our model
+    /// (protocol/PROTOCOL.md §8) instead of configuring it anew.
+    pub attach: bool,
+    /// The image analysis.
+    pub vision: VisionOptions,
+    /// The core's tuning.
+    pub tuning: CoreTuning,
+    /// Folder of the cold start's viewpoint database (built on the first search, read back
+    /// after).
+    pub cache: PathBuf,
+    /// Longest wait for an answer of the core.
+    pub timeout: Duration,
+    /// How searches' answers are taken.
+    pub answers: Answers,
+    /// Keep every this many frames' images in the record, for overlays (0: none).
+    pub keep_image_every: usize,
+    /// This run's name for its configuration of the core (non-zero).
+    pub session_id: u32,
+}
+
+impl TrackerConfig {
+    /// Defaults of the vision-only model for `camera` at `frame_rate_hz`: an object turned in
+    /// a hand, found by the cold start, replayed deterministically.
+    pub fn new(camera: Camera, frame_rate_hz: f64, cache: PathBuf) -> Self {
+        let tuning = CoreTuning {
+            expected_accel: OBJECT_IN_HAND_ACCEL,
+            angular_noise: OBJECT_IN_HAND_ANGULAR_NOISE,
+            ..CoreTuning::default()
+        };
+        Self {
+            camera,
+            model: ModelKind::Vision,
+            rig: Rig {
+                imu_rate_hz: 2.0 * frame_rate_hz,
+                imu_noise: None,
+                camera_rate_hz: Some(frame_rate_hz),
+                hand_eye: HandEye::IDENTITY,
+            },
+            frame_rate_hz,
+            start: Start::Locate,
+            latency_s: 0.0,
+            attach: false,
+            vision: VisionOptions::default(),
+            tuning,
+            cache,
+            timeout: Duration::from_secs(10),
+            answers: Answers::AtNextFrame,
+            keep_image_every: 0,
+            session_id: 1,
+        }
+    }
+}
+
+/// Checks what no run can work with.
+pub(crate) fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
+    let bad = |m: String| Err(TrackerError::Config(m));
+    if config.model == ModelKind::Vision {
+        if !(config.frame_rate_hz.is_finite() && config.frame_rate_hz > 0.0) {
+            return bad(format!(
+                "the frame rate must be a positive number of frames per second, got {}",
+                config.frame_rate_hz
+            ));
+        }
+        if matches!(config.start, Start::GravityAndYaw { .. }) {
+            return bad(
+                "the vision-only model has no gravity for roll and pitch: start it from the camera's whole pose".into(),
+            );
+        }
+        if config.attach {
+            return bad("attaching to a running core is for runs with an IMU".into());
+        }
+        return Ok(());
+    }
+    let rate = config.rig.imu_rate_hz;
+    if !(rate.is_finite() && rate > 0.0) {
+        return bad(format!(
+            "the IMU rate must be a positive number of samples per second, got {rate}"
+        ));
+    }
+    if !(config.latency_s.is_finite() && config.latency_s >= 0.0) {
+        return bad(format!(
+            "the latency must be a non-negative number of seconds, got {}",
+            config.latency_s
+        ));
+    }
+    Ok(())
+}
