@@ -37,6 +37,7 @@ use super::gray::GrayF32;
 use super::pyramid::{MaskPyramid, Pyramid};
 
 pub mod clip;
+mod fields;
 mod noise;
 pub mod reference;
 mod solve;
@@ -270,87 +271,161 @@ pub fn register(
     guess: [f64; 2],
     cfg: &KltConfig,
 ) -> Result<KltResult, KltFailure> {
-    if !position.iter().chain(guess.iter()).all(|v| v.is_finite()) {
-        return Err(KltFailure::BadInput("non-finite position or guess"));
-    }
-    if cfg.half_window == 0 || cfg.half_window > 64 {
-        return Err(KltFailure::BadInput("half window must be 1..=64"));
-    }
-    let (t0, j0) = match (template.level(0), target.level(0)) {
-        (Some(t), Some(j)) => (t, j),
-        _ => return Err(KltFailure::BadInput("empty pyramid")),
+    let run = Run::new(template, mask, target, position, guess, cfg)?;
+    let mut est = Estimate {
+        d: guess,
+        a: 1.0,
+        b: 0.0,
+        locked: !run.photometric,
+        iterations: 0,
     };
-    if let Some(m) = mask {
-        let ok = (0..template.len().min(m.len())).all(|k| match (template.level(k), m.level(k)) {
-            (Some(t), Some(mk)) => (t.width(), t.height()) == (mk.width(), mk.height()),
-            _ => false,
-        });
-        if !ok {
-            return Err(KltFailure::BadInput(
-                "mask pyramid does not match the template",
-            ));
+    let mut win = Window::new(cfg.half_window);
+    let mut final_anchor = None;
+    for level in (0..run.levels).rev() {
+        let k = run.refine_level(level, &mut est, &mut win)?;
+        if level == 0 {
+            final_anchor = k;
         }
     }
-    let inside = |img: &GrayF32, p: [f64; 2]| {
-        p[0] >= 0.0
-            && p[1] >= 0.0
-            && p[0] <= (img.width() - 1) as f64
-            && p[1] <= (img.height() - 1) as f64
-    };
-    if !inside(t0, position) || !inside(j0, [position[0] + guess[0], position[1] + guess[1]]) {
-        return Err(KltFailure::OutOfImage);
+    run.evaluate(&est, final_anchor, &mut win)
+}
+
+/// The parameters being estimated: the displacement `d` (level-0 px), `a = 1/λ` and
+/// `b = −δ/λ`, whether `a, b` are estimated jointly with `d` yet, and the iterations so far.
+#[derive(Clone, Copy)]
+struct Estimate {
+    d: [f64; 2],
+    a: f64,
+    b: f64,
+    locked: bool,
+    iterations: usize,
+}
+
+/// One registration's inputs, checked, and what follows from them.
+struct Run<'a> {
+    template: &'a Pyramid,
+    mask: Option<&'a MaskPyramid>,
+    target: &'a Pyramid,
+    position: [f64; 2],
+    guess: [f64; 2],
+    cfg: &'a KltConfig,
+    /// Usable pixels a window needs.
+    needed: usize,
+    /// Levels used.
+    levels: usize,
+    photometric: bool,
+    /// The admissible range of `a = 1/λ` (the same as λ's).
+    a_range: (f64, f64),
+    /// The step below which a coarse level stops.
+    coarse_stop: f64,
+}
+
+/// Whether `p` lies inside `img` (px).
+fn inside(img: &GrayF32, p: [f64; 2]) -> bool {
+    p[0] >= 0.0
+        && p[1] >= 0.0
+        && p[0] <= (img.width() - 1) as f64
+        && p[1] <= (img.height() - 1) as f64
+}
+
+impl<'a> Run<'a> {
+    /// Checks the inputs (finite, a window of 1..=64, pyramids and mask that agree, the
+    /// feature and its guess inside the images).
+    fn new(
+        template: &'a Pyramid,
+        mask: Option<&'a MaskPyramid>,
+        target: &'a Pyramid,
+        position: [f64; 2],
+        guess: [f64; 2],
+        cfg: &'a KltConfig,
+    ) -> Result<Self, KltFailure> {
+        if !position.iter().chain(guess.iter()).all(|v| v.is_finite()) {
+            return Err(KltFailure::BadInput("non-finite position or guess"));
+        }
+        if cfg.half_window == 0 || cfg.half_window > 64 {
+            return Err(KltFailure::BadInput("half window must be 1..=64"));
+        }
+        let (t0, j0) = match (template.level(0), target.level(0)) {
+            (Some(t), Some(j)) => (t, j),
+            _ => return Err(KltFailure::BadInput("empty pyramid")),
+        };
+        if let Some(m) = mask {
+            let ok =
+                (0..template.len().min(m.len())).all(|k| match (template.level(k), m.level(k)) {
+                    (Some(t), Some(mk)) => (t.width(), t.height()) == (mk.width(), mk.height()),
+                    _ => false,
+                });
+            if !ok {
+                return Err(KltFailure::BadInput(
+                    "mask pyramid does not match the template",
+                ));
+            }
+        }
+        if !inside(t0, position) || !inside(j0, [position[0] + guess[0], position[1] + guess[1]]) {
+            return Err(KltFailure::OutOfImage);
+        }
+        let side = 2 * cfg.half_window + 1;
+        Ok(Self {
+            template,
+            mask,
+            target,
+            position,
+            guess,
+            cfg,
+            needed: ((cfg.min_valid_fraction.clamp(0.0, 1.0) * (side * side) as f64).ceil()
+                as usize)
+                .max(5),
+            levels: cfg
+                .levels
+                .max(1)
+                .min(template.len())
+                .min(target.len())
+                .min(mask.map_or(usize::MAX, |m| m.len())),
+            photometric: cfg.model == KltModel::Photometric,
+            a_range: (1.0 / cfg.max_contrast.max(1.0), cfg.max_contrast.max(1.0)),
+            coarse_stop: cfg.min_update.max(COARSE_MIN_UPDATE),
+        })
     }
 
-    let r = cfg.half_window;
-    let side = 2 * r + 1;
-    let needed =
-        ((cfg.min_valid_fraction.clamp(0.0, 1.0) * (side * side) as f64).ceil() as usize).max(5);
-    let levels = cfg
-        .levels
-        .max(1)
-        .min(template.len())
-        .min(target.len())
-        .min(mask.map_or(usize::MAX, |m| m.len()));
-    let photometric = cfg.model == KltModel::Photometric;
-    // a = 1/λ has the same admissible range as λ.
-    let a_range = (1.0 / cfg.max_contrast.max(1.0), cfg.max_contrast.max(1.0));
-    let coarse_stop = cfg.min_update.max(COARSE_MIN_UPDATE);
-    let mut d = guess;
-    let mut a = 1.0;
-    let mut b = 0.0;
-    // Whether λ, δ are estimated jointly with `d` yet (see the iteration loop).
-    let mut locked = !photometric;
-    let mut iterations = 0;
-    let mut win = Window::new(r);
-
-    // The template before its smoothing at level 0, for the clipped prediction (eq. 5.6).
-    let pre = |level: usize, g: [f64; 2]| {
-        template.unsmoothed().map(|(img, kernel)| Pre {
+    /// The template before its smoothing at level 0, for the clipped prediction (eq. 5.6).
+    fn pre(&self, level: usize, g: [f64; 2]) -> Option<Pre<'a>> {
+        self.template.unsmoothed().map(|(img, kernel)| Pre {
             img,
             kernel,
             level,
             gx: g[0],
             gy: g[1],
         })
-    };
-    // Where the live image's clipping reaches a level; eq. 5.6 needs the template before its
-    // smoothing, so without it there is no clip work.
-    let jclip = |level: usize| {
-        target
+    }
+
+    /// Where the live image's clipping reaches a level; eq. 5.6 needs the template before its
+    /// smoothing, so without it there is no clip work.
+    fn jclip(&self, level: usize) -> Option<&'a clip::ClipLevel> {
+        self.target
             .clip()
-            .filter(|_| template.unsmoothed().is_some())
+            .filter(|_| self.template.unsmoothed().is_some())
             .and_then(|c| c.level(level))
-    };
-    let mut final_anchor = None;
-    for level in (0..levels).rev() {
+    }
+
+    /// Gauss-Newton at one pyramid level, from `est`. Returns the window grid's anchor it
+    /// ended with (`None` where the level was left to the finer ones); a coarse level that
+    /// fails leaves `est` as it found it.
+    fn refine_level(
+        &self,
+        level: usize,
+        est: &mut Estimate,
+        win: &mut Window,
+    ) -> Result<Option<[f64; 2]>, KltFailure> {
+        let cfg = self.cfg;
         let scale = (1u32 << level) as f64;
-        let (Some(ti), Some(ji)) = (template.level(level), target.level(level)) else {
-            continue;
+        let (Some(ti), Some(ji)) = (self.template.level(level), self.target.level(level)) else {
+            return Ok(None);
         };
-        let tmask = mask.and_then(|m| m.level(level));
-        let jl = jclip(level);
-        let (cx, cy) = (position[0] / scale, position[1] / scale);
-        let mut dl = [d[0] / scale, d[1] / scale];
+        let tmask = self.mask.and_then(|m| m.level(level));
+        let jl = self.jclip(level);
+        let (cx, cy) = (self.position[0] / scale, self.position[1] / scale);
+        let mut dl = [est.d[0] / scale, est.d[1] / scale];
+        let (mut a, mut b, mut locked) = (est.a, est.b, est.locked);
         // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
         // model is a pure translation, `d` is the same for every grid point.
         let mut k = [dl[0].round(), dl[1].round()];
@@ -362,17 +437,16 @@ pub fn register(
         };
         let mut g = grid(dl, k);
         win.sample_template(ti, tmask, g[0], g[1]);
-        if win.tcount < needed {
+        if win.tcount < self.needed {
             if level == 0 {
                 return Err(KltFailure::TooFewValidPixels {
                     valid: win.tcount,
-                    needed,
+                    needed: self.needed,
                 });
             }
             // Background fills the coarse window: leave this level to the finer ones.
-            continue;
+            return Ok(None);
         }
-        let start = (dl, a, b, locked);
         for _ in 0..cfg.max_iterations {
             k = [anchor(dl[0], k[0]), anchor(dl[1], k[1])];
             let g_new = grid(dl, k);
@@ -387,132 +461,137 @@ pub fn register(
                 // correlate and a joint step drives λ towards 0 (and the position step, ∝ 1/λ,
                 // off). Once the position settles, λ, δ join the Gauss-Newton estimation.
                 if let Some((l, dd)) = win.init_photometric() {
-                    a = (1.0 / l).clamp(a_range.0, a_range.1);
+                    a = (1.0 / l).clamp(self.a_range.0, self.a_range.1);
                     b = -dd / l;
                 }
             }
-            let n = win.accumulate(a, b, pre(level, g));
-            if n.count < needed {
-                if level == 0 {
-                    return Err(n.shortfall(needed));
-                }
-                (dl, a, b, locked) = start;
-                break;
+            let n = win.accumulate(a, b, self.pre(level, g));
+            // A coarse level can mislead (texture too fine for it, repetitive patterns): where
+            // it fails it contributes nothing and the finer levels start where it started.
+            let failed = |e: KltFailure| if level == 0 { Err(e) } else { Ok(None) };
+            if n.count < self.needed {
+                return failed(n.shortfall(self.needed));
             }
             // The windows' moments ignore the clipping (it shrinks σ_J and moves J̄): where
             // the prediction is clipped (eq. 5.6), λ, δ are estimated jointly from the start.
-            locked |= photometric && win.clip_model();
+            locked |= self.photometric && win.clip_model();
             let model = if locked {
                 cfg.model
             } else {
                 KltModel::Translation
             };
             let Some(factor) = Factor::new(&n, model, cfg.min_eigenvalue) else {
-                if level == 0 {
-                    return Err(KltFailure::Singular);
-                }
-                (dl, a, b, locked) = start;
-                break;
+                return failed(KltFailure::Singular);
             };
             let mut step = factor.solve(n.b);
             if model == KltModel::Translation {
                 step[2] = 0.0;
                 step[3] = 0.0;
             }
-            iterations += 1;
+            est.iterations += 1;
             dl[0] += step[0];
             dl[1] += step[1];
             a += step[2];
             b += step[3];
-            let total = [dl[0] * scale - guess[0], dl[1] * scale - guess[1]];
+            let total = [dl[0] * scale - self.guess[0], dl[1] * scale - self.guess[1]];
             if !(dl[0].is_finite() && dl[1].is_finite() && a.is_finite() && b.is_finite())
-                || a < a_range.0
-                || a > a_range.1
+                || a < self.a_range.0
+                || a > self.a_range.1
                 || total[0].hypot(total[1]) > cfg.max_displacement
             {
-                if level == 0 {
-                    return Err(KltFailure::Diverged);
-                }
-                // A coarse level can mislead (texture too fine for it, repetitive patterns):
-                // it then contributes nothing and the finer levels start where it started.
-                (dl, a, b, locked) = start;
-                break;
+                return failed(KltFailure::Diverged);
             }
             let step_norm = step[0].hypot(step[1]);
             if !locked {
                 locked = step_norm < LOCK_STEP;
                 continue;
             }
-            if step_norm
-                < if level == 0 {
-                    cfg.min_update
-                } else {
-                    coarse_stop
-                }
-            {
+            let stop = if level == 0 {
+                cfg.min_update
+            } else {
+                self.coarse_stop
+            };
+            if step_norm < stop {
                 break;
             }
         }
-        d = [dl[0] * scale, dl[1] * scale];
-        if level == 0 {
-            final_anchor = Some(k);
-        }
+        *est = Estimate {
+            d: [dl[0] * scale, dl[1] * scale],
+            a,
+            b,
+            locked,
+            iterations: est.iterations,
+        };
+        Ok(Some(k))
     }
 
-    // Final evaluation at level 0 with the final parameters: SSD, covariance, acceptance.
-    let reg = [position[0] + d[0], position[1] + d[1]];
-    if !inside(j0, reg) {
-        return Err(KltFailure::OutOfImage);
+    /// The final evaluation at level 0 with the final parameters: SSD, covariance,
+    /// acceptance. `final_anchor`: the window grid's anchor level 0 ended with, so that the
+    /// SSD and covariance belong to the final `d`.
+    fn evaluate(
+        &self,
+        est: &Estimate,
+        final_anchor: Option<[f64; 2]>,
+        win: &mut Window,
+    ) -> Result<KltResult, KltFailure> {
+        let (cfg, d, a, b) = (self.cfg, est.d, est.a, est.b);
+        let (Some(t0), Some(j0)) = (self.template.level(0), self.target.level(0)) else {
+            return Err(KltFailure::BadInput("empty pyramid"));
+        };
+        let reg = [self.position[0] + d[0], self.position[1] + d[1]];
+        if !inside(j0, reg) {
+            return Err(KltFailure::OutOfImage);
+        }
+        let k = final_anchor.unwrap_or([d[0].round(), d[1].round()]);
+        let g = [
+            symmetric_grid(self.position[0], d[0], k[0]),
+            symmetric_grid(self.position[1], d[1], k[1]),
+        ];
+        let tmask = self.mask.and_then(|m| m.level(0));
+        win.sample_template(t0, tmask, g[0], g[1]);
+        win.sample_live(j0, self.jclip(0), g[0] + d[0], g[1] + d[1]);
+        let n = win.accumulate(a, b, self.pre(0, g));
+        if n.count < self.needed {
+            return Err(n.shortfall(self.needed));
+        }
+        let factor = Factor::new(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
+        let inv = factor.inverse();
+        // The pixels used: censored ones carry no residual (eq. 5.6).
+        let count = n.used;
+        let var_sum = n.sum_i2 - n.sum_i * n.sum_i / count;
+        if var_sum <= 1e-9 * count {
+            return Err(KltFailure::Singular);
+        }
+        // Back in the template's units: I − λJ − δ = −ρ/a.
+        let ssd = n.ssd / (a * a);
+        let normalised_ssd = ssd / var_sum;
+        let params = if self.photometric { 4.0 } else { 2.0 };
+        let r = cfg.half_window as f64;
+        let (c, m) = noise::interpolated(
+            win,
+            [g[0] + d[0] - r - 1.0, g[1] + d[1] - r - 1.0],
+            cfg.model,
+            self.target.smoothing(),
+        );
+        // Per-pixel noise variance of the live image: the residuals carry it times `c`.
+        let sigma2 = n.ssd / (c * (count - params).max(1.0));
+        let covariance = (inv * m * inv).fixed_view::<2, 2>(0, 0).into_owned() * sigma2;
+        if normalised_ssd.is_nan() || normalised_ssd > cfg.max_normalised_ssd {
+            return Err(KltFailure::SsdTooHigh {
+                ssd: normalised_ssd,
+                threshold: cfg.max_normalised_ssd,
+            });
+        }
+        Ok(KltResult {
+            position: reg,
+            displacement: d,
+            lambda: 1.0 / a,
+            delta: -b / a,
+            normalised_ssd,
+            ssd,
+            iterations: est.iterations,
+            valid_pixels: n.count,
+            covariance,
+        })
     }
-    // The anchor level 0 ended with, so the SSD and covariance belong to the final `d`.
-    let k = final_anchor.unwrap_or([d[0].round(), d[1].round()]);
-    let g = [
-        symmetric_grid(position[0], d[0], k[0]),
-        symmetric_grid(position[1], d[1], k[1]),
-    ];
-    let tmask = mask.and_then(|m| m.level(0));
-    win.sample_template(t0, tmask, g[0], g[1]);
-    win.sample_live(j0, jclip(0), g[0] + d[0], g[1] + d[1]);
-    let n = win.accumulate(a, b, pre(0, g));
-    if n.count < needed {
-        return Err(n.shortfall(needed));
-    }
-    let factor = Factor::new(&n, cfg.model, cfg.min_eigenvalue).ok_or(KltFailure::Singular)?;
-    let inv = factor.inverse();
-    // The pixels used: censored ones carry no residual (eq. 5.6).
-    let count = n.used;
-    let var_sum = n.sum_i2 - n.sum_i * n.sum_i / count;
-    if var_sum <= 1e-9 * count {
-        return Err(KltFailure::Singular);
-    }
-    // Back in the template's units: I − λJ − δ = −ρ/a.
-    let ssd = n.ssd / (a * a);
-    let normalised_ssd = ssd / var_sum;
-    let params = if photometric { 4.0 } else { 2.0 };
-    let (c, m) = noise::interpolated(
-        &win,
-        [g[0] + d[0] - r as f64 - 1.0, g[1] + d[1] - r as f64 - 1.0],
-        cfg.model,
-        target.smoothing(),
-    );
-    // Per-pixel noise variance of the live image: the residuals carry it times `c`.
-    let sigma2 = n.ssd / (c * (count - params).max(1.0));
-    let covariance = (inv * m * inv).fixed_view::<2, 2>(0, 0).into_owned() * sigma2;
-    if normalised_ssd.is_nan() || normalised_ssd > cfg.max_normalised_ssd {
-        return Err(KltFailure::SsdTooHigh {
-            ssd: normalised_ssd,
-            threshold: cfg.max_normalised_ssd,
-        });
-    }
-    Ok(KltResult {
-        position: reg,
-        displacement: d,
-        lambda: 1.0 / a,
-        delta: -b / a,
-        normalised_ssd,
-        ssd,
-        iterations,
-        valid_pixels: n.count,
-        covariance,
-    })
 }

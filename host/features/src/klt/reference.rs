@@ -8,7 +8,10 @@ use nalgebra::{Matrix4, Vector4};
 
 use super::super::gray::{GrayF32, Mask};
 use super::super::pyramid::{MaskPyramid, Pyramid};
-use super::{KltConfig, KltFailure, KltModel, KltResult, LOCK_STEP, anchor, symmetric_grid};
+use super::{
+    Estimate, KltConfig, KltFailure, KltModel, KltResult, LOCK_STEP, Run, anchor, inside,
+    symmetric_grid,
+};
 
 /// The template window at one level: values and validity, row-major `(2r + 1)²`.
 struct Template {
@@ -177,7 +180,7 @@ fn invert(n: &Normal, model: KltModel, min_eigenvalue: f64) -> Option<Matrix4<f6
 ///
 /// `template` is the blurred rendering's pyramid, `mask` its validity (None: all valid),
 /// `target` the live image's pyramid; both pyramids share the pixel grid (the live image is
-/// undistorted to the rendering's intrinsics).
+/// undistorted to the rendering's intrinsics). The inputs are checked as the fast path's.
 pub fn register(
     template: &Pyramid,
     mask: Option<&MaskPyramid>,
@@ -186,186 +189,171 @@ pub fn register(
     guess: [f64; 2],
     cfg: &KltConfig,
 ) -> Result<KltResult, KltFailure> {
-    if !position.iter().chain(guess.iter()).all(|v| v.is_finite()) {
-        return Err(KltFailure::BadInput("non-finite position or guess"));
-    }
-    if cfg.half_window == 0 || cfg.half_window > 64 {
-        return Err(KltFailure::BadInput("half window must be 1..=64"));
-    }
-    let (t0, j0) = match (template.level(0), target.level(0)) {
-        (Some(t), Some(j)) => (t, j),
-        _ => return Err(KltFailure::BadInput("empty pyramid")),
+    let run = Run::new(template, mask, target, position, guess, cfg)?;
+    let side = 2 * cfg.half_window + 1;
+    let mut est = Estimate {
+        d: guess,
+        a: 1.0,
+        b: 0.0,
+        locked: !run.photometric,
+        iterations: 0,
     };
-    if let Some(m) = mask {
-        let ok = (0..template.len().min(m.len())).all(|k| match (template.level(k), m.level(k)) {
-            (Some(t), Some(mk)) => (t.width(), t.height()) == (mk.width(), mk.height()),
-            _ => false,
-        });
-        if !ok {
-            return Err(KltFailure::BadInput(
-                "mask pyramid does not match the template",
-            ));
-        }
-    }
-    let inside = |img: &GrayF32, p: [f64; 2]| {
-        p[0] >= 0.0
-            && p[1] >= 0.0
-            && p[0] <= (img.width() - 1) as f64
-            && p[1] <= (img.height() - 1) as f64
-    };
-    if !inside(t0, position) || !inside(j0, [position[0] + guess[0], position[1] + guess[1]]) {
-        return Err(KltFailure::OutOfImage);
-    }
-
-    let r = cfg.half_window;
-    let side = 2 * r + 1;
-    let needed =
-        ((cfg.min_valid_fraction.clamp(0.0, 1.0) * (side * side) as f64).ceil() as usize).max(5);
-    let levels = cfg
-        .levels
-        .max(1)
-        .min(template.len())
-        .min(target.len())
-        .min(mask.map_or(usize::MAX, |m| m.len()));
-    let photometric = cfg.model == KltModel::Photometric;
-    // a = 1/λ has the same admissible range as λ.
-    let a_range = (1.0 / cfg.max_contrast.max(1.0), cfg.max_contrast.max(1.0));
-
-    let mut d = guess;
-    let mut a = 1.0;
-    let mut b = 0.0;
-    // Whether λ, δ are estimated jointly with `d` yet (see the iteration loop).
-    let mut locked = !photometric;
-    let mut iterations = 0;
     let mut ext = Vec::with_capacity((side + 2) * (side + 2));
-
-    let mut final_anchor = None;
     let mut t = Template {
         values: Vec::with_capacity(side * side),
         valid: Vec::with_capacity(side * side),
         count: 0,
     };
-    for level in (0..levels).rev() {
-        let scale = (1u32 << level) as f64;
-        let (Some(ti), Some(ji)) = (template.level(level), target.level(level)) else {
-            continue;
-        };
-        let mi = mask.and_then(|m| m.level(level));
-        let (cx, cy) = (position[0] / scale, position[1] / scale);
-        let mut dl = [d[0] / scale, d[1] / scale];
-        // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
-        // model is a pure translation, `d` is the same for every grid point.
-        let mut k = [dl[0].round(), dl[1].round()];
-        let grid = |dl: [f64; 2], k: [f64; 2]| {
-            [
-                symmetric_grid(cx, dl[0], k[0]),
-                symmetric_grid(cy, dl[1], k[1]),
-            ]
-        };
-        let mut g = grid(dl, k);
-        template_window(ti, mi, g[0], g[1], r, &mut t);
-        if t.count < needed {
-            if level == 0 {
-                return Err(KltFailure::TooFewValidPixels {
-                    valid: t.count,
-                    needed,
-                });
-            }
-            // Background fills the coarse window: leave this level to the finer ones.
-            continue;
-        }
-        let start = (dl, a, b, locked);
-        for _ in 0..cfg.max_iterations {
-            k = [anchor(dl[0], k[0]), anchor(dl[1], k[1])];
-            let g_new = grid(dl, k);
-            if g_new != g {
-                g = g_new;
-                template_window(ti, mi, g[0], g[1], r, &mut t);
-            }
-            sample_target(ji, g[0] + dl[0], g[1] + dl[1], r, &mut ext);
-            if !locked {
-                // The paper's initialisation of λ, δ from the windows' means and standard
-                // deviations, repeated while the position is far off: there the windows hardly
-                // correlate and a joint step drives λ towards 0 (and the position step, ∝ 1/λ,
-                // off). Once the position settles, λ, δ join the Gauss-Newton estimation.
-                if let Some((l, dd)) = init_photometric(&t, &ext, r) {
-                    a = (1.0 / l).clamp(a_range.0, a_range.1);
-                    b = -dd / l;
-                }
-            }
-            let n = accumulate(&t, &ext, r, a, b);
-            if n.count < needed {
-                if level == 0 {
-                    return Err(n.shortfall(needed));
-                }
-                (dl, a, b, locked) = start;
-                break;
-            }
-            let model = if locked {
-                cfg.model
-            } else {
-                KltModel::Translation
-            };
-            let Some(inv) = invert(&n, model, cfg.min_eigenvalue) else {
-                if level == 0 {
-                    return Err(KltFailure::Singular);
-                }
-                (dl, a, b, locked) = start;
-                break;
-            };
-            let mut step = inv * n.b;
-            if model == KltModel::Translation {
-                step[2] = 0.0;
-                step[3] = 0.0;
-            }
-            iterations += 1;
-            dl[0] += step[0];
-            dl[1] += step[1];
-            a += step[2];
-            b += step[3];
-            let total = [dl[0] * scale - guess[0], dl[1] * scale - guess[1]];
-            if !(dl[0].is_finite() && dl[1].is_finite() && a.is_finite() && b.is_finite())
-                || a < a_range.0
-                || a > a_range.1
-                || total[0].hypot(total[1]) > cfg.max_displacement
-            {
-                if level == 0 {
-                    return Err(KltFailure::Diverged);
-                }
-                // A coarse level can mislead (texture too fine for it, repetitive patterns):
-                // it then contributes nothing and the finer levels start where it started.
-                (dl, a, b, locked) = start;
-                break;
-            }
-            let step_norm = step[0].hypot(step[1]);
-            if !locked {
-                locked = step_norm < LOCK_STEP;
-                continue;
-            }
-            if step_norm < cfg.min_update {
-                break;
-            }
-        }
-        d = [dl[0] * scale, dl[1] * scale];
+    let mut final_anchor = None;
+    for level in (0..run.levels).rev() {
+        let k = refine_level(&run, level, &mut est, &mut t, &mut ext)?;
         if level == 0 {
-            final_anchor = Some(k);
+            final_anchor = k;
         }
     }
+    evaluate(&run, &est, final_anchor, &mut t, &mut ext)
+}
 
-    // Final evaluation at level 0 with the final parameters: SSD, covariance, acceptance.
-    let reg = [position[0] + d[0], position[1] + d[1]];
+/// Gauss-Newton at one pyramid level, from `est`, sample by sample. Returns the window
+/// grid's anchor it ended with (`None` where the level was left to the finer ones); a coarse
+/// level that fails leaves `est` as it found it.
+fn refine_level(
+    run: &Run<'_>,
+    level: usize,
+    est: &mut Estimate,
+    t: &mut Template,
+    ext: &mut Vec<f32>,
+) -> Result<Option<[f64; 2]>, KltFailure> {
+    let (cfg, r, needed) = (run.cfg, run.cfg.half_window, run.needed);
+    let scale = (1u32 << level) as f64;
+    let (Some(ti), Some(ji)) = (run.template.level(level), run.target.level(level)) else {
+        return Ok(None);
+    };
+    let mi = run.mask.and_then(|m| m.level(level));
+    let (cx, cy) = (run.position[0] / scale, run.position[1] / scale);
+    let mut dl = [est.d[0] / scale, est.d[1] / scale];
+    let (mut a, mut b, mut locked) = (est.a, est.b, est.locked);
+    // The window grid in the template (moves by < 1 px, see `symmetric_grid`); since the
+    // model is a pure translation, `d` is the same for every grid point.
+    let mut k = [dl[0].round(), dl[1].round()];
+    let grid = |dl: [f64; 2], k: [f64; 2]| {
+        [
+            symmetric_grid(cx, dl[0], k[0]),
+            symmetric_grid(cy, dl[1], k[1]),
+        ]
+    };
+    let mut g = grid(dl, k);
+    template_window(ti, mi, g[0], g[1], r, t);
+    if t.count < needed {
+        if level == 0 {
+            return Err(KltFailure::TooFewValidPixels {
+                valid: t.count,
+                needed,
+            });
+        }
+        // Background fills the coarse window: leave this level to the finer ones.
+        return Ok(None);
+    }
+    for _ in 0..cfg.max_iterations {
+        k = [anchor(dl[0], k[0]), anchor(dl[1], k[1])];
+        let g_new = grid(dl, k);
+        if g_new != g {
+            g = g_new;
+            template_window(ti, mi, g[0], g[1], r, t);
+        }
+        sample_target(ji, g[0] + dl[0], g[1] + dl[1], r, ext);
+        if !locked {
+            // The paper's initialisation of λ, δ from the windows' means and standard
+            // deviations, repeated while the position is far off (see the fast path).
+            if let Some((l, dd)) = init_photometric(t, ext, r) {
+                a = (1.0 / l).clamp(run.a_range.0, run.a_range.1);
+                b = -dd / l;
+            }
+        }
+        let n = accumulate(t, ext, r, a, b);
+        // A coarse level that fails contributes nothing: the finer levels start where it
+        // started.
+        let failed = |e: KltFailure| if level == 0 { Err(e) } else { Ok(None) };
+        if n.count < needed {
+            return failed(n.shortfall(needed));
+        }
+        let model = if locked {
+            cfg.model
+        } else {
+            KltModel::Translation
+        };
+        let Some(inv) = invert(&n, model, cfg.min_eigenvalue) else {
+            return failed(KltFailure::Singular);
+        };
+        let mut step = inv * n.b;
+        if model == KltModel::Translation {
+            step[2] = 0.0;
+            step[3] = 0.0;
+        }
+        est.iterations += 1;
+        dl[0] += step[0];
+        dl[1] += step[1];
+        a += step[2];
+        b += step[3];
+        let total = [dl[0] * scale - run.guess[0], dl[1] * scale - run.guess[1]];
+        if !(dl[0].is_finite() && dl[1].is_finite() && a.is_finite() && b.is_finite())
+            || a < run.a_range.0
+            || a > run.a_range.1
+            || total[0].hypot(total[1]) > cfg.max_displacement
+        {
+            return failed(KltFailure::Diverged);
+        }
+        let step_norm = step[0].hypot(step[1]);
+        if !locked {
+            locked = step_norm < LOCK_STEP;
+            continue;
+        }
+        if step_norm < cfg.min_update {
+            break;
+        }
+    }
+    *est = Estimate {
+        d: [dl[0] * scale, dl[1] * scale],
+        a,
+        b,
+        locked,
+        iterations: est.iterations,
+    };
+    Ok(Some(k))
+}
+
+/// The final evaluation at level 0 with the final parameters: SSD, covariance, acceptance
+/// (`final_anchor`: the anchor level 0 ended with, so that they belong to the final `d`).
+fn evaluate(
+    run: &Run<'_>,
+    est: &Estimate,
+    final_anchor: Option<[f64; 2]>,
+    t: &mut Template,
+    ext: &mut Vec<f32>,
+) -> Result<KltResult, KltFailure> {
+    let (cfg, r, needed, d, a, b) = (
+        run.cfg,
+        run.cfg.half_window,
+        run.needed,
+        est.d,
+        est.a,
+        est.b,
+    );
+    let (Some(t0), Some(j0)) = (run.template.level(0), run.target.level(0)) else {
+        return Err(KltFailure::BadInput("empty pyramid"));
+    };
+    let reg = [run.position[0] + d[0], run.position[1] + d[1]];
     if !inside(j0, reg) {
         return Err(KltFailure::OutOfImage);
     }
-    // The anchor level 0 ended with, so the SSD and covariance belong to the final `d`.
     let k = final_anchor.unwrap_or([d[0].round(), d[1].round()]);
     let g = [
-        symmetric_grid(position[0], d[0], k[0]),
-        symmetric_grid(position[1], d[1], k[1]),
+        symmetric_grid(run.position[0], d[0], k[0]),
+        symmetric_grid(run.position[1], d[1], k[1]),
     ];
-    template_window(t0, mask.and_then(|m| m.level(0)), g[0], g[1], r, &mut t);
-    sample_target(j0, g[0] + d[0], g[1] + d[1], r, &mut ext);
-    let n = accumulate(&t, &ext, r, a, b);
+    template_window(t0, run.mask.and_then(|m| m.level(0)), g[0], g[1], r, t);
+    sample_target(j0, g[0] + d[0], g[1] + d[1], r, ext);
+    let n = accumulate(t, ext, r, a, b);
     if n.count < needed {
         return Err(n.shortfall(needed));
     }
@@ -378,14 +366,14 @@ pub fn register(
     // Back in the template's units: I − λJ − δ = −ρ/a.
     let ssd = n.ssd / (a * a);
     let normalised_ssd = ssd / var_sum;
-    let params = if photometric { 4.0 } else { 2.0 };
+    let params = if run.photometric { 4.0 } else { 2.0 };
     let (c, m) = interpolated_noise(
-        &t,
-        &ext,
+        t,
+        ext,
         r,
         [g[0] + d[0], g[1] + d[1]],
         cfg.model,
-        target.smoothing(),
+        run.target.smoothing(),
     );
     // Per-pixel noise variance of the live image: the residuals carry it times `c`.
     let sigma2 = n.ssd / (c * (count - params).max(1.0));
@@ -403,7 +391,7 @@ pub fn register(
         delta: -b / a,
         normalised_ssd,
         ssd,
-        iterations,
+        iterations: est.iterations,
         valid_pixels: n.count,
         covariance,
     })
