@@ -101,6 +101,13 @@ impl Searcher {
         self.loss.lost(t_us)
     }
 
+    /// Asks for an attempt at the next trigger, as after a divergence at `t_us`
+    /// ([`crate::Tracker::relocate`]).
+    pub fn force(&mut self, t_us: u64) {
+        self.started = true;
+        self.loss.force(t_us);
+    }
+
     /// Records the attempt just sent.
     pub fn sent(&mut self, job: LocateJob) {
         self.job = Some(job);

@@ -110,6 +110,9 @@ pub struct Tracker<T: CoreTransport = CoreLink> {
     since_check: usize,
     /// Runs with an IMU: their state.
     pub(crate) inertial: Option<Inertial>,
+    /// The model, kept for a search thread started on demand ([`Self::relocate`]) where the
+    /// run has none.
+    model: Option<model::Model>,
     /// An injected fault not yet noticed: when it was injected [s of input], and on the wall
     /// clock.
     pub(crate) injected: Option<(f64, Instant)>,
@@ -152,6 +155,7 @@ impl<T: CoreTransport> Tracker<T> {
         } else {
             None
         };
+        let spare = search.is_none().then(|| model.clone());
         let hand_eye = if vision_only {
             HandEye::IDENTITY
         } else {
@@ -168,6 +172,7 @@ impl<T: CoreTransport> Tracker<T> {
             in_search: None,
             since_check: 0,
             inertial: None,
+            model: spare,
             injected: None,
             events: VecDeque::new(),
             state: State::Locating,
@@ -601,14 +606,30 @@ impl<T: CoreTransport> Tracker<T> {
         self.state
     }
 
-    /// Asks for a search at the next frame, whatever the frames say: the user knows the
-    /// model moved (a tracked pose that is wrong, an object put down elsewhere).
-    pub fn relocate(&mut self) {
-        if self.started {
-            let t_us = self.last_us.unwrap_or(0);
-            self.loss.force(t_us);
-            self.set_state(State::Lost);
+    /// Asks for a search at the next frame (with an IMU: the next trigger), whatever the
+    /// frames say: the user knows the model moved (a tracked pose that is wrong, an object put
+    /// down elsewhere). A run given its start pose gets its search thread (and renderer) here.
+    pub fn relocate(&mut self) -> Result<(), TrackerError> {
+        if self.search.is_none() {
+            let mut vision = self.config.vision;
+            vision.map.small_object_cells |= self.config.model == ModelKind::Vision;
+            let model = self
+                .model
+                .take()
+                .ok_or_else(|| TrackerError::VisionThread("no model for a search thread".into()))?;
+            self.search = Some(VisionWorker::start(self.config.camera, model, vision)?.0);
         }
+        match self.inertial.as_mut() {
+            Some(i) => {
+                let t_us = i.recent.back().map_or(0, |s| s.t_us);
+                i.searcher.get_or_insert_with(Default::default).force(t_us);
+            }
+            None if self.started => self.loss.force(self.last_us.unwrap_or(0)),
+            // Still locating: every frame gets an attempt already.
+            None => return Ok(()),
+        }
+        self.set_state(State::Lost);
+        Ok(())
     }
 
     /// Everything seen so far.

@@ -206,3 +206,29 @@ fn a_closed_transport_stops_the_tracker_with_a_link_error() {
     assert!(matches!(done.result, Err(TrackerError::Stopped(_))));
     assert_eq!(done.record.results.len(), 1);
 }
+
+#[test]
+fn relocate_sends_a_search_at_the_next_frame() {
+    let cache = tempfile::tempdir().unwrap();
+    let model = model::procedural::test_scene();
+    let mut t = Tracker::new(config(cache.path()), &model, inproc()).unwrap();
+    t.push_frame(frame(0, 0, 320, 240)).unwrap();
+    t.relocate().unwrap();
+    assert_eq!(t.state(), State::Lost);
+    let _ = t.poll().count();
+    t.push_frame(frame(1, 33, 320, 240)).unwrap();
+    // The search's answer is taken at the next frame in a replay.
+    t.push_frame(frame(2, 66, 320, 240)).unwrap();
+    let located: Vec<_> = t
+        .poll()
+        .filter_map(|e| match e {
+            tracker::Event::Located { index, pose } => Some((index, pose)),
+            _ => None,
+        })
+        .collect();
+    // A striped synthetic frame holds no model: searched, and nothing found.
+    assert_eq!(located, vec![(1, None)]);
+    let done = t.finish();
+    done.result.unwrap();
+    assert_eq!(done.record.recoveries.len(), 1);
+}
