@@ -81,16 +81,6 @@ pub enum TrackError {
         "{0}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow"
     )]
     Untextured(PathBuf),
-    /// The transport could not be opened.
-    #[error(transparent)]
-    Transport(#[from] firmware_sim::transport::TransportError),
-    /// The core refused something.
-    #[error("core: {0}")]
-    Core(String),
-    /// The link to the core failed: closed, a transport error, or no answer in time. A run
-    /// that recovers from faults (protocol/PROTOCOL.md §8) reconnects; others stop with it.
-    #[error("core: {0}")]
-    Link(String),
     /// An output file could not be written.
     #[error("{path}: {source}")]
     Output {
@@ -109,12 +99,6 @@ pub enum TrackError {
     /// Ctrl-C before any IMU sample was sent: nothing was tracked, nothing written.
     #[error("interrupted before tracking began: nothing written")]
     Interrupted,
-    /// The vision thread could not start or stopped.
-    #[error("{0}")]
-    VisionThread(String),
-    /// A frame could not be analysed.
-    #[error(transparent)]
-    Vision(#[from] ::vision::VisionError),
     /// The cold start never found the model.
     #[error(
         "cold start: the model was not found in any of the {attempts} frames tried (is it in view, and is this its model?); `host-vision locate` on one frame shows the figures"
@@ -123,13 +107,12 @@ pub enum TrackError {
         /// Frames tried.
         attempts: usize,
     },
-    /// The cold start's viewpoint database.
-    #[error("cold start: {0}")]
-    Database(#[from] crate::locate::database::DatabaseError),
     /// A bad option (named by its command-line flag).
     #[error("{0}")]
     Option(String),
-    /// The tracker refused an input or stopped.
+    /// The tracker: the link to the core and the core (a run that recovers from faults,
+    /// protocol/PROTOCOL.md §8, reconnects; others stop with it), the vision threads, a
+    /// frame's analysis, the cold start's database, a refused input.
     #[error(transparent)]
     Tracker(TrackerError),
 }
@@ -137,12 +120,6 @@ pub enum TrackError {
 impl From<TrackerError> for TrackError {
     fn from(e: TrackerError) -> Self {
         match e {
-            TrackerError::Transport(e) => TrackError::Transport(e),
-            TrackerError::Core(m) => TrackError::Core(m),
-            TrackerError::Link(m) => TrackError::Link(m),
-            TrackerError::VisionThread(m) => TrackError::VisionThread(m),
-            TrackerError::Vision(e) => TrackError::Vision(e),
-            TrackerError::Database(e) => TrackError::Database(e),
             TrackerError::Config(m) => TrackError::Option(m),
             TrackerError::LatencyTooLong {
                 latency_s,
@@ -584,7 +561,7 @@ pub fn run(
     let spec = options
         .link
         .resolve_qemu(config::find_firmware_image)
-        .map_err(TrackError::Core)?;
+        .map_err(|e| TrackError::Tracker(TrackerError::Core(e)))?;
     let link = FaultyLink::new(CoreLink::open_noisy(&spec, noise)?, &options.faults);
     let model = crate::model::load(&model_path)?;
     if !tracker::worker::is_textured(&model) {

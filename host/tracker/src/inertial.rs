@@ -18,7 +18,6 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use nalgebra::Vector3;
 use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason};
 use vision::{FrameImage, FrameJob};
 
@@ -379,14 +378,7 @@ impl<T: CoreTransport> Tracker<T> {
         let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
             return Ok(());
         };
-        let q_cs = self.config.rig.hand_eye.q_cs;
-        let omega_c = self
-            .record
-            .log
-            .states
-            .last()
-            .filter(|s| s.t_us == t_us)
-            .map(|s| q_cs * Vector3::from(s.omega_s.map(f64::from)));
+        let omega_c = self.omega_c(t_us);
         let every = self.config.keep_image_every;
         self.worker.send(FrameJob {
             index: frame.index,

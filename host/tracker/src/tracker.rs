@@ -481,13 +481,7 @@ impl<T: CoreTransport> Tracker<T> {
             return Ok(None);
         };
         let every = self.config.keep_image_every;
-        let omega_c = self
-            .record
-            .log
-            .states
-            .last()
-            .filter(|s| s.t_us == t_us)
-            .map(|s| nalgebra::Vector3::from(s.omega_s.map(f64::from)));
+        let omega_c = self.omega_c(t_us);
         let t0 = u64::try_from(self.t0_ns.unwrap_or(0)).unwrap_or(0);
         self.worker.send(FrameJob {
             index,
@@ -702,6 +696,13 @@ impl<T: CoreTransport> Tracker<T> {
             self.state = state;
             self.events.push_back(Event::State(state));
         }
+    }
+
+    /// The camera's angular rate at the trigger at `t_us` (the core's state there, through
+    /// the mount), for the motion blur's share of a frame's covariance.
+    pub(crate) fn omega_c(&self, t_us: u64) -> Option<nalgebra::Vector3<f64>> {
+        let s = self.record.log.states.last().filter(|s| s.t_us == t_us)?;
+        Some(self.record.core_hand_eye.q_cs * nalgebra::Vector3::from(s.omega_s.map(f64::from)))
     }
 
     /// Tells a search's answer.
