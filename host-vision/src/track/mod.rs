@@ -43,8 +43,8 @@ pub use self::output::Summary;
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
 pub use tracker::Incoming;
 pub use tracker::log::CoreLog;
-pub use tracker::outage::{Outage, OutageKind};
 pub use tracker::record::Record;
+pub use tracker::record::{Outage, OutageKind};
 pub use tracker::search::{Recovery, Search};
 
 use crate::camera::{CalibError, CameraError};

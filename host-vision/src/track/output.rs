@@ -13,7 +13,7 @@ use firmware_sim::board::BoardReport;
 
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
-use tracker::outage::Outage;
+use tracker::record::Outage;
 
 use super::{
     CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot,

@@ -37,7 +37,6 @@ use super::gray::GrayF32;
 use super::pyramid::{MaskPyramid, Pyramid};
 
 pub mod clip;
-mod fields;
 mod noise;
 pub mod reference;
 mod solve;

@@ -7,25 +7,23 @@
 //! - [`transport`], [`link`]: the core at the other end of a link, or called in-process;
 //! - [`log`]: what the core said, and the exchanges that wait for its answers;
 //! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
-//! - [`search`], [`loss`], [`tilt`], [`cold_start`]: the searches, the loss rule that sends
-//!   them, the tilt checks of tracked poses, and the inertial run's cold start;
-//! - [`outage`]: a lost link or a reset core noticed, reached again and brought up to date;
+//! - [`search`], [`loss`], [`tilt`]: the searches, the loss rule that sends them, and the
+//!   tilt checks of tracked poses;
 //! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells;
-//! - [`record`]: everything a run saw, for its reports;
+//! - [`record`]: everything a run saw, for its reports (outages included);
 //! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
-//!   `relocate`, `finish`; [`inertial`]: its runs with an IMU (`push_imu`).
+//!   `relocate`, `finish`, with its steps: without an IMU in `tracker` itself, with one in
+//!   [`tracker::inertial`] (`push_imu`), its cold start and its outages (a lost link or a
+//!   reset core noticed, reached again and brought up to date) in child modules.
 //!
 //! Errors: [`TrackerError`].
 
-pub mod cold_start;
 pub mod config;
 mod error;
 pub mod event;
-pub mod inertial;
 pub mod link;
 pub mod log;
 pub mod loss;
-pub mod outage;
 pub mod record;
 pub mod rig;
 pub mod search;
@@ -36,9 +34,9 @@ pub mod transport;
 pub mod worker;
 
 pub use error::TrackerError;
-pub use inertial::ImuSample;
 pub use link::{CoreLink, LinkSpec};
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
+pub use tracker::inertial::ImuSample;
 pub use tracker::{
     Answers, Event, Finished, Frame, FrameReport, Pose, Start, State, Tracker, TrackerConfig,
 };

@@ -5,6 +5,7 @@ use std::collections::BTreeMap;
 use std::time::Instant;
 
 use nalgebra::Vector3;
+use serde::Serialize;
 use vision::{Assessment, FrameResult};
 
 use crate::error::TrackerError;
@@ -49,7 +50,7 @@ pub struct Record {
     /// reports it in its `HelloAck` kept the state this run gave it.
     pub session_id: u32,
     /// Outages of the link or the core, and how each ended (protocol/PROTOCOL.md §8).
-    pub outages: Vec<crate::outage::Outage>,
+    pub outages: Vec<Outage>,
     /// Attached to a running core: the first sample sent, the one after the core's last.
     pub attached_at: Option<usize>,
     /// Attach asked for: what the tracker found, and what it did.
@@ -183,4 +184,46 @@ impl Record {
             .collect();
         (judged.iter().filter(|&&t| t).count(), judged.len())
     }
+}
+
+/// What an outage of the link or the core turned out to be once the host reached the core
+/// again (protocol/PROTOCOL.md §8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutageKind {
+    /// The core had lost its configuration (reset, or never configured by us): configured and
+    /// initialised again from the last good pose.
+    CoreReset,
+    /// The core kept its state: it was sent the samples it missed and went on.
+    LinkLost,
+    /// Not resolved by the end of the run.
+    Unresolved,
+}
+
+/// One outage of the link or the core, from its notice to the core's return.
+#[derive(Debug, Clone, Serialize)]
+pub struct Outage {
+    /// What it was.
+    pub kind: OutageKind,
+    /// What revealed it.
+    pub cause: String,
+    /// The input's time of the sample being sent when it was noticed [s].
+    pub noticed_s: f64,
+    /// For an injected fault: when it was injected [s], and the wall-clock time until the
+    /// host noticed it [ms].
+    pub injected_s: Option<f64>,
+    /// Wall-clock time from the injection to the notice [ms] (injected faults).
+    pub notice_wall_ms: Option<f64>,
+    /// Reconnection attempts (the last one succeeded, if it did).
+    pub attempts: u32,
+    /// Why the last failed attempt failed.
+    pub last_failure: Option<String>,
+    /// When the host reached the core again [s].
+    pub resumed_s: Option<f64>,
+    /// The device or address it reached it on (a serial pattern's match, say).
+    pub resumed_on: Option<String>,
+    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
+    pub backlog: usize,
+    /// When the core reported `Tracking` again after the return [s].
+    pub tracking_s: Option<f64>,
 }

@@ -9,15 +9,17 @@
 //! the loop has no branch. Per-lane `f32` sums (≤ ¼ of the window each) are added in `f64`.
 //! Windows that cross the image border take the per-sample path.
 
+mod fields;
+
 use wide::f32x4;
 
 use super::super::gray::{GrayF32, Mask};
 use super::clip::ClipLevel;
-use super::fields::ClipScratch;
-pub(super) use super::fields::Pre;
+use fields::ClipScratch;
+pub(super) use fields::Pre;
 
 /// Lanes per accumulation step.
-pub(super) const LANES: usize = 4;
+const LANES: usize = 4;
 
 /// One pass over the window at the current parameters (see `accumulate`).
 pub(super) struct Normal {
@@ -536,7 +538,7 @@ fn accumulate_lanes(s: &mut [f32x4; 15], v: [f32x4; 7], av: f32x4, bv: f32x4, ha
 
 /// A chunk of [`LANES`] values (from `chunks_exact`, so the conversion cannot fail).
 #[inline(always)]
-pub(super) fn v4(c: &[f32]) -> f32x4 {
+fn v4(c: &[f32]) -> f32x4 {
     f32x4::new(c.try_into().unwrap_or_default())
 }
 
@@ -549,7 +551,7 @@ fn sum(v: f32x4) -> f64 {
 /// Bilinear samples of `img` at `(ox + i, oy + j)`, `i < cols`, `j < rows`, into rows of
 /// `stride` values of `out`, if every sample's four pixels are inside the image (returns
 /// `false` and leaves `out` to the caller otherwise). Same arithmetic as `GrayF32::sample`.
-pub(super) fn fill_bilinear(
+fn fill_bilinear(
     img: &GrayF32,
     ox: f64,
     oy: f64,

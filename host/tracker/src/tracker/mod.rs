@@ -4,7 +4,7 @@
 //!
 //! With an IMU (an inertial model) the program pushes every sample with
 //! [`Tracker::push_imu`], and each frame just before the sample that triggered it; the steps
-//! of a sample are in `crate::inertial`. Without one (the vision-only model) the frames are
+//! of a sample are in [`inertial`]. Without one (the vision-only model) the frames are
 //! the clock, and each frame goes through named steps (as M3T's tracker loop does), in this
 //! order:
 //! 1. [`Tracker::check_frame`]: its size and time against the camera and the frame before;
@@ -24,6 +24,10 @@
 //!
 //! The core runs the vision-only model: its clock is the frames' (`Tick`s, protocol 2.1).
 
+mod cold_start;
+pub mod inertial;
+mod outage;
+
 use std::collections::VecDeque;
 use std::time::Instant;
 
@@ -32,10 +36,10 @@ use image::GrayImage;
 use protocol::{HostToCore, Init, InitAttitude, ModelKind, StatusReason, Tick};
 use vision::{FrameImage, FrameJob, TrackedRule};
 
+use self::inertial::Inertial;
 use crate::config::vision_config;
 use crate::error::TrackerError;
 pub use crate::event::{Event, FrameReport, Pose, State};
-use crate::inertial::Inertial;
 use crate::link::CoreLink;
 use crate::loss::LossRule;
 use crate::record::Record;

@@ -4,57 +4,15 @@
 //! an initialisation from the last good pose if it did not.
 
 use protocol::{ErrorCode, HostToCore, Init, InitAttitude, Mode, Resume, StatusReason};
-use serde::Serialize;
 
+use super::{Answers, Tracker};
 use crate::error::TrackerError;
-use crate::tracker::{Answers, Tracker};
+use crate::record::{Outage, OutageKind};
 use crate::transport::CoreTransport;
 
 /// Seconds of `t_us`.
 fn seconds(t_us: u64) -> f64 {
     t_us as f64 / 1e6
-}
-
-/// What an outage of the link or the core turned out to be once the host reached the core
-/// again (protocol/PROTOCOL.md §8).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutageKind {
-    /// The core had lost its configuration (reset, or never configured by us): configured and
-    /// initialised again from the last good pose.
-    CoreReset,
-    /// The core kept its state: it was sent the samples it missed and went on.
-    LinkLost,
-    /// Not resolved by the end of the run.
-    Unresolved,
-}
-
-/// One outage of the link or the core, from its notice to the core's return.
-#[derive(Debug, Clone, Serialize)]
-pub struct Outage {
-    /// What it was.
-    pub kind: OutageKind,
-    /// What revealed it.
-    pub cause: String,
-    /// The input's time of the sample being sent when it was noticed [s].
-    pub noticed_s: f64,
-    /// For an injected fault: when it was injected [s], and the wall-clock time until the
-    /// host noticed it [ms].
-    pub injected_s: Option<f64>,
-    /// Wall-clock time from the injection to the notice [ms] (injected faults).
-    pub notice_wall_ms: Option<f64>,
-    /// Reconnection attempts (the last one succeeded, if it did).
-    pub attempts: u32,
-    /// Why the last failed attempt failed.
-    pub last_failure: Option<String>,
-    /// When the host reached the core again [s].
-    pub resumed_s: Option<f64>,
-    /// The device or address it reached it on (a serial pattern's match, say).
-    pub resumed_on: Option<String>,
-    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
-    pub backlog: usize,
-    /// When the core reported `Tracking` again after the return [s].
-    pub tracking_s: Option<f64>,
 }
 
 /// The first wait before reconnecting [µs of the input's clock]; it doubles after each failed

@@ -1,13 +1,13 @@
 //! The tracker's runs with an IMU: the program pushes every IMU sample, and each frame just
 //! before the sample that triggered it. Per sample ([`Tracker::push_imu`]), in this order:
 //!
-//! 1. an outage in progress is worked on (`crate::outage`): the sample waits until the core
+//! 1. an outage in progress is worked on (`super::outage`): the sample waits until the core
 //!    is reached again;
 //! 2. [`Tracker::deliver_due`]: the correspondences of frames analysed since: in a replay
 //!    ([`Answers::AtNextFrame`]) exactly `latency` after their trigger, counted in samples,
 //!    waiting for the vision thread if needed, so that a replay is deterministic and the
 //!    core's delayed-update path is always exercised; live, as soon as they are ready;
-//! 3. the cold start's or the recovery's attempt, when due (`crate::cold_start`);
+//! 3. the cold start's or the recovery's attempt, when due (`super::cold_start`);
 //! 4. the sample itself, with the trigger flag when a frame waits for it;
 //! 5. at a trigger: a `Hello` as a barrier (the core answers it in order, so the host knows
 //!    whether a prediction came), an attempt on the frame when the loss rule asks for one,
@@ -21,10 +21,10 @@ use std::time::{Duration, Instant};
 use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason};
 use vision::{FrameImage, FrameJob};
 
-use crate::cold_start::{AtTrigger, LocateJob, Searcher};
+use super::cold_start::{AtTrigger, LocateJob, Searcher};
+use super::outage::{Attempt, MAX_BACKLOG_US, Open};
+use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::error::TrackerError;
-use crate::outage::{Attempt, MAX_BACKLOG_US, Open};
-use crate::tracker::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::transport::CoreTransport;
 
 /// One IMU sample pushed into the tracker.

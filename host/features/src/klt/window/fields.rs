@@ -1,13 +1,13 @@
 //! The clipped prediction's three fields (docs/VISION.md §5, eqs. 5.6, 5.7): the unsmoothed
 //! template sampled where a window grid's points fall at level 0, clipped as the camera clips,
-//! then smoothed and reduced as the pyramid was, for [`super::window::Window`]'s normal
+//! then smoothed and reduced as the pyramid was, for [`super::Window`]'s normal
 //! equations where the live image is clipped.
 
 use wide::f32x4;
 
-use super::super::gray::GrayF32;
-use super::super::pyramid::reflect101;
-use super::window::{LANES, fill_bilinear, v4};
+use super::{LANES, fill_bilinear, v4};
+use crate::gray::GrayF32;
+use crate::pyramid::reflect101;
 
 /// The template's level 0 before its smoothing, for the clipped prediction (eq. 5.6).
 #[derive(Clone, Copy)]

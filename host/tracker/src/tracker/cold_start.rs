@@ -1,7 +1,7 @@
 //! The cold start and the recovery of an inertial run (issue 15; the method is in
 //! docs/notes/issue15-cold-start.md, §6):
 //!
-//! - **Start.** With no start pose given ([`crate::tracker::Start::Locate`]), the core is
+//! - **Start.** With no start pose given ([`super::Start::Locate`]), the core is
 //!   configured but not initialised. At each
 //!   trigger with no attempt in flight the frame goes to the vision thread for an attempt
 //!   ([`crate::locate`]); the IMU stream goes on meanwhile. The first verified pose gives the
@@ -27,10 +27,10 @@ use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
 
 use camera::CameraPose;
 
+use super::Tracker;
 use crate::error::TrackerError;
 use crate::loss::LossRule;
 use crate::search::Search;
-use crate::tracker::Tracker;
 use crate::transport::CoreTransport;
 
 /// An attempt sent to the vision thread.
