@@ -66,7 +66,7 @@ pub struct VideoFrames {
 }
 
 /// True for a V4L2 device path (ffmpeg needs `-f v4l2` for those).
-fn is_v4l2_device(path: &Path) -> bool {
+pub(crate) fn is_v4l2_device(path: &Path) -> bool {
     path.to_str().is_some_and(|p| p.starts_with("/dev/video"))
 }
 

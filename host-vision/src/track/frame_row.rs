@@ -48,4 +48,14 @@ pub struct FrameRow {
     pub ncc: Option<f64>,
     /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
     pub tracked: Option<bool>,
+    /// The frame's age [ms since its capture, or since it was read in a replay] when the
+    /// tracker took it ([`tracker::latency`]).
+    pub age_ms: Option<f64>,
+    /// Its age when its correspondences were sent to the core [ms].
+    pub sent_ms: Option<f64>,
+    /// Its age when the pose estimated with it came out [ms].
+    pub pose_ms: Option<f64>,
+    /// Frames of the input between it and the frame analysed before it, never analysed (a
+    /// live run's dropped frames).
+    pub dropped_before: usize,
 }

@@ -138,12 +138,14 @@ impl From<TrackerError> for TrackError {
     }
 }
 
-/// How the IMU stream is paced.
+/// How the input is paced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Pacing {
-    /// As fast as the link takes it; correspondences after a fixed latency in IMU samples.
+    /// As fast as the link takes it; correspondences after a fixed latency in IMU samples;
+    /// without an IMU, every frame in order.
     LockStep,
-    /// By the clock; correspondences as soon as they are ready.
+    /// By the clock; correspondences as soon as they are ready; without an IMU, the frames
+    /// at their own rate, the newest taken when the tracker is ready and the rest dropped.
     RealTime,
 }
 
@@ -567,7 +569,7 @@ pub fn run(
     if !tracker::worker::is_textured(&model) {
         return Err(TrackError::Untextured(model_path));
     }
-    let ran = match frames.as_mut() {
+    let ran = match frames.take() {
         Some(source) => {
             let (finished, outcome) = vision_only::track_frames(
                 options, &dataset, link, &model, source, &interrupt, progress,
@@ -724,10 +726,8 @@ fn track_imu(
         }
         let row = &dataset.imu[k];
         if options.pacing == Pacing::RealTime {
-            let due = start + Duration::from_nanos(row.stamp - stamp0);
-            if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                std::thread::sleep(wait);
-            }
+            // Until the sample is due, the core's poses come out as it sends them.
+            tracker.wait_until(start + Duration::from_nanos(row.stamp - stamp0));
         }
         let t_us = (row.stamp - stamp0) / 1000;
         let step = injector
@@ -744,6 +744,7 @@ fn track_imu(
                         index: f,
                         t_ns: frame.stamp as i64,
                         image,
+                        captured: None,
                     })
                 }
                 None => Ok(()),
@@ -798,6 +799,7 @@ fn inertial_config(options: &TrackOptions, dataset: &Dataset) -> Result<TrackerC
         },
         keep_image_every: options.overlay_every,
         session_id: new_session_id(),
+        search_floor: Duration::ZERO,
     })
 }
 

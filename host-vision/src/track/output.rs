@@ -13,6 +13,7 @@ use firmware_sim::board::BoardReport;
 
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
+use tracker::latency::Percentiles;
 use tracker::record::Outage;
 
 use super::{
@@ -341,6 +342,71 @@ pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
     out
 }
 
+/// How old the poses were when they came out ([`tracker::latency`]), and the frames dropped.
+#[derive(Debug, Clone, Serialize)]
+pub struct LatencySummary {
+    /// Whether the run was live (a camera, or `--pacing real-time`): the frames' ages count
+    /// from their capture; in a replay, from when each was read.
+    pub live: bool,
+    /// Frames taken by the tracker.
+    pub frames_taken: usize,
+    /// Frames of the input never taken (a live run's frames it had no time for).
+    pub dropped_frames: usize,
+    /// Capture → taken by the tracker [ms]: the age of the frames analysed.
+    pub capture_to_taken: Option<Percentiles>,
+    /// Capture → correspondences sent [ms].
+    pub capture_to_sent: Option<Percentiles>,
+    /// Capture → pose out [ms].
+    pub capture_to_pose: Option<Percentiles>,
+    /// IMU sample sent → the core's pose for it [ms] (runs with an IMU).
+    pub sample_to_pose: Option<Percentiles>,
+}
+
+impl LatencySummary {
+    fn of(l: &tracker::latency::Latencies, live: bool) -> Self {
+        Self {
+            live,
+            frames_taken: l.frames.len(),
+            dropped_frames: l.dropped,
+            capture_to_taken: l.age_taken(),
+            capture_to_sent: l.capture_to_sent(),
+            capture_to_pose: l.capture_to_pose(),
+            sample_to_pose: l.sample_to_pose(),
+        }
+    }
+}
+
+impl fmt::Display for LatencySummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let from = if self.live { "capture" } else { "read" };
+        writeln!(
+            f,
+            "latency      {} run: {} frames taken, {} dropped",
+            if self.live { "live" } else { "replay" },
+            self.frames_taken,
+            self.dropped_frames
+        )?;
+        for (what, p) in [
+            ("taken", &self.capture_to_taken),
+            ("sent", &self.capture_to_sent),
+            ("pose out", &self.capture_to_pose),
+        ] {
+            if let Some(p) = p {
+                writeln!(f, "             {from} -> {what}: {p}")?;
+            }
+        }
+        if let Some(p) = &self.sample_to_pose {
+            writeln!(f, "             IMU sample -> pose: {p}")?;
+        }
+        Ok(())
+    }
+}
+
+/// Whether the run's frames come from a live camera.
+fn live_input(options: &super::TrackOptions) -> bool {
+    matches!(&options.frames, Some(crate::frames::FrameInput::Video(p)) if crate::frames::video::is_v4l2_device(p))
+}
+
 /// Summary of a run.
 #[derive(Debug, Clone, Serialize)]
 pub struct Summary {
@@ -407,6 +473,8 @@ pub struct Summary {
     pub track_losses: Vec<TrackLoss>,
     /// Mean time per frame in the host's analysis [ms].
     pub mean_frame_ms: f64,
+    /// How old the poses were when they came out, and the frames dropped.
+    pub latency: LatencySummary,
     /// Wall-clock time of the run [s].
     pub wall_s: f64,
     /// Core messages refused (errors) and frames from the core that failed to decode.
@@ -447,6 +515,7 @@ impl fmt::Display for Summary {
             self.wall_s,
             self.mean_frame_ms
         )?;
+        write!(f, "{}", self.latency)?;
         match self.snapped_on_at {
             Some(t0) => writeln!(
                 f,
@@ -885,7 +954,12 @@ pub(super) fn write_all(
         });
         let judged = record.assessments.get(frame_id);
         let tracked = record.tracked(*frame_id, &rule);
+        let latency = record.latency.frames.get(&r.job.index);
         rows.push(FrameRow {
+            age_ms: latency.map(|l| l.taken_ms),
+            sent_ms: latency.and_then(|l| l.sent_ms),
+            pose_ms: latency.and_then(|l| l.pose_ms),
+            dropped_before: latency.map_or(0, |l| l.dropped_before),
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
             tracked,
@@ -914,14 +988,15 @@ pub(super) fn write_all(
         let e = io(&path);
         writeln!(
             w,
-            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,rms_px,ncc,tracked"
+            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before"
         )
         .map_err(&e)?;
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
+        let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
         for r in &rows {
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -943,7 +1018,11 @@ pub(super) fn write_all(
                 o(r.ncc),
                 r.tracked
                     .map(|t| if t { "1" } else { "0" })
-                    .unwrap_or_default()
+                    .unwrap_or_default(),
+                ms(r.age_ms),
+                ms(r.sent_ms),
+                ms(r.pose_ms),
+                r.dropped_before
             )
             .map_err(&e)?;
         }
@@ -1090,6 +1169,10 @@ pub(super) fn write_all(
         outages: record.outages.clone(),
         attach: record.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
+        latency: LatencySummary::of(
+            &record.latency,
+            options.pacing == super::Pacing::RealTime || live_input(options),
+        ),
         mean_frame_ms: if rows.is_empty() {
             0.0
         } else {

@@ -4,19 +4,22 @@
 //! around it: the frames read, the faults' noise frames put in, `--duration` and
 //! `--max-frames`, Ctrl-C and the progress.
 //!
-//! Each frame is analysed before the next is read. A live camera (`--video /dev/video0`) is
-//! paced by the camera through the same pipe; when the analysis is slower than the camera,
-//! ffmpeg's pipe buffers the frames, so the tracker then runs late rather than dropping any.
+//! A replay analyses each frame before the next is read, the same every time. A live camera
+//! (`--video /dev/video0`), or a recording played at its own rate (`--pacing real-time`), is
+//! read on a capture thread that keeps only the newest frame: the tracker never runs late
+//! behind a queue, and the frames it had no time for are counted as dropped.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use tracker::live::{LiveFrames, Paced};
 use tracker::{Answers, Finished, Tracker, TrackerConfig, TrackerError};
+use vision::FrameImage;
 
-use super::{FaultyLink, Progress, TrackError, TrackOptions};
+use super::{FaultyLink, Pacing, Progress, TrackError, TrackOptions};
 
 use crate::camera::CameraPose;
 use crate::dataset::Dataset;
-use crate::frames::FrameSource;
+use crate::frames::{Frame, FrameSource};
 
 /// Frame rate assumed when the input states none [Hz].
 const DEFAULT_CAMERA_RATE_HZ: f64 = 30.0;
@@ -69,12 +72,17 @@ fn vision_start(options: &TrackOptions, dataset: &Dataset, first_stamp: u64) -> 
 /// Tracks the frames of `source` with the library's tracker, the core behind `link`. Returns
 /// what the tracker leaves (its record, the link, and how it ended; `Ok(false)` when
 /// interrupted), or the error that kept it from starting.
+///
+/// A replay takes every frame in order. A live run (a camera, or `--pacing real-time`, which
+/// plays a recording at its own rate as a camera would) reads the source on a capture thread
+/// that keeps only the newest frame ([`tracker::live`]): the tracker takes it when it is
+/// ready, and the frames it never saw are dropped, never queued.
 pub(super) fn track_frames(
     options: &TrackOptions,
     dataset: &Dataset,
     link: FaultyLink,
     model: &crate::model::Model,
-    source: &mut FrameSource,
+    mut source: FrameSource,
     interrupt: &AtomicBool,
     progress: Progress,
 ) -> Result<(Finished<FaultyLink>, Result<bool, TrackError>), TrackError> {
@@ -104,13 +112,14 @@ pub(super) fn track_frames(
         .or(dataset.camera.rate_hz)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
+    let live = source.is_live() || options.pacing == Pacing::RealTime;
     let config = TrackerConfig {
         start: vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0))
             .map_or(tracker::Start::Locate, tracker::Start::Camera),
         vision: options.vision,
         tuning: options.tuning,
         timeout: options.timeout,
-        answers: if source.is_live() {
+        answers: if live {
             Answers::WhenReady
         } else {
             Answers::AtNextFrame
@@ -119,43 +128,27 @@ pub(super) fn track_frames(
         session_id: super::new_session_id(),
         ..TrackerConfig::new(*camera, rate, options.cache.clone())
     };
-    let t0_ns = first.t_ns;
-    let mut tracker = Tracker::new(config, model, link)?;
-    let total = source.len_hint().unwrap_or(0);
-    let mut frames = 0usize;
-    let mut next = Some(Ok(first));
-    let outcome = loop {
-        let Some(frame) = next.take().or_else(|| source.next()) else {
-            break Ok(true);
-        };
-        if interrupt.load(Ordering::Relaxed) {
-            break Ok(false);
-        }
-        let mut frame = match frame {
-            Ok(f) => f,
-            Err(e) => break Err(e.into()),
-        };
-        let t_us = u64::try_from((frame.t_ns - t0_ns) / 1000).unwrap_or(0);
-        let faults = &options.faults;
-        if faults.blind_at(t_us as f64 * 1e-6) {
-            frame.image = faults.noise_frame(w, h, frame.index);
-        }
-        if options.duration.is_some_and(|d| t_us as f64 > d * 1e6)
-            || options.max_frames.is_some_and(|m| frames >= m)
-        {
-            break Ok(true);
-        }
-        match tracker.push_frame(frame.into()) {
-            Ok(()) => frames += 1,
-            // Refused and recorded: the next frame is tried.
-            Err(TrackerError::TimeBackwards { .. } | TrackerError::ImageSize { .. }) => {}
-            Err(e) => break Err(e.into()),
-        }
-        if frames.is_multiple_of(10) {
-            let r = tracker.record();
-            progress(frames, total, r.results.len(), r.log.mode());
-        }
+    let mut run = Replay {
+        options,
+        tracker: Tracker::new(config, model, link)?,
+        t0_ns: first.t_ns,
+        size: (w, h),
+        total: source.len_hint().unwrap_or(0),
+        frames: 0,
+        progress,
     };
+    let outcome = if live {
+        run.live(first, source, interrupt)
+    } else {
+        run.replay(first, source, interrupt)
+    };
+    let Replay {
+        tracker,
+        frames,
+        total,
+        progress,
+        ..
+    } = run;
     let finished = match outcome {
         Ok(false) => tracker.abandon(),
         _ => tracker.finish(),
@@ -163,4 +156,110 @@ pub(super) fn track_frames(
     let r = &finished.record;
     progress(frames, total.max(frames), r.results.len(), r.log.mode());
     Ok((finished, outcome))
+}
+
+/// A run's frames pushed into its tracker.
+struct Replay<'a, 'p> {
+    options: &'a TrackOptions,
+    tracker: Tracker<FaultyLink>,
+    /// The first frame's stamp [ns].
+    t0_ns: i64,
+    size: (u32, u32),
+    /// Frames announced (0: unknown).
+    total: usize,
+    /// Frames pushed and taken.
+    frames: usize,
+    progress: Progress<'p>,
+}
+
+/// What to do after a frame.
+enum Next {
+    Go,
+    /// The end of the run: `Ok(true)` at `--duration` or `--max-frames`.
+    Stop(Result<bool, TrackError>),
+}
+
+impl Replay<'_, '_> {
+    /// Every frame in order, each analysed before the next is read.
+    fn replay(
+        &mut self,
+        first: Frame,
+        source: FrameSource,
+        interrupt: &AtomicBool,
+    ) -> Result<bool, TrackError> {
+        for frame in std::iter::once(Ok(first)).chain(source) {
+            if interrupt.load(Ordering::Relaxed) {
+                return Ok(false);
+            }
+            match self.push(frame?, self.frames) {
+                Next::Go => {}
+                Next::Stop(outcome) => return outcome,
+            }
+        }
+        Ok(true)
+    }
+
+    /// The newest frame each time the tracker is ready, from a capture thread; a recording
+    /// played at its own rate.
+    fn live(
+        &mut self,
+        first: Frame,
+        source: FrameSource,
+        interrupt: &AtomicBool,
+    ) -> Result<bool, TrackError> {
+        let camera = source.is_live();
+        let frames = std::iter::once(Ok(first))
+            .chain(source)
+            .map(|f| f.map(tracker::Frame::from));
+        let mut live = if camera {
+            LiveFrames::start(frames)
+        } else {
+            LiveFrames::start(Paced::new(frames))
+        }
+        .map_err(|e| TrackError::Option(format!("cannot start the capture thread: {e}")))?;
+        while let Some(captured) = live.next_frame() {
+            if interrupt.load(Ordering::Relaxed) {
+                return Ok(false);
+            }
+            let frame = captured?.frame;
+            let index = frame.index;
+            match self.push_tracker_frame(frame, index) {
+                Next::Go => {}
+                Next::Stop(outcome) => return outcome,
+            }
+        }
+        Ok(true)
+    }
+
+    /// One frame of the source: `seen` is how far into the input it is, for `--max-frames`.
+    fn push(&mut self, frame: Frame, seen: usize) -> Next {
+        self.push_tracker_frame(frame.into(), seen)
+    }
+
+    /// One frame into the tracker, with the faults' noise frames, `--duration` and
+    /// `--max-frames`, and the progress.
+    fn push_tracker_frame(&mut self, mut frame: tracker::Frame, seen: usize) -> Next {
+        let o = self.options;
+        let t_us = u64::try_from((frame.t_ns - self.t0_ns) / 1000).unwrap_or(0);
+        if o.faults.blind_at(t_us as f64 * 1e-6) {
+            let (w, h) = self.size;
+            frame.image = FrameImage::Decoded(o.faults.noise_frame(w, h, frame.index));
+        }
+        if o.duration.is_some_and(|d| t_us as f64 > d * 1e6)
+            || o.max_frames.is_some_and(|m| seen >= m)
+        {
+            return Next::Stop(Ok(true));
+        }
+        match self.tracker.push_frame(frame) {
+            Ok(()) => self.frames += 1,
+            // Refused and recorded: the next frame is tried.
+            Err(TrackerError::TimeBackwards { .. } | TrackerError::ImageSize { .. }) => {}
+            Err(e) => return Next::Stop(Err(e.into())),
+        }
+        if self.frames.is_multiple_of(10) {
+            let r = self.tracker.record();
+            (self.progress)(self.frames, self.total, r.results.len(), r.log.mode());
+        }
+        Next::Go
+    }
 }

@@ -10,7 +10,10 @@
 //! - [`search`], [`loss`], [`tilt`]: the searches, the loss rule that sends them, and the
 //!   tilt checks of tracked poses;
 //! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells;
-//! - [`record`]: everything a run saw, for its reports (outages included);
+//! - [`record`]: everything a run saw, for its reports (outages included), and
+//!   [`latency`]: how old each pose was when it came out;
+//! - [`live`]: a camera's frames, of which only the newest is kept, and a recording played
+//!   at its own rate;
 //! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
 //!   `relocate`, `finish`, with its steps: without an IMU in `tracker` itself, with one in
 //!   [`tracker::inertial`] (`push_imu`), its cold start and its outages (a lost link or a
@@ -21,7 +24,9 @@
 pub mod config;
 mod error;
 pub mod event;
+pub mod latency;
 pub mod link;
+pub mod live;
 pub mod log;
 pub mod loss;
 pub mod record;

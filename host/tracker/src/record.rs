@@ -9,6 +9,7 @@ use serde::Serialize;
 use vision::{Assessment, FrameResult};
 
 use crate::error::TrackerError;
+use crate::latency::Latencies;
 use crate::log::CoreLog;
 use crate::rig::HandEye;
 use crate::search::{Recovery, Search};
@@ -57,6 +58,8 @@ pub struct Record {
     pub attach_note: Option<String>,
     /// When the run started.
     pub started: Instant,
+    /// How old the poses were when they came out, and the frames dropped.
+    pub latency: Latencies,
 }
 
 impl Record {
@@ -80,12 +83,22 @@ impl Record {
             attached_at: None,
             attach_note: None,
             started: Instant::now(),
+            latency: Latencies::default(),
         }
     }
 
     /// Seconds since the run started.
     pub fn elapsed(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
+    }
+
+    /// Records a search: the start's (`lost_at` `None`), or a recovery's for the loss since
+    /// `lost_at` [µs].
+    pub fn record_search(&mut self, lost_at: Option<u64>, search: Search) {
+        match lost_at {
+            None => self.searches.push(search),
+            Some(us) => self.record_recovery(us as f64 * 1e-6, search),
+        }
     }
 
     /// Records a recovery search for a loss that began at `lost_at` [s].

@@ -12,6 +12,10 @@ pub struct Search {
     pub ms: f64,
     /// What it found.
     pub attempt: locate::Attempt,
+    /// When its pose was given to the core [s from the first frame]: at a later frame (or
+    /// sample) than its own where the answer came while the frames went on; `None` where
+    /// it found none.
+    pub applied_at: Option<f64>,
 }
 
 impl Search {
@@ -23,7 +27,14 @@ impl Search {
             t: t_us as f64 * 1e-6,
             ms: (t.detect + t.matching + t.ransac + t.verify + t.choose) * 1e3,
             attempt,
+            applied_at: None,
         }
+    }
+
+    /// Its pose given to the core at `t_us`.
+    pub fn applied(mut self, t_us: u64) -> Self {
+        self.applied_at = self.attempt.pose.map(|_| t_us as f64 * 1e-6);
+        self
     }
 }
 

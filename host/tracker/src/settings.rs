@@ -2,7 +2,7 @@
 //! it takes ([`Frame`]).
 
 use std::path::PathBuf;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use camera::{Camera, CameraPose};
 use image::GrayImage;
@@ -23,6 +23,10 @@ pub struct Frame {
     /// Its grey pixels, of the camera's size, or the image file that holds them (read on the
     /// vision thread).
     pub image: FrameImage,
+    /// When it was captured, on this machine's monotonic clock: a live source's delivery of
+    /// it ([`crate::live`]); `None`: when it is pushed. Its latencies count from here
+    /// ([`crate::latency`]).
+    pub captured: Option<Instant>,
 }
 
 impl Frame {
@@ -32,6 +36,7 @@ impl Frame {
             index,
             t_ns,
             image: FrameImage::Decoded(image),
+            captured: None,
         }
     }
 }
@@ -97,6 +102,9 @@ pub struct TrackerConfig {
     pub keep_image_every: usize,
     /// This run's name for its configuration of the core (non-zero).
     pub session_id: u32,
+    /// The shortest time a search takes: an answer found sooner is held back until then, as
+    /// on a slower machine (zero: none). For reproducing a slow machine's live runs.
+    pub search_floor: Duration,
 }
 
 impl TrackerConfig {
@@ -128,6 +136,7 @@ impl TrackerConfig {
             answers: Answers::AtNextFrame,
             keep_image_every: 0,
             session_id: 1,
+            search_floor: Duration::ZERO,
         }
     }
 }

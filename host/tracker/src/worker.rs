@@ -5,6 +5,7 @@
 
 use std::path::PathBuf;
 use std::sync::mpsc::{Receiver, Sender, channel};
+use std::time::{Duration, Instant};
 
 use nalgebra::Vector3;
 use vision::{Assessment, FrameJob, FrameResult, Vision, VisionOptions};
@@ -19,6 +20,8 @@ pub fn is_textured(model: &model::Model) -> bool {
 /// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
 /// return leaves the renderer to be torn down by the process's exit.
 pub struct VisionWorker {
+    /// The shortest time an attempt takes ([`Self::set_search_floor`]).
+    floor: Duration,
     jobs: Option<Sender<WorkerJob>>,
     results: Receiver<WorkerDone>,
     handle: Option<std::thread::JoinHandle<()>>,
@@ -32,8 +35,9 @@ pub enum WorkerJob {
     /// correspondences the core applied.
     Assess(camera::CameraPose, Vec<bool>),
     /// Find the model in a raw frame with no pose given (the cold start), with the viewpoint
-    /// database of this cache folder.
-    Locate(image::GrayImage, PathBuf),
+    /// database of this cache folder, answering no sooner than the duration given
+    /// ([`VisionWorker::set_search_floor`]).
+    Locate(image::GrayImage, PathBuf, Duration),
     /// Check the tilt of a tracked pose in its raw frame ([`locate::choice::check_tilt`]).
     CheckTilt(image::GrayImage, camera::CameraPose),
 }
@@ -73,6 +77,7 @@ impl VisionWorker {
                 TrackerError::VisionThread(format!("cannot start the vision thread: {e}"))
             })?;
         let worker = VisionWorker {
+            floor: Duration::ZERO,
             jobs: Some(job_tx),
             results: res_rx,
             handle: Some(handle),
@@ -144,7 +149,7 @@ impl VisionWorker {
     /// Starts an attempt on `image` (its answer comes by [`Self::locate_result`] or
     /// [`Self::try_locate`]).
     pub fn send_locate(&self, image: image::GrayImage, cache: PathBuf) -> Result<(), TrackerError> {
-        self.send_job(WorkerJob::Locate(image, cache))
+        self.send_job(WorkerJob::Locate(image, cache, self.floor))
     }
 
     /// The answer of the attempt sent, waited for.
@@ -163,6 +168,12 @@ impl VisionWorker {
             Some(_) => Err(Self::out_of_order()),
             None => Ok(None),
         }
+    }
+
+    /// Makes every attempt take at least `floor`: an answer found sooner is held back until
+    /// then, as on a slower machine ([`crate::TrackerConfig::search_floor`]).
+    pub fn set_search_floor(&mut self, floor: Duration) {
+        self.floor = floor;
     }
 
     /// Starts the tilt check of the tracked `pose` in its raw frame `image` (its answer comes
@@ -260,7 +271,8 @@ fn vision_worker(
             WorkerJob::Assess(pose, applied) => {
                 WorkerDone::Assess(vision.assess(&pose, &applied).map_err(TrackerError::from))
             }
-            WorkerJob::Locate(image, cache) => {
+            WorkerJob::Locate(image, cache, floor) => {
+                let began = Instant::now();
                 let attempt = (|| {
                     if locator.is_none() {
                         let (db, from) = locate::database::Database::load_or_build(
@@ -277,6 +289,9 @@ fn vision_worker(
                         None => Err(TrackerError::VisionThread("no cold-start database".into())),
                     }
                 })();
+                if let Some(rest) = floor.checked_sub(began.elapsed()) {
+                    std::thread::sleep(rest);
+                }
                 WorkerDone::Locate(Box::new(attempt), provenance.take())
             }
             WorkerJob::CheckTilt(image, pose) => WorkerDone::CheckTilt(Box::new(

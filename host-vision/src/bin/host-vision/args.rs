@@ -240,7 +240,10 @@ pub struct TrackArgs {
     /// Filter model (default: acc; vision for --video, --images and datasets without an IMU).
     #[arg(long, value_enum)]
     pub filter: Option<FilterArg>,
-    /// IMU pacing.
+    /// Pacing: `lock-step` replays every frame and sample, the same every time; `real-time`
+    /// plays the input at its own rate, as live sensors would deliver it: IMU samples by the
+    /// clock, and a video or image folder as a camera, the tracker taking the newest frame
+    /// and dropping those it had no time for (a camera device is always live).
     #[arg(long, value_enum, default_value = "lock-step")]
     pub pacing: host_vision::track::Pacing,
     /// Trigger-to-correspondences latency in lock-step mode [s]: at least 0 and below one frame

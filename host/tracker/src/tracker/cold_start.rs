@@ -157,11 +157,8 @@ impl<T: CoreTransport> Tracker<T> {
         attempt: locate::Attempt,
         now_us: u64,
     ) -> Result<(), TrackerError> {
-        let search = Search::new(job.index, job.t_us, attempt);
-        match job.lost_at {
-            None => self.record.searches.push(search),
-            Some(since) => self.record.record_recovery(since as f64 * 1e-6, search),
-        }
+        let search = Search::new(job.index, job.t_us, attempt).applied(now_us);
+        self.record.record_search(job.lost_at, search);
         self.tell_located(job.index, attempt.pose);
         let Some(pose) = attempt.pose else {
             return Ok(());

@@ -407,6 +407,7 @@ impl<T: CoreTransport> Tracker<T> {
             trigger: s.trigger,
         }))?;
         self.record.clock.push(s.sample.t_ns);
+        self.record.latency.sample_sent(s.t_us);
         Ok(())
     }
 
@@ -439,8 +440,13 @@ impl<T: CoreTransport> Tracker<T> {
         result: Result<vision::FrameResult, TrackerError>,
     ) -> Result<(), TrackerError> {
         let results = self.record.results.len();
+        let ok = result.is_ok();
         self.record
             .deliver(&mut self.core, p.frame_id, p.trigger_us, result)?;
+        if ok {
+            let after = self.imu_mut()?.last_sent_us.unwrap_or(p.trigger_us);
+            self.record.latency.sent(p.index, after);
+        }
         let correspondences = match self.record.results.get(results) {
             Some((_, r)) => r.correspondences.len(),
             None => 0,

@@ -71,12 +71,13 @@ pub struct Judged {
 }
 
 /// A search on the search thread: its frame's index and time [µs], and since when the model
-/// was lost [µs].
+/// was lost [µs] (`None`: the start's, with no pose yet).
 #[derive(Debug, Clone, Copy)]
 struct InSearch {
     index: usize,
     t_us: u64,
-    lost_at: u64,
+    /// `None`: the start's search.
+    lost_at: Option<u64>,
 }
 
 /// The tracker: frames in, events out, the core behind `T`.
@@ -155,7 +156,9 @@ impl<T: CoreTransport> Tracker<T> {
         vision.map.small_object_cells |= vision_only;
         let (worker, ready) = VisionWorker::start(config.camera, model.clone(), vision)?;
         let search = if vision_only || config.start == Start::Locate {
-            Some(VisionWorker::start(config.camera, model.clone(), vision)?.0)
+            let mut s = VisionWorker::start(config.camera, model.clone(), vision)?.0;
+            s.set_search_floor(config.search_floor);
+            Some(s)
         } else {
             None
         };
@@ -262,10 +265,14 @@ impl<T: CoreTransport> Tracker<T> {
             return Err(TrackerError::Stopped(why.clone()));
         }
         let index = frame.index;
+        let captured = frame.captured.unwrap_or_else(Instant::now);
         let checked = match &self.inertial {
             Some(_) => self.queue_frame(frame).map(|()| None),
             None => self.check_frame(frame).map(Some),
         };
+        if checked.is_ok() {
+            self.record.latency.taken(index, captured);
+        }
         let (t_us, image) = match checked {
             Ok(Some(c)) => c,
             Ok(None) => return Ok(()),
@@ -360,9 +367,13 @@ impl<T: CoreTransport> Tracker<T> {
         Ok(())
     }
 
-    /// Step 2: while no pose is known, a cold-start attempt on the frame (waited for). Returns
-    /// whether the frame goes on to be tracked: it does once a pose is verified, from that
-    /// pose.
+    /// Step 2: while no pose is known, a cold-start attempt on the frame: waited for in a
+    /// replay ([`Answers::AtNextFrame`]); live, on the search thread while the frames go on,
+    /// its answer taken at the first frame after it is ready, and a new attempt sent on
+    /// that frame where it found nothing. Returns whether the frame goes on to be tracked: it
+    /// does once a pose is verified, from that pose (found on its own frame and registered
+    /// on this one, which measures the motion since: the vision-only model has no other
+    /// sensor of it).
     pub fn start_step(
         &mut self,
         index: usize,
@@ -372,19 +383,43 @@ impl<T: CoreTransport> Tracker<T> {
         if self.started {
             return Ok(true);
         }
-        let (a, from) = self
-            .searcher()?
-            .locate(image.clone(), self.config.cache.clone())?;
-        self.record.keep_provenance(from);
-        self.record.searches.push(Search::new(index, t_us, a));
-        self.tell_located(index, a.pose);
-        let Some(pose) = a.pose else {
-            return Ok(false);
+        let answer = if self.config.answers == Answers::AtNextFrame {
+            let (a, from) = self
+                .searcher()?
+                .locate(image.clone(), self.config.cache.clone())?;
+            Some((a, from, index, t_us))
+        } else {
+            match self.in_search {
+                Some(s) => self.searcher()?.try_locate()?.map(|(a, from)| {
+                    self.in_search = None;
+                    (a, from, s.index, s.t_us)
+                }),
+                None => None,
+            }
         };
-        self.core.send(&HostToCore::Init(init_at(&pose)))?;
-        self.started = true;
-        self.set_state(State::Starting);
-        Ok(true)
+        if let Some((a, from, at, at_us)) = answer {
+            self.record.keep_provenance(from);
+            self.record
+                .searches
+                .push(Search::new(at, at_us, a).applied(t_us));
+            self.tell_located(at, a.pose);
+            if let Some(pose) = a.pose {
+                self.core.send(&HostToCore::Init(init_at(&pose)))?;
+                self.started = true;
+                self.set_state(State::Starting);
+                return Ok(true);
+            }
+        }
+        if self.config.answers == Answers::WhenReady && self.in_search.is_none() {
+            self.searcher()?
+                .send_locate(image.clone(), self.config.cache.clone())?;
+            self.in_search = Some(InSearch {
+                index,
+                t_us,
+                lost_at: None,
+            });
+        }
+        Ok(false)
     }
 
     /// Step 3: the answers of the search and the tilt check sent at an earlier frame: waited
@@ -404,8 +439,8 @@ impl<T: CoreTransport> Tracker<T> {
             if let Some((a, from)) = done {
                 self.in_search = None;
                 self.record.keep_provenance(from);
-                self.record
-                    .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
+                let search = Search::new(s.index, s.t_us, a).applied(t_us);
+                self.record.record_search(s.lost_at, search);
                 self.tell_located(s.index, a.pose);
                 if let Some(pose) = a.pose {
                     self.core.send(&HostToCore::Init(init_at(&pose)))?;
@@ -444,7 +479,7 @@ impl<T: CoreTransport> Tracker<T> {
             self.in_search = Some(InSearch {
                 index,
                 t_us,
-                lost_at,
+                lost_at: Some(lost_at),
             });
         }
         Ok(())
@@ -500,6 +535,9 @@ impl<T: CoreTransport> Tracker<T> {
         let errors = self.record.frame_errors.len();
         self.record
             .deliver(&mut self.core, p.frame_id, t_us, result)?;
+        if ok {
+            self.record.latency.sent(index, t_us);
+        }
         if let Some((_, why)) = self.record.frame_errors.get(errors) {
             self.events.push_back(Event::FrameSkipped {
                 index,
@@ -511,6 +549,8 @@ impl<T: CoreTransport> Tracker<T> {
         self.record
             .log
             .barrier(&mut self.core, self.config.timeout)?;
+        // The pose out at once, before its judgement.
+        self.tell_poses();
         let updated = self.record.log.states.last().filter(|s| s.t_us == t_us + 1);
         let (true, Some(s)) = (ok, updated) else {
             return Ok(None);
@@ -589,6 +629,34 @@ impl<T: CoreTransport> Tracker<T> {
         }));
     }
 
+    /// Waits until `deadline` for what the core says, telling its poses as they come: a
+    /// program that paces its samples by the clock calls this instead of sleeping, so that
+    /// each pose comes out when the core sends it. A link that fails meanwhile is left to
+    /// the next push to notice.
+    pub fn wait_until(&mut self, deadline: Instant) {
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return;
+            }
+            if self.stopped.is_some() || self.in_outage() || !self.core.is_connected() {
+                std::thread::sleep(left);
+                return;
+            }
+            match self.core.recv_within(left) {
+                Ok(Some(item)) => {
+                    self.record.log.take(item);
+                    self.tell_poses();
+                }
+                Ok(None) => return,
+                Err(_) => {
+                    std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
+                    return;
+                }
+            }
+        }
+    }
+
     /// The events since the last poll, in order.
     pub fn poll(&mut self) -> impl Iterator<Item = Event> + '_ {
         self.events.drain(..)
@@ -615,7 +683,9 @@ impl<T: CoreTransport> Tracker<T> {
                 .model
                 .take()
                 .ok_or_else(|| TrackerError::VisionThread("no model for a search thread".into()))?;
-            self.search = Some(VisionWorker::start(self.config.camera, model, vision)?.0);
+            let mut s = VisionWorker::start(self.config.camera, model, vision)?.0;
+            s.set_search_floor(self.config.search_floor);
+            self.search = Some(s);
         }
         match self.inertial.as_mut() {
             Some(i) => {
@@ -683,7 +753,7 @@ impl<T: CoreTransport> Tracker<T> {
             let (a, from) = self.searcher()?.locate_result()?;
             self.record.keep_provenance(from);
             self.record
-                .record_recovery(s.lost_at as f64 * 1e-6, Search::new(s.index, s.t_us, a));
+                .record_search(s.lost_at, Search::new(s.index, s.t_us, a));
         }
         self.barrier()
     }
@@ -719,6 +789,7 @@ impl<T: CoreTransport> Tracker<T> {
         let log = &self.record.log;
         let hand_eye = self.record.core_hand_eye;
         for s in &log.states[self.states_told.min(log.states.len())..] {
+            self.record.latency.pose_out(s.t_us);
             let (c_w, q_wc) = hand_eye.camera_of_state(s);
             let pose = Pose {
                 t_us: s.t_us,
