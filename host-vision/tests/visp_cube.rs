@@ -229,3 +229,108 @@ fn the_cube_video_is_tracked_from_a_cold_start_and_found_again_after_a_loss() {
     // Measured 94.8 % (98.5 % from the given pose without the loss), Vulkan.
     assert!(share(&half_visible) >= 0.9, "{}", share(&half_visible));
 }
+
+/// Live, a search runs beside the frames (issue 35): with every attempt held to at least
+/// 500 ms, the frames pushed meanwhile are each analysed at once and tracked, and the pose it
+/// found is the pose of its own frame, given to the core at a later one.
+#[test]
+fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames() {
+    use std::time::{Duration, Instant};
+    use tracker::{Answers, CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
+
+    let Some(dir) = data() else { return };
+    let o = cube::vision_only(&dir, PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("unused"));
+    let model = host_vision::model::load(o.model.as_ref().unwrap()).unwrap();
+    // The database first, as a user's second run finds it: the search is the attempt alone.
+    host_vision::locate::database::Database::load_or_build(
+        &model,
+        &Default::default(),
+        &o.cache,
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let mut config = TrackerConfig::new(o.camera.unwrap(), 30.0, o.cache.clone());
+    config.start = Start::Camera(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
+    config.tuning = o.tuning;
+    config.answers = Answers::WhenReady;
+    config.search_floor = Duration::from_millis(500);
+    let core = CoreLink::open(&LinkSpec::InProcess(firmware_sim::board::Precision::F32)).unwrap();
+    let mut tracker = Tracker::new(config, &model, core).unwrap();
+
+    let frames = o
+        .frames
+        .as_ref()
+        .unwrap()
+        .open(&Default::default())
+        .unwrap()
+        .take(150);
+    let start = Instant::now();
+    let mut reports = Vec::new();
+    let mut located = None;
+    let mut pushes_during_search = Vec::new();
+    for frame in frames {
+        let frame = frame.unwrap();
+        let index = frame.index;
+        // As a camera at 30 fps delivers them.
+        let due = Duration::from_nanos(u64::try_from(frame.t_ns).unwrap());
+        std::thread::sleep(due.saturating_sub(start.elapsed()));
+        if index == 10 {
+            tracker.relocate().unwrap();
+        }
+        let pushed = Instant::now();
+        tracker.push_frame(frame.into()).unwrap();
+        let took = pushed.elapsed();
+        for e in tracker.poll() {
+            match e {
+                Event::Frame(r) => reports.push(r),
+                Event::Located { index, pose } => located = Some((index, pose)),
+                _ => {}
+            }
+        }
+        if index >= 10 && located.is_none() {
+            pushes_during_search.push((index, took));
+        }
+        if located.is_some_and(|(i, _)| index >= i + 30) {
+            break;
+        }
+    }
+    let done = tracker.finish();
+    done.result.unwrap();
+    let (found_at, pose) = located.expect("the search answered");
+    let pose = pose.expect("the cube found");
+    let search = &done.record.recoveries[0].searches[0];
+    println!(
+        "search on frame {found_at} ({:.0} ms on its thread), applied at {:?} s; {} frames pushed meanwhile, the longest push {:?}",
+        search.ms,
+        search.applied_at,
+        pushes_during_search.len(),
+        pushes_during_search.iter().map(|p| p.1).max()
+    );
+    // The search took a frame after the relocation (the first with the search thread free of
+    // a tilt check), and its pose was given to the core at a later frame, at least the 500 ms
+    // later.
+    assert_eq!(found_at, search.index);
+    assert!((10..40).contains(&found_at), "{found_at}");
+    let applied = search.applied_at.expect("applied");
+    assert!(applied >= search.t + 0.45, "{applied} vs {}", search.t);
+    // The frames kept coming: each pushed during the search analysed at once, none of them
+    // waiting for it.
+    assert!(pushes_during_search.len() >= 10, "{pushes_during_search:?}");
+    for &(index, took) in &pushes_during_search {
+        assert!(took < Duration::from_millis(300), "frame {index}: {took:?}");
+        let r = reports.iter().find(|r| r.index == index).unwrap();
+        assert!(r.pose.is_some(), "frame {index} analysed");
+    }
+    // The pose found is its own frame's: where tracking had the cube on that frame (at rest).
+    let tracked = reports.iter().find(|r| r.index == found_at).unwrap().pose.unwrap();
+    let metres = (pose.c_w - tracked.c_w).norm();
+    let degrees = pose.q_cw.angle_to(&tracked.q_cw).to_degrees();
+    assert!(metres < 0.01 && degrees < 2.0, "{metres} m, {degrees}°");
+    // And tracking goes on from it.
+    let after: Vec<_> = reports.iter().filter(|r| r.index > found_at + 20).collect();
+    assert!(!after.is_empty());
+    assert!(
+        after.iter().filter(|r| r.tracked == Some(true)).count() * 10 >= after.len() * 8,
+        "{after:?}"
+    );
+}

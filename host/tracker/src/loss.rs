@@ -24,6 +24,9 @@ pub struct LossRule {
     statuses_seen: usize,
     /// Frames since the last search while lost.
     since_search: usize,
+    /// A search was asked for ([`Self::force`]) and not sent yet: tracked frames do not end
+    /// the loss before it goes (live, a tilt check may hold the search thread for a while).
+    forced: bool,
 }
 
 impl Default for LossRule {
@@ -33,6 +36,7 @@ impl Default for LossRule {
             diverged: false,
             statuses_seen: 0,
             since_search: SEARCH_EVERY,
+            forced: false,
         }
     }
 }
@@ -69,7 +73,7 @@ impl LossRule {
 
     /// The frame at `t_us` was tracked (`true`) or not.
     pub fn frame(&mut self, tracked: bool, t_us: u64) {
-        if tracked {
+        if tracked && !self.forced {
             self.untracked_since = None;
             self.diverged = false;
         } else {
@@ -93,6 +97,7 @@ impl LossRule {
         }
         if self.since_search >= SEARCH_EVERY && !busy {
             self.since_search = 0;
+            self.forced = false;
             Some(self.untracked_since.unwrap_or(t_us))
         } else {
             self.since_search += 1;
@@ -103,6 +108,7 @@ impl LossRule {
     /// Asks for a search at the next frame, whatever the frames say ([`crate::Tracker::relocate`]).
     pub fn force(&mut self, t_us: u64) {
         self.diverged = true;
+        self.forced = true;
         self.untracked_since.get_or_insert(t_us);
         self.since_search = SEARCH_EVERY;
     }
@@ -146,5 +152,19 @@ mod tests {
         rule.found(Some(3_000));
         assert!(!rule.lost(3_000 + LOST_AFTER_US - 1));
         assert!(rule.lost(3_000 + LOST_AFTER_US));
+    }
+
+    #[test]
+    fn a_forced_search_is_not_cancelled_by_tracked_frames_before_it_is_sent() {
+        let mut rule = LossRule::default();
+        rule.frame(true, 0);
+        rule.force(0);
+        // The search thread is busy (a tilt check): the frames go on being tracked.
+        assert_eq!(rule.search_due(100, true), None);
+        rule.frame(true, 100);
+        assert!(rule.lost(200));
+        assert_eq!(rule.search_due(200, false), Some(0));
+        rule.frame(true, 200);
+        assert!(!rule.lost(300));
     }
 }
