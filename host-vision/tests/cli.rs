@@ -1594,3 +1594,114 @@ fn i34_the_in_process_core_tracks_as_the_board_on_a_pty() {
         assert!(runs[0] == runs[1], "{name}: the trajectories differ");
     }
 }
+
+/// Issue 35: bad input in a live run (`--pacing real-time`) is named, and what was tracked
+/// before it is written: a frame of another size, and a video cut off mid-run (a pipe whose
+/// writer died). A dataset whose stamps jump backwards is refused when it is opened (a live
+/// frame that does is refused by the tracker, which goes on: the tracker's API tests).
+#[test]
+fn i35_live_bad_input_is_named_and_what_was_tracked_is_written() {
+    use host_vision::camera::CameraPose;
+    let live = |name: &str, input: &[&str], problem: &str| {
+        let out = tmp(&format!("{name}-out"));
+        let mut args = vec!["track", "--pacing", "real-time", "--overlay-every", "0"];
+        args.extend_from_slice(input);
+        args.extend_from_slice(&["--out", s(&out)]);
+        let (_, se) = expect(&args, 1);
+        assert!(se.contains(problem), "{name}: {se}");
+        let sum = summary(&out);
+        assert_eq!(sum["stopped_early"], true, "{name}");
+        assert!(sum["error"].as_str().unwrap().contains(problem), "{name}");
+        let analysed = sum["frames"].as_u64().unwrap();
+        assert!(
+            analysed >= 5,
+            "{name}: {analysed} frames before the bad one"
+        );
+        assert!(out.join("trajectory.tum").exists(), "{name}");
+        assert_eq!(sum["latency"]["live"], true);
+    };
+    // Frame 20's stamp before frame 19's.
+    let back = without_imu("i35-backwards");
+    let csv = back.join("mav0/cam0/data.csv");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines: Vec<String> = text.lines().map(String::from).collect();
+    let stamp = |l: &str| l.split(',').next().unwrap().parse::<u64>().unwrap();
+    let earlier = stamp(&lines[19]) - 1;
+    let (_, name) = lines[21].split_once(',').unwrap();
+    lines[21] = format!("{earlier},{name}");
+    std::fs::write(&csv, lines.join("\n") + "\n").unwrap();
+    // A dataset's stamps are all checked when it is opened: refused before anything runs.
+    let out = tmp("i35-backwards-out");
+    let (_, se) = expect(
+        &[
+            "track",
+            "--pacing",
+            "real-time",
+            "--dataset",
+            s(&back),
+            "--out",
+            s(&out),
+        ],
+        1,
+    );
+    assert!(se.contains("data.csv:22: time stamp"), "{se}");
+    assert!(se.contains("not increasing"), "{se}");
+    assert!(!out.exists());
+    // Frame 20 of another size.
+    let size = without_imu("i35-size");
+    let (_, file) = lines[21].split_once(',').unwrap();
+    let png = size.join("mav0/cam0/data").join(file.trim());
+    image::GrayImage::new(80, 60).save(&png).unwrap();
+    live(
+        "i35-size",
+        &["--dataset", s(&size)],
+        "is (80, 60) pixels, the first frame was (160, 120)",
+    );
+    // The frames as a video, cut off in the middle.
+    let ds = dataset();
+    let cam0 = ds.join("mav0/cam0");
+    let whole = tmp("i35-whole.mkv");
+    let ffmpeg = std::process::Command::new("ffmpeg")
+        .args([
+            "-v",
+            "error",
+            "-y",
+            "-framerate",
+            "20",
+            "-pattern_type",
+            "glob",
+            "-i",
+        ])
+        .arg(format!("{}/data/*.png", cam0.display()))
+        .args(["-c:v", "ffv1"])
+        .arg(&whole)
+        .status()
+        .unwrap();
+    assert!(ffmpeg.success());
+    let bytes = std::fs::read(&whole).unwrap();
+    let cut = tmp("i35-cut.mkv");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let d = host_vision::dataset::Dataset::open(&ds).unwrap();
+    let (s_w, q_ws) = d.groundtruth_at(d.frames[0].stamp).unwrap();
+    let (c_w, q_cw) = d.hand_eye.camera_pose(&s_w, &q_ws);
+    let pose = tmp("i35-pose.json");
+    std::fs::write(
+        &pose,
+        host_vision::start_pose::start_pose_json(&CameraPose { q_cw, c_w }),
+    )
+    .unwrap();
+    live(
+        "i35-cut",
+        &[
+            "--video",
+            s(&cut),
+            "--calib",
+            s(&cam0.join("sensor.yaml")),
+            "--model",
+            s(&ds.join("model/scene.obj")),
+            "--start-pose",
+            s(&pose),
+        ],
+        "the stream ended abnormally after",
+    );
+}

@@ -239,7 +239,10 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
     use tracker::{Answers, CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
 
     let Some(dir) = data() else { return };
-    let o = cube::vision_only(&dir, PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("unused"));
+    let o = cube::vision_only(
+        &dir,
+        PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("unused"),
+    );
     let model = host_vision::model::load(o.model.as_ref().unwrap()).unwrap();
     // The database first, as a user's second run finds it: the search is the attempt alone.
     host_vision::locate::database::Database::load_or_build(
@@ -322,7 +325,12 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
         assert!(r.pose.is_some(), "frame {index} analysed");
     }
     // The pose found is its own frame's: where tracking had the cube on that frame (at rest).
-    let tracked = reports.iter().find(|r| r.index == found_at).unwrap().pose.unwrap();
+    let tracked = reports
+        .iter()
+        .find(|r| r.index == found_at)
+        .unwrap()
+        .pose
+        .unwrap();
     let metres = (pose.c_w - tracked.c_w).norm();
     let degrees = pose.q_cw.angle_to(&tracked.q_cw).to_degrees();
     assert!(metres < 0.01 && degrees < 2.0, "{metres} m, {degrees}°");
