@@ -980,7 +980,12 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
     assert_eq!(sum["imu_used"], false);
     assert!(sum["tracked"]["frames"].as_u64().unwrap() > 20, "{sum}");
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
-    assert!(csv.lines().next().unwrap().ends_with(",rms_px,ncc,tracked"));
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .ends_with(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before")
+    );
 
     // An inertial model needs the IMU.
     let out2 = tmp("p18-acc");
