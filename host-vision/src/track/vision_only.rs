@@ -128,7 +128,7 @@ pub(super) fn track_frames(
         session_id: super::new_session_id(),
         ..TrackerConfig::new(*camera, rate, options.cache.clone())
     };
-    let mut run = Replay {
+    let mut run = FrameLoop {
         options,
         tracker: Tracker::new(config, model, link)?,
         t0_ns: first.t_ns,
@@ -142,7 +142,7 @@ pub(super) fn track_frames(
     } else {
         run.replay(first, source, interrupt)
     };
-    let Replay {
+    let FrameLoop {
         tracker,
         frames,
         total,
@@ -159,7 +159,7 @@ pub(super) fn track_frames(
 }
 
 /// A run's frames pushed into its tracker.
-struct Replay<'a, 'p> {
+struct FrameLoop<'a, 'p> {
     options: &'a TrackOptions,
     tracker: Tracker<FaultyLink>,
     /// The first frame's stamp [ns].
@@ -179,7 +179,7 @@ enum Next {
     Stop(Result<bool, TrackError>),
 }
 
-impl Replay<'_, '_> {
+impl FrameLoop<'_, '_> {
     /// Every frame in order, each analysed before the next is read.
     fn replay(
         &mut self,
