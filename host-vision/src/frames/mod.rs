@@ -178,6 +178,11 @@ impl FrameInput {
         })
     }
 
+    /// Whether it names a live camera (a V4L2 device), whose frames come at its own pace.
+    pub fn is_live(&self) -> bool {
+        matches!(self, FrameInput::Video(p) if video::is_v4l2_device(p))
+    }
+
     /// The file or folder.
     pub fn path(&self) -> &std::path::Path {
         match self {

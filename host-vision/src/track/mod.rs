@@ -255,6 +255,12 @@ impl TrackOptions {
         }
     }
 
+    /// Whether this run is live: paced by the clock (`--pacing real-time`), or its frames
+    /// come from a camera device, at the camera's pace.
+    pub fn live(&self) -> bool {
+        self.pacing == Pacing::RealTime || matches!(&self.frames, Some(f) if f.is_live())
+    }
+
     /// Whether this run is vision-only (no IMU samples are sent).
     pub fn vision_only(&self) -> bool {
         !self.filter.has_imu()

@@ -367,7 +367,7 @@ impl LatencySummary {
         Self {
             live,
             frames_taken: l.frames.len(),
-            dropped_frames: l.dropped,
+            dropped_frames: l.dropped(),
             capture_to_taken: l.age_taken(),
             capture_to_sent: l.capture_to_sent(),
             capture_to_pose: l.capture_to_pose(),
@@ -400,11 +400,6 @@ impl fmt::Display for LatencySummary {
         }
         Ok(())
     }
-}
-
-/// Whether the run's frames come from a live camera.
-fn live_input(options: &super::TrackOptions) -> bool {
-    matches!(&options.frames, Some(crate::frames::FrameInput::Video(p)) if crate::frames::video::is_v4l2_device(p))
 }
 
 /// Summary of a run.
@@ -1169,10 +1164,7 @@ pub(super) fn write_all(
         outages: record.outages.clone(),
         attach: record.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
-        latency: LatencySummary::of(
-            &record.latency,
-            options.pacing == super::Pacing::RealTime || live_input(options),
-        ),
+        latency: LatencySummary::of(&record.latency, options.live()),
         mean_frame_ms: if rows.is_empty() {
             0.0
         } else {

@@ -15,7 +15,7 @@ use tracker::live::{LiveFrames, Paced};
 use tracker::{Answers, Finished, Tracker, TrackerConfig, TrackerError};
 use vision::FrameImage;
 
-use super::{FaultyLink, Pacing, Progress, TrackError, TrackOptions};
+use super::{FaultyLink, Progress, TrackError, TrackOptions};
 
 use crate::camera::CameraPose;
 use crate::dataset::Dataset;
@@ -112,7 +112,7 @@ pub(super) fn track_frames(
         .or(dataset.camera.rate_hz)
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
-    let live = source.is_live() || options.pacing == Pacing::RealTime;
+    let live = options.live();
     let config = TrackerConfig {
         start: vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0))
             .map_or(tracker::Start::Locate, tracker::Start::Camera),
@@ -191,7 +191,7 @@ impl FrameLoop<'_, '_> {
             if interrupt.load(Ordering::Relaxed) {
                 return Ok(false);
             }
-            match self.push(frame?, self.frames) {
+            match self.push(frame?.into(), self.frames) {
                 Next::Go => {}
                 Next::Stop(outcome) => return outcome,
             }
@@ -223,7 +223,7 @@ impl FrameLoop<'_, '_> {
             }
             let frame = captured?.frame;
             let index = frame.index;
-            match self.push_tracker_frame(frame, index) {
+            match self.push(frame, index) {
                 Next::Go => {}
                 Next::Stop(outcome) => return outcome,
             }
@@ -231,14 +231,9 @@ impl FrameLoop<'_, '_> {
         Ok(true)
     }
 
-    /// One frame of the source: `seen` is how far into the input it is, for `--max-frames`.
-    fn push(&mut self, frame: Frame, seen: usize) -> Next {
-        self.push_tracker_frame(frame.into(), seen)
-    }
-
     /// One frame into the tracker, with the faults' noise frames, `--duration` and
-    /// `--max-frames`, and the progress.
-    fn push_tracker_frame(&mut self, mut frame: tracker::Frame, seen: usize) -> Next {
+    /// `--max-frames` (`seen`: how far into the input it is), and the progress.
+    fn push(&mut self, mut frame: tracker::Frame, seen: usize) -> Next {
         let o = self.options;
         let t_us = u64::try_from((frame.t_ns - self.t0_ns) / 1000).unwrap_or(0);
         if o.faults.blind_at(t_us as f64 * 1e-6) {

@@ -70,8 +70,6 @@ impl std::fmt::Display for Percentiles {
 pub struct Latencies {
     /// Per frame taken, by its index in its input.
     pub frames: BTreeMap<usize, FrameLatency>,
-    /// Frames of the input never taken (the gaps between the indices of the frames taken).
-    pub dropped: usize,
     /// IMU sample sent → the core's pose for it [ms], per sample.
     pub samples_ms: Vec<f64>,
     /// Samples sent whose pose has not come yet: their time [µs] and when they were sent.
@@ -98,7 +96,6 @@ impl Latencies {
             Some(_) => 0,
             None => index,
         };
-        self.dropped += dropped_before;
         self.last_index = Some(index);
         self.frames.insert(
             index,
@@ -155,6 +152,11 @@ impl Latencies {
         });
     }
 
+    /// Frames of the input never taken: the gaps between the indices of the frames taken.
+    pub fn dropped(&self) -> usize {
+        self.frames.values().map(|f| f.dropped_before).sum()
+    }
+
     /// Capture → pose over the frames with a pose.
     pub fn capture_to_pose(&self) -> Option<Percentiles> {
         Percentiles::of(self.frames.values().filter_map(|f| f.pose_ms))
@@ -199,7 +201,7 @@ mod tests {
         for i in [2, 3, 6, 7, 11] {
             l.taken(i, now);
         }
-        assert_eq!(l.dropped, 2 + 2 + 3);
+        assert_eq!(l.dropped(), 2 + 2 + 3);
         assert_eq!(l.frames[&2].dropped_before, 2);
         assert_eq!(l.frames[&11].dropped_before, 3);
     }

@@ -98,7 +98,7 @@ fn a_source_faster_than_the_tracker_is_dropped_never_queued_and_the_poses_stay_t
         "{counts:?}: delivered faster than analysed"
     );
     // The tracker counts the same drops from the gaps between the frames' indices.
-    assert_eq!(latency.dropped, counts.dropped);
+    assert_eq!(latency.dropped(), counts.dropped);
     assert_eq!(
         latency
             .frames

@@ -152,13 +152,10 @@ impl<T: CoreTransport> Tracker<T> {
         if !is_textured(model) {
             return Err(TrackerError::Untextured);
         }
-        let mut vision = config.vision;
-        vision.map.small_object_cells |= vision_only;
-        let (worker, ready) = VisionWorker::start(config.camera, model.clone(), vision)?;
+        let (worker, ready) =
+            VisionWorker::start(config.camera, model.clone(), vision_options(&config))?;
         let search = if vision_only || config.start == Start::Locate {
-            let mut s = VisionWorker::start(config.camera, model.clone(), vision)?.0;
-            s.set_search_floor(config.search_floor);
-            Some(s)
+            Some(search_worker(&config, model.clone())?)
         } else {
             None
         };
@@ -400,8 +397,7 @@ impl<T: CoreTransport> Tracker<T> {
         if let Some((a, from, at, at_us)) = answer {
             self.record.keep_provenance(from);
             self.record
-                .searches
-                .push(Search::new(at, at_us, a).applied(t_us));
+                .record_search(None, Search::new(at, at_us, a).applied(t_us));
             self.tell_located(at, a.pose);
             if let Some(pose) = a.pose {
                 self.core.send(&HostToCore::Init(init_at(&pose)))?;
@@ -677,15 +673,11 @@ impl<T: CoreTransport> Tracker<T> {
     /// down elsewhere). A run given its start pose gets its search thread (and renderer) here.
     pub fn relocate(&mut self) -> Result<(), TrackerError> {
         if self.search.is_none() {
-            let mut vision = self.config.vision;
-            vision.map.small_object_cells |= self.config.model == ModelKind::Vision;
             let model = self
                 .model
                 .take()
                 .ok_or_else(|| TrackerError::VisionThread("no model for a search thread".into()))?;
-            let mut s = VisionWorker::start(self.config.camera, model, vision)?.0;
-            s.set_search_floor(self.config.search_floor);
-            self.search = Some(s);
+            self.search = Some(search_worker(&self.config, model)?);
         }
         match self.inertial.as_mut() {
             Some(i) => {
@@ -804,6 +796,24 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.states_told = log.states.len();
     }
+}
+
+/// The image analysis of `config`'s vision threads: a vision-only run tracks an object held
+/// in a hand, whose map keeps small cells.
+fn vision_options(config: &TrackerConfig) -> vision::VisionOptions {
+    let mut vision = config.vision;
+    vision.map.small_object_cells |= config.model == ModelKind::Vision;
+    vision
+}
+
+/// The searches' vision thread, its attempts held to the configured floor.
+fn search_worker(
+    config: &TrackerConfig,
+    model: model::Model,
+) -> Result<VisionWorker, TrackerError> {
+    let mut worker = VisionWorker::start(config.camera, model, vision_options(config))?.0;
+    worker.set_search_floor(config.search_floor);
+    Ok(worker)
 }
 
 /// The camera pose of a vision-only state report (the camera is the sensor).
