@@ -16,6 +16,7 @@ use crate::filter::{Filter, ImuSample, MAX_STEPS_PER_SAMPLE};
 use crate::init::{StillWindow, initialise};
 use crate::kernels::Kernels;
 use crate::models::correspondence::{self, Observation, Rejection};
+use crate::onboard::{Onboard, OnboardEvent};
 use crate::params::Params;
 use crate::quat::{self, Quat};
 use crate::scalar::Scalar;
@@ -205,6 +206,8 @@ pub struct Device<T: Scalar> {
     /// device: on the stack it raised the device loop's high-water mark by 3.7 KB).
     withheld_from: State<T>,
     counters: Counters,
+    /// The core's own IMU: who samples, triggers, sampling counters.
+    onboard: Onboard,
 }
 
 impl<T: Scalar> Default for Device<T> {
@@ -237,7 +240,20 @@ impl<T: Scalar> Device<T> {
             counters: Counters::ZERO,
             consensus: false,
             withheld_from: State::zeroed(),
+            onboard: Onboard::new(),
         }
+    }
+
+    /// Declares that the board has an IMU of its own, which the host may then ask the core to
+    /// sample ([`protocol::HostToCore::Sampling`]); the board's sample path hands its samples
+    /// to [`Device::onboard`]. Boards without one never call this.
+    pub fn set_onboard_imu(&mut self, present: bool) {
+        self.onboard.set_present(present);
+    }
+
+    /// The core's own IMU: who samples, and the sampling counters.
+    pub fn onboard_state(&self) -> &Onboard {
+        &self.onboard
     }
 
     /// What the device holds.
@@ -307,8 +323,19 @@ impl<T: Kernels> Device<T> {
             }
             HostToCore::Configure(c) => self.configure(c, out),
             HostToCore::Init(i) => self.init(i, out),
+            HostToCore::Imu(_) | HostToCore::Tick(_) if self.onboard.core_samples() => {
+                Counters::bump(&mut self.counters.out_of_order);
+                out(CoreToHost::error(ErrorCode::HostImuWhileCoreSamples));
+            }
             HostToCore::Imu(s) => self.imu(s, out),
             HostToCore::Tick(t) => self.tick(t, out),
+            HostToCore::Sampling(s) => match self.onboard.choose(*s) {
+                Ok(report) => out(CoreToHost::Sampling(report)),
+                Err(()) => {
+                    Counters::bump(&mut self.counters.out_of_order);
+                    out(CoreToHost::error(ErrorCode::NoOnboardImu));
+                }
+            },
             HostToCore::Correspondences(c) => self.correspondences(c, out),
             HostToCore::Query => {
                 out(CoreToHost::Status(Status {
@@ -330,6 +357,47 @@ impl<T: Kernels> Device<T> {
                     self.set_mode(Mode::Unconfigured, StatusReason::HostRequest, out);
                 }
             }
+        }
+    }
+
+    /// Takes one event of the board's sample path (docs/ARCHITECTURE.md, "The core's own
+    /// IMU"). While the core samples its own IMU, it sends the raw sample (if asked), the
+    /// camera trigger and the sampling reports, and runs the filter on the sample exactly as
+    /// on an `Imu` message from the host (a `Tick` in the vision-only model): validated, with
+    /// the same time-stamp rules. While the host samples, the board's samples are dropped.
+    pub fn onboard(&mut self, event: &OnboardEvent, out: Out) {
+        let sent = self.onboard.take(event);
+        if let Some(raw) = sent.raw {
+            out(CoreToHost::RawImu(raw));
+        }
+        if let Some(trigger) = sent.trigger {
+            out(CoreToHost::Trigger(trigger));
+        }
+        if let Some(report) = sent.report {
+            out(CoreToHost::Sampling(report));
+        }
+        let OnboardEvent::Sample(s) = event else {
+            return;
+        };
+        if !self.onboard.core_samples() || !self.greeted || self.config.is_none() {
+            return;
+        }
+        let msg = if self.prm.as_ref().is_some_and(|p| !p.model.has_imu()) {
+            HostToCore::Tick(protocol::Tick {
+                t_us: s.t_us,
+                trigger: s.trigger,
+            })
+        } else {
+            HostToCore::Imu(*s)
+        };
+        if let Err(field) = msg.validate() {
+            Counters::bump(&mut self.counters.invalid_messages);
+            out(CoreToHost::error(ErrorCode::Invalid(field)));
+            return;
+        }
+        match msg {
+            HostToCore::Tick(t) => self.tick(&t, out),
+            _ => self.imu(s, out),
         }
     }
 

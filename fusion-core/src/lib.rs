@@ -17,6 +17,7 @@
 //! | (re)initialisation | [`init`] |
 //! | delayed correspondences | [`delay`] |
 //! | device loop (protocol messages in and out) | [`device`] |
+//! | the core's own IMU: sampling mode, triggers, sampling reports | [`onboard`] |
 //!
 //! The hot paths of the filter are compiled in this crate for `f32` and `f64` ([`kernels`]):
 //! code generic over the scalar that runs the filter or the device bounds it on [`Kernels`],
@@ -34,6 +35,7 @@ pub mod filter;
 pub mod init;
 pub mod kernels;
 pub mod models;
+pub mod onboard;
 pub mod params;
 pub mod quat;
 pub mod scalar;

@@ -112,6 +112,9 @@ pub enum InvalidField {
     Session,
     /// A `Resume` state that is not finite, or whose quaternion is not a unit one (since 3.0).
     Resume,
+    /// A `Sampling` request with `trigger_every` above
+    /// [`crate::validate::MAX_TRIGGER_EVERY`], or `raw_imu` with the host sampling (since 3.1).
+    Sampling,
 }
 
 impl fmt::Display for InvalidField {
@@ -157,6 +160,10 @@ impl fmt::Display for InvalidField {
             InvalidField::Resume => {
                 f.write_str("resume state not finite, or its quaternion not a unit one")
             }
+            InvalidField::Sampling => f.write_str(
+                "sampling request invalid (trigger_every above the limit, or raw IMU asked of \
+                 a core the host samples for)",
+            ),
         }
     }
 }
@@ -209,6 +216,11 @@ pub enum ErrorCode {
     /// The vision-only model has no gravity to find roll and pitch: it starts only from
     /// `InitAttitude::Full` (since 2.1).
     VisionNeedsFullPose,
+    /// The host asked the core to sample its own IMU, and it has none (since 3.1).
+    NoOnboardImu,
+    /// An `Imu` sample or a `Tick` came from the host while the core samples its own IMU
+    /// (since 3.1).
+    HostImuWhileCoreSamples,
 }
 
 impl fmt::Display for ErrorCode {
@@ -242,6 +254,13 @@ impl fmt::Display for ErrorCode {
             ),
             ErrorCode::VisionNeedsFullPose => f.write_str(
                 "the vision-only model has no gravity for roll and pitch: Init needs the full orientation",
+            ),
+            ErrorCode::NoOnboardImu => {
+                f.write_str("the core has no IMU of its own: the host must send the samples")
+            }
+            ErrorCode::HostImuWhileCoreSamples => f.write_str(
+                "IMU sample or Tick from the host while the core samples its own IMU: send \
+                 Sampling with the host as the source first",
             ),
         }
     }

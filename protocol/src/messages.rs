@@ -64,6 +64,37 @@ pub enum HostToCore {
     /// tilt σ about the vertical too). A device that moves has no still window to level it
     /// from gravity; the state it was tracked in is the better start (protocol/PROTOCOL.md §8).
     Resume(Resume),
+    /// Chooses who samples the IMU (since 3.1): the host, which sends [`HostToCore::Imu`]
+    /// (the default), or the core, which reads its own IMU, triggers the camera every
+    /// `trigger_every`-th sample and reports each trigger as a [`CoreToHost::Trigger`]. The
+    /// core answers [`CoreToHost::Sampling`] with [`SamplingEvent::Started`], or
+    /// [`ErrorCode::NoOnboardImu`] if it has no IMU of its own (protocol/PROTOCOL.md §7).
+    Sampling(Sampling),
+}
+
+/// Who samples the IMU, and what the core streams of it (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sampling {
+    /// Who takes the samples.
+    pub source: SampleSource,
+    /// Send every sample the core takes as a [`CoreToHost::RawImu`] too (for calibration,
+    /// e.g. Kalibr's IMU noise and camera–IMU calibration). Only with [`SampleSource::Core`].
+    pub raw_imu: bool,
+}
+
+/// Who takes the IMU samples (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleSource {
+    /// The host sends every sample as [`HostToCore::Imu`] (or `Tick`): a simulator, a replay,
+    /// an IMU wired to the host. The state of a core after `Hello`.
+    Host,
+    /// The core reads its own IMU. It refuses `Imu` and `Tick` from the host
+    /// ([`ErrorCode::HostImuWhileCoreSamples`]).
+    Core {
+        /// The camera is triggered at every `trigger_every`-th sample (0: never; at most
+        /// [`crate::validate::MAX_TRIGGER_EVERY`]).
+        trigger_every: u16,
+    },
 }
 
 /// The state a reset core resumes from: what it last reported in a [`CoreToHost::State`]
@@ -420,6 +451,87 @@ pub enum CoreToHost {
     UpdateReport(UpdateReport),
     /// Tracking mode change, with the reason.
     Status(Status),
+    /// The core triggered the camera (since 3.1, while it samples its own IMU): sent for
+    /// every trigger, whether the filter runs or not, so that the host can pair each image
+    /// with its trigger time.
+    Trigger(Trigger),
+    /// One sample the core took, as it reached the filter (since 3.1, with
+    /// [`Sampling::raw_imu`]).
+    RawImu(ImuSample),
+    /// The state of the core's own sampling (since 3.1): when it starts, at every gap in the
+    /// samples, and once a second.
+    Sampling(SamplingReport),
+}
+
+/// A camera trigger the core fired (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Trigger {
+    /// Triggers fired since sampling started, from 0: the host's image counter, once paired.
+    pub frame_id: u32,
+    /// Time stamp of the IMU sample the trigger was fired at [µs]: a filter that runs sends a
+    /// [`PosePrediction`] with the same `t_us`.
+    pub t_us: u64,
+}
+
+/// The state of the core's own sampling (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct SamplingReport {
+    /// Time stamp of the last sample [µs].
+    pub t_us: u64,
+    /// Why this report.
+    pub event: SamplingEvent,
+    /// Samples handed to the filter since sampling started.
+    pub samples: u32,
+    /// Samples lost since sampling started (the sum of the gaps' `lost`).
+    pub lost: u32,
+    /// Times the IMU was found reset (brown-out, glitch) and configured again.
+    pub part_resets: u32,
+    /// Reads that found more samples than one interrupt brings (an interrupt was missed or
+    /// served late): nothing is lost while the IMU's buffer holds them.
+    pub late_reads: u32,
+    /// The IMU's clock against the core's [ppm], measured over the samples (positive: the
+    /// IMU runs fast). The time stamps are corrected by it.
+    pub drift_ppm: f32,
+}
+
+/// Why a [`SamplingReport`] was sent (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub enum SamplingEvent {
+    /// Sampling started (the answer to [`HostToCore::Sampling`]).
+    Started,
+    /// Samples were lost: the filter integrated across the gap.
+    Gap(SampleGap),
+    /// The report sent once a second.
+    Periodic,
+    /// Sampling stopped (the host chose [`SampleSource::Host`] again).
+    Stopped,
+}
+
+/// Samples the core lost (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SampleGap {
+    /// Time stamp of the last sample before the gap [µs].
+    pub from_us: u64,
+    /// Time stamp of the first sample after it [µs].
+    pub to_us: u64,
+    /// Samples lost, from the IMU's own time stamps.
+    pub lost: u32,
+    /// What lost them.
+    pub cause: GapCause,
+}
+
+/// What lost samples (since 3.1).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GapCause {
+    /// The IMU's buffer overflowed before the core read it: the oldest samples were lost.
+    FifoOverflow,
+    /// A sample failed its integrity check: it and the samples after it in that read were
+    /// dropped.
+    CorruptPacket,
+    /// The IMU had reset (brown-out, glitch) and was configured again.
+    PartReset,
+    /// The IMU's time stamps jumped with no fault seen.
+    Unexplained,
 }
 
 /// What the core can hold.
@@ -650,6 +762,7 @@ impl HostToCore {
             HostToCore::Tick(_) => "Tick",
             HostToCore::Query => "Query",
             HostToCore::Resume(_) => "Resume",
+            HostToCore::Sampling(_) => "Sampling",
         }
     }
 }
@@ -664,6 +777,9 @@ impl CoreToHost {
             CoreToHost::State(_) => "State",
             CoreToHost::UpdateReport(_) => "UpdateReport",
             CoreToHost::Status(_) => "Status",
+            CoreToHost::Trigger(_) => "Trigger",
+            CoreToHost::RawImu(_) => "RawImu",
+            CoreToHost::Sampling(_) => "Sampling",
         }
     }
 }

@@ -62,7 +62,7 @@ pub const fn correspondence(m_n: [f32; 2], m_w: [f32; 3]) -> Correspondence {
 }
 
 /// Named host messages, one per kind (two for `Init`).
-pub fn host_messages() -> [(&'static str, HostToCore); 10] {
+pub fn host_messages() -> [(&'static str, HostToCore); 11] {
     let mut items = Vec::new();
     let _ = items.push(correspondence([0.125, -0.25], [0.5, 0.25, 0.0]));
     let _ = items.push(correspondence([-0.0625, 0.5], [0.0, 0.1, 0.2]));
@@ -129,11 +129,18 @@ pub fn host_messages() -> [(&'static str, HostToCore); 10] {
                 accel_bias: [0.0; 3],
             }),
         ),
+        (
+            "Sampling",
+            HostToCore::Sampling(Sampling {
+                source: SampleSource::Core { trigger_every: 4 },
+                raw_imu: false,
+            }),
+        ),
     ]
 }
 
-/// Named core messages, one per kind (four for `Error`).
-pub fn core_messages() -> [(&'static str, CoreToHost); 10] {
+/// Named core messages, one per kind (five for `Error`).
+pub fn core_messages() -> [(&'static str, CoreToHost); 13] {
     let mut cov = [0.0f32; 21];
     for i in 0..6 {
         cov[sym_index(6, i, i)] = if i < 3 { 1e-4 } else { 1e-5 };
@@ -234,6 +241,39 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 10] {
             CoreToHost::error(ErrorCode::TimestampNotIncreasing {
                 last_us: 1_010_000,
                 got_us: 1_000_000,
+            }),
+        ),
+        (
+            "Trigger",
+            CoreToHost::Trigger(Trigger {
+                frame_id: 7,
+                t_us: 1_040_000,
+            }),
+        ),
+        (
+            "RawImu",
+            CoreToHost::RawImu(ImuSample {
+                t_us: 1_000_000,
+                gyro: [0.01, -0.02, 0.5],
+                accel: [0.1, 0.0, 9.81],
+                trigger: true,
+            }),
+        ),
+        (
+            "Sampling (gap)",
+            CoreToHost::Sampling(SamplingReport {
+                t_us: 2_000_000,
+                event: SamplingEvent::Gap(SampleGap {
+                    from_us: 1_950_000,
+                    to_us: 2_000_000,
+                    lost: 4,
+                    cause: GapCause::FifoOverflow,
+                }),
+                samples: 200,
+                lost: 4,
+                part_resets: 0,
+                late_reads: 1,
+                drift_ppm: 120.0,
             }),
         ),
     ]

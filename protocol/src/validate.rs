@@ -5,7 +5,7 @@ use crate::error::InvalidField;
 use crate::limits::MAX_PARTS_PER_FRAME;
 use crate::messages::{
     Config, Correspondence, Correspondences, HostToCore, Init, InitAttitude, InitSigma, ModelKind,
-    Sym2, Sym3,
+    SampleSource, Sym2, Sym3,
 };
 
 /// How far a quaternion's norm may be from 1 and still count as a unit quaternion. Generous
@@ -18,6 +18,10 @@ pub const MAX_GYRO_RAD_S: f32 = 100.0;
 
 /// Largest specific force an IMU sample may report [m/s²] (about 200 g).
 pub const MAX_ACCEL_M_S2: f32 = 2000.0;
+
+/// Largest `SampleSource::Core::trigger_every`: one frame per 1000 samples (a 1 Hz camera on a
+/// 1 kHz IMU). More is a corrupted request.
+pub const MAX_TRIGGER_EVERY: u16 = 1000;
 
 /// Relative tolerance of the semi-definiteness checks of covariances (f32 rounding).
 const PSD_TOLERANCE: f32 = 1e-5;
@@ -58,6 +62,13 @@ fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
             }
         }
         HostToCore::Correspondences(c) => correspondences(c),
+        HostToCore::Sampling(s) => match s.source {
+            SampleSource::Host if s.raw_imu => Err(InvalidField::Sampling),
+            SampleSource::Core { trigger_every } if trigger_every > MAX_TRIGGER_EVERY => {
+                Err(InvalidField::Sampling)
+            }
+            _ => Ok(()),
+        },
         HostToCore::Resume(r) => {
             let vectors = [r.s_w, r.v_w, r.a_w, r.omega_s, r.gyro_bias, r.accel_bias];
             if vectors.iter().all(|v| all_finite(v)) && is_unit_quaternion(&r.q_sw) {

@@ -68,6 +68,15 @@ fn worst_host() -> Vec<(&'static str, HostToCore)> {
                 accel_bias: [1.0; 3],
             }),
         ),
+        (
+            "Sampling",
+            HostToCore::Sampling(Sampling {
+                source: SampleSource::Core {
+                    trigger_every: u16::MAX,
+                },
+                raw_imu: true,
+            }),
+        ),
     ]
 }
 
@@ -161,6 +170,39 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                 reason: StatusReason::NonFiniteState,
             }),
         ),
+        (
+            "Trigger",
+            CoreToHost::Trigger(Trigger {
+                frame_id: u32::MAX,
+                t_us: u64::MAX,
+            }),
+        ),
+        (
+            "RawImu",
+            CoreToHost::RawImu(ImuSample {
+                t_us: u64::MAX,
+                gyro: [1.0; 3],
+                accel: [1.0; 3],
+                trigger: true,
+            }),
+        ),
+        (
+            "Sampling",
+            CoreToHost::Sampling(SamplingReport {
+                t_us: u64::MAX,
+                event: SamplingEvent::Gap(SampleGap {
+                    from_us: u64::MAX,
+                    to_us: u64::MAX,
+                    lost: u32::MAX,
+                    cause: GapCause::Unexplained,
+                }),
+                samples: u32::MAX,
+                lost: u32::MAX,
+                part_resets: u32::MAX,
+                late_reads: u32::MAX,
+                drift_ppm: 1.0,
+            }),
+        ),
     ]
 }
 
@@ -213,7 +255,8 @@ fn every_message_kind_has_a_worst_case() {
             "Correspondences",
             "Reset",
             "Query",
-            "Resume"
+            "Resume",
+            "Sampling"
         ]
     );
     let core: Vec<&str> = worst_core().iter().map(|(_, m)| m.kind()).collect();
@@ -225,7 +268,10 @@ fn every_message_kind_has_a_worst_case() {
             "PosePrediction",
             "State",
             "UpdateReport",
-            "Status"
+            "Status",
+            "Trigger",
+            "RawImu",
+            "Sampling"
         ]
     );
 }

@@ -187,7 +187,12 @@ impl<'s, T: Kernels> Driver<'s, T> {
                 CoreToHost::UpdateReport(r) => self.out.reports.push(r.clone()),
                 CoreToHost::Status(s) => self.out.statuses.push(*s),
                 CoreToHost::Error(e) => self.out.errors.push(e.code),
-                CoreToHost::HelloAck(_) | CoreToHost::State(_) => {}
+                // The host samples here: the core's own sampling never speaks.
+                CoreToHost::HelloAck(_)
+                | CoreToHost::State(_)
+                | CoreToHost::Trigger(_)
+                | CoreToHost::RawImu(_)
+                | CoreToHost::Sampling(_) => {}
             }
         }
         answers

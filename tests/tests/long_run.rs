@@ -148,6 +148,9 @@ impl Tally {
         };
         match m {
             CoreToHost::HelloAck(_) => self.acks += 1,
+            CoreToHost::Trigger(_) | CoreToHost::RawImu(_) | CoreToHost::Sampling(_) => {
+                panic!("the core spoke of its own sampling at sample {k}, and the host samples")
+            }
             CoreToHost::Error(e) => {
                 self.errors += 1;
                 panic!("the core refused something at sample {k}: {:?}", e.code);

@@ -32,6 +32,12 @@ pub struct CoreLog {
     pub statuses: Vec<Status>,
     /// Refusals.
     pub errors: Vec<ErrorReport>,
+    /// Camera triggers the core fired while it samples its own IMU (protocol 3.1).
+    pub triggers: Vec<protocol::Trigger>,
+    /// Samples the core took, when it was asked to stream them (protocol 3.1).
+    pub raw_imu: Vec<protocol::ImuSample>,
+    /// The core's sampling reports: start, gaps, periodic counters (protocol 3.1).
+    pub sampling: Vec<protocol::SamplingReport>,
     /// Frames from the core that failed to decode.
     pub rejected_frames: usize,
     /// `HelloAck`s received (handshake and barriers).
@@ -65,6 +71,9 @@ impl CoreLog {
                     self.updates.entry(r.frame_id).or_default().push(r)
                 }
                 CoreToHost::Status(s) => self.statuses.push(s),
+                CoreToHost::Trigger(t) => self.triggers.push(t),
+                CoreToHost::RawImu(s) => self.raw_imu.push(s),
+                CoreToHost::Sampling(r) => self.sampling.push(r),
             },
         }
     }
