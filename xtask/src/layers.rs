@@ -60,6 +60,16 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "icm42688",
+        dir: "drivers/icm42688/src",
+        module: &[],
+    },
+    Tree {
+        name: "sample-path",
+        dir: "sample-path/src",
+        module: &[],
+    },
+    Tree {
         name: "camera",
         dir: "host/camera/src",
         module: &[],

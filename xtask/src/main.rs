@@ -27,7 +27,7 @@ use steps::{Steps, TestBinary};
 const THUMB_TARGET: &str = "thumbv7em-none-eabihf";
 
 /// Crates that must build for [`THUMB_TARGET`] (one by one: see TOOLCHAIN.md).
-const NO_STD_CRATES: &[&str] = &["protocol", "fusion-core"];
+const NO_STD_CRATES: &[&str] = &["protocol", "fusion-core", "icm42688", "sample-path"];
 
 /// Debian packages each command needs at run time: the renderer's software Vulkan driver
 /// (lavapipe) for both, `ffmpeg` (with `ffprobe`) for host-vision's video input and its

@@ -1,0 +1,23 @@
+//! The on-board sample path of a sensor board (issue 36): the core reads its own IMU, fires
+//! the camera and time-stamps both on one clock. Portable `no_std` code, without allocation,
+//! run by the firmware at the IMU's interrupt and tested on the PC against the simulated part
+//! ([`icm42688::SimIcm42688`]).
+//!
+//! - [`clock`]: the core's 1 MHz 32-bit timer extended to 64-bit µs;
+//! - [`stamp`]: the FIFO's samples time-stamped PX4's way (newest at the interrupt, older back
+//!   by the part's own time stamps), lost samples counted, the IMU's clock drift measured;
+//! - [`trigger`]: when to fire the camera;
+//! - [`path`]: [`SamplePath`], which reads the part, scales to SI units, pulses the trigger pin
+//!   and hands every sample, gap and fault to [`fusion_core::Device::onboard`]
+//!   (protocol/PROTOCOL.md §7).
+#![no_std]
+
+pub mod clock;
+pub mod path;
+pub mod stamp;
+pub mod trigger;
+
+pub use clock::Clock64;
+pub use path::{PathError, ReadSummary, SamplePath};
+pub use stamp::Stamper;
+pub use trigger::TriggerCount;
