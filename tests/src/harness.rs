@@ -79,6 +79,8 @@ pub struct Outcome {
     pub predictions: usize,
     /// Correspondences sent.
     pub sent: usize,
+    /// Sampling reports of a core that samples its own IMU.
+    pub sampling: Vec<protocol::SamplingReport>,
 }
 
 impl Outcome {
@@ -181,21 +183,25 @@ impl<'s, T: Kernels> Driver<'s, T> {
             sent.push(msg.clone());
             got.extend(answers.iter().cloned());
         }
-        for m in &answers {
+        self.record(&answers);
+        answers
+    }
+
+    /// Records the device's answers in [`Driver::out`].
+    pub fn record(&mut self, answers: &[CoreToHost]) {
+        for m in answers {
             match m {
                 CoreToHost::PosePrediction(_) => self.out.predictions += 1,
                 CoreToHost::UpdateReport(r) => self.out.reports.push(r.clone()),
                 CoreToHost::Status(s) => self.out.statuses.push(*s),
                 CoreToHost::Error(e) => self.out.errors.push(e.code),
-                // The host samples here: the core's own sampling never speaks.
+                CoreToHost::Sampling(r) => self.out.sampling.push(*r),
                 CoreToHost::HelloAck(_)
                 | CoreToHost::State(_)
                 | CoreToHost::Trigger(_)
-                | CoreToHost::RawImu(_)
-                | CoreToHost::Sampling(_) => {}
+                | CoreToHost::RawImu(_) => {}
             }
         }
-        answers
     }
 
     /// The next IMU sample of the scenario as a message (not sent); for the vision-only
@@ -228,9 +234,25 @@ impl<'s, T: Kernels> Driver<'s, T> {
     /// Sends the next IMU sample, then the correspondences of every frame now due.
     pub fn step(&mut self) {
         let msg = self.next_imu();
+        let answers = self.send(&msg);
+        self.answer(answers);
+    }
+
+    /// Sends `sample` in place of the next IMU sample of the scenario (whose truth still
+    /// drives the frames), then the correspondences of every frame now due: the replay of
+    /// samples taken elsewhere (a board's) through the host.
+    pub fn step_with(&mut self, sample: ImuSample) {
+        let _ = self.next_imu();
+        let answers = self.send(&HostToCore::Imu(sample));
+        self.answer(answers);
+    }
+
+    /// Takes the device's answers to the sample just sent: predictions become pending frames,
+    /// and the frames now due get their correspondences.
+    pub fn answer(&mut self, answers: Vec<CoreToHost>) {
         let k = self.k - 1;
         let Some((truth, _)) = self.last else { return };
-        for answer in self.send(&msg) {
+        for answer in answers {
             if let CoreToHost::PosePrediction(p) = answer {
                 let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
                     p.q_cw[0] as f64,

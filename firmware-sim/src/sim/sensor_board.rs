@@ -47,7 +47,7 @@ pub struct BoardRun {
 }
 
 /// A no-op delay: the simulated part needs no waiting.
-struct NoDelay;
+pub struct NoDelay;
 
 impl embedded_hal::delay::DelayNs for NoDelay {
     fn delay_ns(&mut self, _ns: u32) {}

@@ -1,0 +1,126 @@
+//! A sensor board in the harness (issue 36): the scenario's readings go into the simulated
+//! ICM-42688-P at the part's clock, and its interrupt runs the board's sample path into the
+//! driver's device, which samples its own IMU (protocol/PROTOCOL.md §7). The device's answers
+//! go back to the [`Driver`], which answers the frames as the host would.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+
+use embedded_hal::spi::{Operation, SpiDevice};
+use firmware_sim::sim::sensor_board::{NoDelay, TriggerLine};
+use fusion_core::Kernels;
+use icm42688::{Icm42688, Settings, SimIcm42688};
+use protocol::{CoreToHost, HostToCore, ImuSample, SampleSource, Sampling};
+use sample_path::SamplePath;
+
+use crate::harness::Driver;
+
+/// The simulated part, shared by the board's driver and the simulation that feeds it.
+#[derive(Clone, Default)]
+pub struct SharedPart(pub Rc<RefCell<SimIcm42688>>);
+
+impl embedded_hal::spi::ErrorType for SharedPart {
+    type Error = core::convert::Infallible;
+}
+
+impl SpiDevice for SharedPart {
+    fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), Self::Error> {
+        self.0.borrow_mut().transaction(ops)
+    }
+}
+
+/// How the MCU serves a sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Serve {
+    /// Its interrupt, then the main loop's turn.
+    Interrupt,
+    /// The interrupt is missed; the main loop runs.
+    MissedInterrupt,
+    /// The MCU is busy: neither runs.
+    Nothing,
+}
+
+/// The board: the simulated part and the sample path.
+pub struct Board {
+    part: SharedPart,
+    path: SamplePath<SharedPart, TriggerLine>,
+    /// The raw samples the core reported taking (`raw_imu`).
+    pub raw: Vec<ImuSample>,
+}
+
+impl Board {
+    /// A board whose part runs at `settings`, started; the device is told it has an IMU and
+    /// asked (as the host would) to sample it, triggering every `trigger_every`-th sample.
+    pub fn start<T: Kernels>(
+        settings: Settings,
+        driver: &mut Driver<'_, T>,
+        trigger_every: u16,
+    ) -> Board {
+        let part = SharedPart::default();
+        let mut path = SamplePath::new(
+            Icm42688::new(part.clone(), settings),
+            TriggerLine::default(),
+        );
+        path.start(0, &mut NoDelay)
+            .expect("the simulated part starts");
+        driver.device.set_onboard_imu(true);
+        driver.send(&HostToCore::Sampling(Sampling {
+            source: SampleSource::Core { trigger_every },
+            raw_imu: true,
+        }));
+        Board {
+            part,
+            path,
+            raw: Vec::new(),
+        }
+    }
+
+    /// The driver's next sample taken by the board: the reading into the part at the part's
+    /// time (no drift: the MCU's time is the scenario's), the interrupt served at once, and
+    /// the device's answers to the driver.
+    pub fn step<T: Kernels>(&mut self, driver: &mut Driver<'_, T>) {
+        self.step_faulty(driver, Serve::Interrupt);
+    }
+
+    /// The part resets (a brown-out) now.
+    pub fn reset_part(&self) {
+        self.part.0.borrow_mut().power_on_reset();
+    }
+
+    /// The next packet the part stores gets a corrupt header.
+    pub fn corrupt_next(&self) {
+        self.part.0.borrow_mut().corrupt_next_header();
+    }
+
+    /// The next sample, served as `serve` says.
+    pub fn step_faulty<T: Kernels>(&mut self, driver: &mut Driver<'_, T>, serve: Serve) {
+        let HostToCore::Imu(s) = driver.next_imu() else {
+            panic!("the board samples an IMU: an inertial model only")
+        };
+        let (_, reading) = driver.last.expect("a sample was just taken");
+        let f = |v: nalgebra::Vector3<f64>| [v[0], v[1], v[2]];
+        self.part
+            .0
+            .borrow_mut()
+            .sample(s.t_us, f(reading.gyro), f(reading.accel), 25.0);
+        let mut answers = Vec::new();
+        let mut out = |m| answers.push(m);
+        if serve == Serve::Interrupt && self.part.0.borrow().interrupt_pending() {
+            self.path
+                .on_interrupt(s.t_us, &mut driver.device, &mut NoDelay, &mut out)
+                .expect("the simulated part answers");
+        }
+        if serve != Serve::Nothing {
+            self.path
+                .poll(s.t_us, &mut driver.device, &mut NoDelay, &mut out)
+                .expect("the simulated part answers");
+        }
+        for m in &answers {
+            if let CoreToHost::RawImu(r) = m {
+                self.raw.push(*r);
+            }
+        }
+        driver.record(&answers);
+        driver.answer(answers);
+    }
+}

@@ -1,0 +1,147 @@
+//! Issue 36 end to end on the PC: the hand-held scenario of the harness (200 Hz IMU, 25 Hz
+//! camera, 60 ms latency) with the core sampling a simulated ICM-42688-P through the board's
+//! sample path, against the host-driven replay of the same samples, and against today's
+//! host-driven run of the unquantised readings.
+
+use icm42688::{Odr, Settings};
+use protocol::ModelKind;
+use tests::board::Board;
+use tests::harness::{Driver, errors, scenes};
+
+const SECONDS: f64 = 20.0;
+
+fn position_errors(errs: &[f64]) -> (f64, f64) {
+    let mean = errs.iter().sum::<f64>() / errs.len() as f64;
+    (mean, errs.iter().cloned().fold(0.0, f64::max))
+}
+
+#[test]
+fn the_core_sampling_its_own_imu_tracks_as_the_host_driven_replay_of_its_samples() {
+    let sc = scenes::standard(ModelKind::Acc, SECONDS, 2.0, 11);
+    // The board: the part at 200 Hz, a trigger every 8th sample (the scenario's camera).
+    let mut board_run = Driver::<f32>::new(&sc);
+    let mut board = Board::start(Settings::new(Odr::Hz200), &mut board_run, 8);
+    let mut board_errors = Vec::new();
+    let mut states = Vec::new();
+    for _ in 0..board_run.samples() {
+        board.step(&mut board_run);
+        let truth = board_run.last.unwrap().0;
+        board_errors.push(errors::position(&board_run.device, &truth));
+        states.push(board_run.device.filter().clone());
+    }
+    // Every sample stamped at its time exactly (no drift, no latency here), none lost.
+    assert_eq!(board.raw.len(), board_run.samples());
+    for (k, s) in board.raw.iter().enumerate() {
+        assert_eq!(
+            s.t_us,
+            tests::harness::t_us(k, sc.imu_rate_hz),
+            "sample {k}"
+        );
+    }
+    // The host-driven replay of the samples the core reported taking: the same filter,
+    // state for state.
+    let mut replay = Driver::<f32>::new(&sc);
+    for (k, s) in board.raw.iter().enumerate() {
+        replay.step_with(*s);
+        assert_eq!(replay.device.filter(), &states[k], "sample {k}");
+    }
+    // Today's host-driven run of the unquantised readings: the same accuracy.
+    let mut host_run = Driver::<f32>::new(&sc);
+    let mut host_errors = Vec::new();
+    for _ in 0..host_run.samples() {
+        host_run.step();
+        host_errors.push(errors::position(
+            &host_run.device,
+            &host_run.last.unwrap().0,
+        ));
+    }
+    let settle = board_errors.len() / 10;
+    let (board_mean, board_max) = position_errors(&board_errors[settle..]);
+    let (host_mean, host_max) = position_errors(&host_errors[settle..]);
+    println!(
+        "position error after the first 10 %: core-sampled mean {:.2} mm max {:.2} mm; \
+         host-driven mean {:.2} mm max {:.2} mm",
+        board_mean * 1e3,
+        board_max * 1e3,
+        host_mean * 1e3,
+        host_max * 1e3
+    );
+    assert!(tests::harness::tracking_at_end(&board_run.device));
+    assert!(
+        board_mean < host_mean * 1.2 + 1e-3,
+        "{board_mean} vs {host_mean}"
+    );
+    assert_eq!(board_run.out.errors, vec![]);
+}
+
+/// Every fault of the simulated part, injected into a tracked run: the samples lost are
+/// counted and reported with their cause, the gaps marked, and the filter tracks through.
+#[test]
+fn faults_of_the_part_are_reported_and_the_filter_tracks_through_them() {
+    use protocol::{GapCause, Mode, SamplingEvent};
+    use tests::board::Serve;
+    let sc = scenes::standard(ModelKind::Acc, SECONDS, 2.0, 12);
+    let mut d = Driver::<f32>::new(&sc);
+    let mut board = Board::start(Settings::new(Odr::Hz200), &mut d, 8);
+    let at = |s: f64| (s * sc.imu_rate_hz) as usize;
+    let mut worst = 0.0f64;
+    for k in 0..d.samples() {
+        if k == at(8.0) {
+            board.reset_part();
+        }
+        if k == at(11.0) {
+            board.corrupt_next();
+        }
+        let serve = if (at(5.0)..at(5.8)).contains(&k) {
+            Serve::Nothing // 160 samples: the FIFO (128) overflows
+        } else if [at(13.0), at(13.0) + 1, at(14.0)].contains(&k) {
+            Serve::MissedInterrupt
+        } else {
+            Serve::Interrupt
+        };
+        board.step_faulty(&mut d, serve);
+        // While the MCU is busy the filter stands at the last sample it had, while the truth
+        // moves on: judged from a second after it has caught up.
+        if k > at(2.0) && !(at(5.0)..at(6.8)).contains(&k) {
+            worst = worst.max(errors::position(&d.device, &d.last.unwrap().0));
+        }
+    }
+    let report = d.device.onboard_state().report();
+    let gaps: Vec<_> = d
+        .out
+        .sampling
+        .iter()
+        .filter_map(|r| match r.event {
+            SamplingEvent::Gap(g) => Some(g),
+            _ => None,
+        })
+        .collect();
+    println!("sampling at the end: {report:?}");
+    println!("gaps: {gaps:?}");
+    println!(
+        "worst position error after 2 s (outside the busy stretch): {:.1} mm",
+        worst * 1e3
+    );
+    let causes: Vec<_> = gaps.iter().map(|g| g.cause).collect();
+    assert_eq!(
+        causes,
+        [
+            GapCause::FifoOverflow,
+            GapCause::PartReset,
+            GapCause::CorruptPacket
+        ]
+    );
+    // Nothing lost silently: every sample is either taken or counted lost.
+    assert_eq!(report.lost as usize + board.raw.len(), d.samples());
+    assert_eq!(report.lost, gaps.iter().map(|g| g.lost).sum::<u32>());
+    // Late reads: the two missed interrupts, and the read after the busy stretch.
+    assert_eq!((report.part_resets, report.late_reads), (1, 3));
+    assert!(d.out.errors.is_empty(), "{:?}", d.out.errors);
+    assert!(
+        !d.out.statuses.iter().any(|s| s.mode == Mode::Diverged),
+        "{:?}",
+        d.out.statuses
+    );
+    assert!(tests::harness::tracking_at_end(&d.device));
+    assert!(worst < 0.03, "{worst}");
+}
