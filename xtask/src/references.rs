@@ -30,7 +30,13 @@ use std::fs;
 use std::path::Path;
 
 /// Works outside the repository that comments cite by their own sections and equations.
-pub const EXTERNAL: &[&str] = &["paper", "Lambda Twist", "Bar-Shalom"];
+pub const EXTERNAL: &[&str] = &[
+    "paper",
+    "Lambda Twist",
+    "Bar-Shalom",
+    "data sheet",
+    "DS-000347",
+];
 
 /// How far back a citation looks for its document when no parenthesis bounds it [chars].
 const WINDOW: usize = 100;

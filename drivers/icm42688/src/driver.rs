@@ -1,6 +1,6 @@
 //! The blocking driver on an `embedded-hal` 1.0 [`SpiDevice`].
 //!
-//! SPI framing (§9): the first byte of a transaction is the register address with bit 7 set for
+//! SPI framing (data sheet §9): the first byte of a transaction is the register address with bit 7 set for
 //! a read; the following bytes auto-increment the address, except at FIFO_DATA, where each byte
 //! pops one FIFO byte. Registers are written one per transaction, `[address, value]`.
 //!
@@ -15,7 +15,7 @@ use crate::packet::Packet;
 use crate::registers::{self as reg, bank};
 use crate::settings::{MAX_REGISTER_WRITES, RegisterWrite, Settings};
 
-/// Soft reset to first register access (DEVICE_CONFIG description, §14: ≥ 1 ms).
+/// Soft reset to first register access (DEVICE_CONFIG description, data sheet §14: ≥ 1 ms).
 const SOFT_RESET_WAIT_US: u32 = 1_000;
 /// After the sensors are turned on, no register writes for 200 µs (PWR_MGMT0 description).
 const SENSORS_ON_WAIT_US: u32 = 200;

@@ -5,7 +5,7 @@
 //! # Design
 //!
 //! - **Batched FIFO reads with time stamps.** The part runs in stream-to-FIFO mode with
-//!   packet 3 (accel, gyro, temperature, 16-bit 1 µs time stamp on the part's clock, §6.1).
+//!   packet 3 (accel, gyro, temperature, 16-bit 1 µs time stamp on the part's clock, data sheet §6.1).
 //!   [`Icm42688::read_fifo`] reads INT_STATUS and FIFO_COUNT in one 3-byte transaction, then
 //!   every packet it has room for in one burst, so the MCU can sleep through many samples
 //!   (watermark interrupt) and still get each sample's time.

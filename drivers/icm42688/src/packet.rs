@@ -1,4 +1,4 @@
-//! FIFO packet 3 (§6.1): header, accelerometer, gyro, temperature and time stamp, 16 bytes,
+//! FIFO packet 3 (data sheet §6.1): header, accelerometer, gyro, temperature and time stamp, 16 bytes,
 //! big-endian (INTF_CONFIG0 SENSOR_DATA_ENDIAN = 1).
 
 use core::fmt;
@@ -9,7 +9,7 @@ use crate::settings::Settings;
 /// One FIFO packet 3 as read from the part (raw counts).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
 pub struct Packet {
-    /// Header byte (§6.2); `header & 0xFC == 0x68` for a packet 3 with an ODR time stamp.
+    /// Header byte (data sheet §6.2); `header & 0xFC == 0x68` for a packet 3 with an ODR time stamp.
     pub header: u8,
     /// Accelerometer X, Y, Z in counts; −32768 marks an invalid sample.
     pub accel: [i16; 3],
@@ -126,7 +126,7 @@ impl Packet {
         ]
     }
 
-    /// Temperature in °C: raw / 2.07 + 25 (FIFO temperature, §6.1).
+    /// Temperature in °C: raw / 2.07 + 25 (FIFO temperature, data sheet §6.1).
     pub fn temperature_c(&self) -> f32 {
         f32::from(self.temperature) / 2.07 + 25.0
     }

@@ -1,7 +1,7 @@
 //! Register addresses, bit fields and reset values of the ICM-42688-P (DS-000347 §13, with the
-//! bank 0/1/2 descriptions in §14–§16). The driver and the simulated part both use this one map.
+//! bank 0/1/2 descriptions in data sheet §14–data sheet §16). The driver and the simulated part both use this one map.
 //!
-//! Addresses are 7 bits: on SPI, bit 7 of the first byte is the read flag (§9, "SPI interface").
+//! Addresses are 7 bits: on SPI, bit 7 of the first byte is the read flag (data sheet §9, "SPI interface").
 
 /// Bit 7 of the SPI address byte: set for a read, clear for a write.
 pub const SPI_READ: u8 = 0x80;
@@ -71,7 +71,7 @@ pub const FIFO_COUNTH: u8 = 0x2E;
 pub const FIFO_COUNTL: u8 = 0x2F;
 /// FIFO_DATA (bank 0): each byte read pops one FIFO byte; a burst does not advance the address.
 pub const FIFO_DATA: u8 = 0x30;
-/// What FIFO_DATA reads when the FIFO is empty (its reset value, §14 register table): a header
+/// What FIFO_DATA reads when the FIFO is empty (its reset value, data sheet §14 register table): a header
 /// byte with HEADER_MSG set.
 pub const FIFO_EMPTY_BYTE: u8 = 0xFF;
 
@@ -225,7 +225,7 @@ pub const ACCEL_CONFIG_STATIC3: u8 = 0x04;
 pub const ACCEL_CONFIG_STATIC4: u8 = 0x05;
 
 // ---------------------------------------------------------------------------------------------
-// Reset values (§13 register map) of the registers that are configured or that the simulated
+// Reset values (data sheet §13 register map) of the registers that are configured or that the simulated
 // part gives behaviour to. Where a configured register has reserved bits, the value written
 // keeps them as they reset.
 // ---------------------------------------------------------------------------------------------
@@ -275,7 +275,7 @@ pub fn reset_value(bank: u8, address: u8) -> u8 {
 // FIFO
 // ---------------------------------------------------------------------------------------------
 
-/// FIFO size in bytes (§6: 2 KB).
+/// FIFO size in bytes (data sheet §6: 2 KB).
 pub const FIFO_BYTES: usize = 2048;
 /// FIFO capacity in packet-3 records of 16 bytes: 2048 / 16 = 128.
 pub const FIFO_CAPACITY: usize = FIFO_BYTES / 16;

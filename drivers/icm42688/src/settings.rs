@@ -13,7 +13,7 @@ pub const STANDARD_GRAVITY: f32 = 9.806_65;
 /// CLKIN, has 26 writes).
 pub const MAX_REGISTER_WRITES: usize = 32;
 
-/// Output data rate of both sensors (GYRO_CONFIG0 / ACCEL_CONFIG0 bits 3:0, §14).
+/// Output data rate of both sensors (GYRO_CONFIG0 / ACCEL_CONFIG0 bits 3:0, data sheet §14).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Odr {
     /// 8 kHz (code 0011).
@@ -151,7 +151,7 @@ impl AccelRange {
     }
 }
 
-/// Anti-alias filter 3 dB bandwidth: a subset of the table in §5.3 (the same table serves the
+/// Anti-alias filter 3 dB bandwidth: a subset of the table in data sheet §5.3 (the same table serves the
 /// gyro, bank 1, and the accelerometer, bank 2).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Aaf {
@@ -194,7 +194,7 @@ impl Aaf {
         self.coefficients().0
     }
 
-    /// `(bandwidth Hz, DELT, DELTSQR, BITSHIFT)` from §5.3.
+    /// `(bandwidth Hz, DELT, DELTSQR, BITSHIFT)` from data sheet §5.3.
     pub const fn coefficients(self) -> (u32, u8, u16, u8) {
         match self {
             Aaf::Hz42 => (42, 1, 1, 15),
@@ -330,7 +330,7 @@ impl Settings {
         Ok(())
     }
 
-    /// Gyro scale in rad/s per count. The data sheet (§3.1) quotes 16.4 LSB/(°/s) at ±2000 °/s;
+    /// Gyro scale in rad/s per count. The data sheet (data sheet §3.1) quotes 16.4 LSB/(°/s) at ±2000 °/s;
     /// that is 32768 / 2000 = 16.384 rounded, and the full scale maps to ±32768 counts, so the
     /// exact 32768 / range is used (the rounded figure is 0.1 % off).
     pub fn gyro_rad_s_per_lsb(&self) -> f32 {
@@ -338,7 +338,7 @@ impl Settings {
     }
 
     /// Accelerometer scale in m/s² per count: 2048 LSB/g at ±16 g, doubling per halving of the
-    /// range (§3.2), i.e. 32768 / range.
+    /// range (data sheet §3.2), i.e. 32768 / range.
     pub fn accel_m_s2_per_lsb(&self) -> f32 {
         self.accel_range.full_scale_g() / 32768.0 * STANDARD_GRAVITY
     }
@@ -355,7 +355,7 @@ impl Settings {
     /// Order: bank 0 set-up (interface, interrupts, rates, filters, time stamps, FIFO); bank 1
     /// (gyro AAF, pin 9); bank 2 (accel AAF); then, back in bank 0, the clock source (once pin 9
     /// is CLKIN) and, last, PWR_MGMT0, which starts the sensors. The caller must wait 200 µs
-    /// after that last write before any other write (PWR_MGMT0 description, §14). The AAF
+    /// after that last write before any other write (PWR_MGMT0 description, data sheet §14). The AAF
     /// registers are written with the sensors off, as the data sheet asks for static filter
     /// settings.
     pub fn register_writes(&self) -> heapless::Vec<RegisterWrite, MAX_REGISTER_WRITES> {

@@ -121,7 +121,7 @@ impl SimIcm42688 {
                 32767.0,
             )
         });
-        // FIFO temperature: raw = (T − 25) × 2.07; registers: (T − 25) × 132.48 (§14 TEMP_DATA).
+        // FIFO temperature: raw = (T − 25) × 2.07; registers: (T − 25) × 132.48 (data sheet §14 TEMP_DATA).
         let temp_fifo = quantise((temperature_c - 25.0) * 2.07, 127.0);
         let temp_reg = quantise((temperature_c - 25.0) * 132.48, 32767.0);
 

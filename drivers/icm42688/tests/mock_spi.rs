@@ -193,7 +193,7 @@ fn init_rejects_bad_settings_without_spi_traffic() {
     spi.done();
 }
 
-/// Three packets written byte by byte from §6.1.
+/// Three packets written byte by byte from data sheet §6.1.
 const THREE_PACKETS: [u8; 48] = [
     // header 0x68; accel 16, -16, 2048; gyro 1, -1, -32767; temp 10; time stamp 0x1234
     0x68, 0x00, 0x10, 0xFF, 0xF0, 0x08, 0x00, 0x00, 0x01, 0xFF, 0xFF, 0x80, 0x01, 0x0A, 0x12,

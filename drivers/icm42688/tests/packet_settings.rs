@@ -5,7 +5,7 @@ use icm42688::{
     PacketError, Settings, SettingsError,
 };
 
-/// A packet 3 written out by hand (§6.1): header 0x68; accel 1000, -1000, 2048; gyro -2, 300,
+/// A packet 3 written out by hand (data sheet §6.1): header 0x68; accel 1000, -1000, 2048; gyro -2, 300,
 /// 16; temperature 21 (35.1 °C); time stamp 0xABCD.
 const BYTES: [u8; 16] = [
     0x68, 0x03, 0xE8, 0xFC, 0x18, 0x08, 0x00, 0xFF, 0xFE, 0x01, 0x2C, 0x00, 0x10, 0x15, 0xAB, 0xCD,
@@ -102,7 +102,7 @@ fn accel_lsb_per_g(range: AccelRange) -> f32 {
 
 #[test]
 fn sensitivities() {
-    // Data sheet §3.1 figures (rounded there): 16.4, 32.8, 65.5, 131 LSB/(°/s).
+    // Data sheet data sheet §3.1 figures (rounded there): 16.4, 32.8, 65.5, 131 LSB/(°/s).
     for (range, datasheet) in [
         (GyroRange::Dps2000, 16.4),
         (GyroRange::Dps1000, 32.8),
@@ -113,7 +113,7 @@ fn sensitivities() {
         assert!((got / datasheet - 1.0).abs() < 0.002, "{range:?}: {got}");
     }
     assert!((gyro_lsb_per_dps(GyroRange::Dps2000) - 16.384).abs() < 1e-3);
-    // §3.2: 2048, 4096, 8192, 16384 LSB/g, exact.
+    // data sheet §3.2: 2048, 4096, 8192, 16384 LSB/g, exact.
     for (range, datasheet) in [
         (AccelRange::G16, 2048.0),
         (AccelRange::G8, 4096.0),
