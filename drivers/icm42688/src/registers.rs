@@ -1,5 +1,5 @@
 //! Register addresses, bit fields and reset values of the ICM-42688-P (DS-000347 §13, with the
-//! bank 0/1/2 descriptions in data sheet §14–data sheet §16). The driver and the simulated part both use this one map.
+//! bank 0/1/2 descriptions in data sheet §14–§16). The driver and the simulated part both use this one map.
 //!
 //! Addresses are 7 bits: on SPI, bit 7 of the first byte is the read flag (data sheet §9, "SPI interface").
 
