@@ -299,11 +299,14 @@ fn test() -> Result<(), String> {
 
     // The firmware: format, lints and image first (the QEMU test drives the image).
     let mut fw_fmt = cargo();
-    fw_fmt.current_dir(firmware_dir()).args(["fmt", "--check"]);
+    fw_fmt
+        .current_dir(firmware_dir())
+        .args(["fmt", "--all", "--check"]);
     steps.run("firmware format", fw_fmt)?;
     let mut fw_clippy = cargo();
     fw_clippy.current_dir(firmware_dir()).args([
         "clippy",
+        "--workspace",
         "--release",
         "--target-dir",
         "target",
@@ -369,14 +372,19 @@ fn firmware_dir() -> PathBuf {
     workspace_root().join("firmware")
 }
 
-/// Builds the firmware images (device loop and benchmark) for the Cortex-M4F.
+/// Builds the firmware images for the Cortex-M4F: the device loop and the benchmark (QEMU),
+/// and the sensor board's (SpeedyBee F405 V4, docs/PORTING.md; built, not run).
 fn build_firmware(steps: &mut Steps) -> Result<(), String> {
     let mut build = cargo();
     // The firmware's own .cargo/config.toml selects the target: run from its folder. Its
     // images go to firmware/target whatever CARGO_TARGET_DIR says (the QEMU test looks there).
-    build
-        .current_dir(firmware_dir())
-        .args(["build", "--release", "--target-dir", "target"]);
+    build.current_dir(firmware_dir()).args([
+        "build",
+        "--workspace",
+        "--release",
+        "--target-dir",
+        "target",
+    ]);
     steps.run("firmware images", build)
 }
 
@@ -399,7 +407,7 @@ fn firmware_report(steps: &mut Steps) -> Result<(), String> {
     .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
     .arg(&bench);
     steps.run("firmware benchmark under QEMU", qemu)?;
-    for image in ["device", "bench"] {
+    for image in ["device", "bench", "speedybee-f405"] {
         let path = dir.join(image);
         let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
         let sections =

@@ -298,6 +298,112 @@ fn session(timer: &Timer, model: ModelKind) {
     hprintln!("BENCH session_mode_{} {:?}", name, io.device.mode());
 }
 
+/// No pin: the camera trigger's cost is the GPIO writes, outside what the core computes.
+struct NoPin;
+impl embedded_hal::digital::ErrorType for NoPin {
+    type Error = core::convert::Infallible;
+}
+impl embedded_hal::digital::OutputPin for NoPin {
+    fn set_low(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    fn set_high(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// No waiting: the pulse width and the part's set-up delays are time, not work.
+struct NoDelay;
+impl embedded_hal::delay::DelayNs for NoDelay {
+    fn delay_ns(&mut self, _: u32) {}
+}
+
+/// The board's sample path per IMU sample (issue 36): the FIFO read of one packet from the
+/// simulated ICM-42688-P (whose SPI emulation is counted too: an upper bound of the driver's
+/// work, where a real bus would wait ~20 µs instead), time stamps, scaling, the trigger
+/// decision and `Device::onboard` with the acc model running; and `Device::onboard` alone on
+/// the same samples, so that the difference is the path's own cost.
+#[inline(never)]
+fn bench_sample_path(timer: &Timer) {
+    use core::cell::RefCell;
+    use fusion_core::onboard::OnboardEvent;
+    use icm42688::{Icm42688, Odr, Settings, SimIcm42688, sim::SharedSim};
+    use protocol::{CoreToHost, SampleSource, Sampling};
+    use sample_path::SamplePath;
+
+    // SAFETY: the only reference to DEVICE; all zero bytes is a valid `DeviceIo` (see
+    // `session`).
+    #[allow(clippy::deref_addrof)]
+    let io = unsafe { &mut *(&raw mut DEVICE) };
+    let mut sink = |_: CoreToHost| {};
+    let mut run = |through_path: bool| -> u64 {
+        // SAFETY: as above.
+        unsafe { core::ptr::write_bytes(io as *mut DeviceIo<f32>, 0, 1) };
+        let d = &mut io.device;
+        d.set_onboard_imu(true);
+        let mut cfg = config(ModelKind::Acc);
+        cfg.still_samples = 50;
+        for msg in [
+            HostToCore::Hello(Hello {
+                version: PROTOCOL_VERSION,
+            }),
+            HostToCore::Configure(cfg),
+            HostToCore::Init(Init {
+                position: [0.0, 0.0, 1.0],
+                attitude: InitAttitude::Gravity,
+            }),
+            HostToCore::Sampling(Sampling {
+                source: SampleSource::Core { trigger_every: 8 },
+                raw_imu: false,
+            }),
+        ] {
+            d.handle(&msg, &mut sink);
+        }
+        let part = RefCell::new(SimIcm42688::new());
+        let mut path = SamplePath::new(
+            Icm42688::new(SharedSim::new(&part), Settings::new(Odr::Hz200)),
+            NoPin,
+        );
+        if path.start(0, &mut NoDelay).is_err() {
+            return 0;
+        }
+        let mut total = 0;
+        for k in 0..(100 + STEPS) {
+            part.borrow_mut()
+                .sample(k * 5000, [0.01, -0.02, 0.3], [0.1, 0.0, 9.8], 25.0);
+            let t = 1_000_000 + k * 5000;
+            let (ins, _) = if through_path {
+                timed(timer, mark_message, || {
+                    path.on_interrupt(t, d, &mut NoDelay, &mut sink)
+                })
+            } else {
+                // A sample like the path's (the filter's cost does not depend on the values).
+                let s = protocol::ImuSample {
+                    t_us: t,
+                    gyro: [0.01, -0.02, 0.3],
+                    accel: [0.1, 0.0, 9.8],
+                    trigger: k % 8 == 0,
+                };
+                (
+                    timed(timer, mark_message, || {
+                        d.onboard(&OnboardEvent::Sample(s), &mut sink)
+                    })
+                    .0,
+                    Ok(sample_path::ReadSummary::default()),
+                )
+            };
+            if k >= 100 {
+                total += ins;
+            }
+        }
+        total / STEPS
+    };
+    let whole = run(true);
+    let device_only = run(false);
+    hprintln!("BENCH sample_path_per_sample {}", whole);
+    hprintln!("BENCH onboard_sample_device_only {}", device_only);
+}
+
 #[entry]
 fn main() -> ! {
     let timer = Timer::start();
@@ -315,6 +421,7 @@ fn main() -> ! {
         "BENCH device_static {}",
         core::mem::size_of::<DeviceIo<f32>>()
     );
+    bench_sample_path(&timer);
     debug::exit(debug::EXIT_SUCCESS);
     loop {
         cortex_m::asm::wfi();

@@ -1,0 +1,185 @@
+//! The fusion core on a SpeedyBee F405 V4 (docs/PORTING.md): the core samples its own
+//! ICM-42688-P on SPI1, fires the camera on the CAMERA_CONTROL pad, time-stamps both on TIM2
+//! (1 MHz), and talks to the host over USB CDC (protocol/PROTOCOL.md §7).
+//!
+//! One main loop, no executor: the IMU's interrupt (INT1 on PC4, EXTI4) only captures TIM2's
+//! count, the time stamp of the newest sample, and the loop reads the FIFO
+//! (`sample_path::SamplePath`), serves USB and runs the device loop. The FIFO's own time stamps
+//! place every sample, so the loop's latency moves no time stamp; it only delays the camera
+//! pulse, by at most one correspondence part's processing (see the guide).
+#![no_std]
+#![no_main]
+
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use cortex_m_rt::entry;
+use embedded_hal_bus::spi::ExclusiveDevice;
+use fusion_core::DeviceIo;
+use icm42688::{Icm42688, Odr, Settings};
+use protocol::{CoreToHost, MAX_FRAME_LEN, encode_frame};
+use sample_path::{Clock64, SamplePath};
+use stm32f4xx_hal::gpio::Edge;
+use stm32f4xx_hal::otg_fs::{USB, UsbBus};
+use stm32f4xx_hal::pac::{self, interrupt};
+use stm32f4xx_hal::prelude::*;
+use stm32f4xx_hal::rcc::Config;
+use stm32f4xx_hal::spi::{Mode, Phase, Polarity, Spi};
+use usb_device::prelude::*;
+use usbd_serial::SerialPort;
+
+/// The IMU's output data rate: the host's `Config::imu_rate_hz` must say the same.
+const ODR: Odr = Odr::Hz200;
+
+/// SPI clock: the part takes up to 24 MHz; SPI1 on the 84 MHz APB2 divides to 10.5 MHz.
+const SPI_HZ: u32 = 10_000_000;
+
+/// The device and its decoder: built at compile time (all zeros, `.bss`), never on the stack.
+static mut DEVICE: DeviceIo<f32> = DeviceIo::new();
+
+/// TIM2's count at the IMU's last interrupt, and whether the loop has yet to take it.
+static IRQ_AT: AtomicU32 = AtomicU32::new(0);
+static IRQ_PENDING: AtomicBool = AtomicBool::new(false);
+
+#[interrupt]
+fn EXTI4() {
+    // The time first: it stamps the newest sample in the FIFO.
+    // SAFETY: a read of TIM2's counter register, which nothing else writes after start.
+    let t = unsafe { (*pac::TIM2::ptr()).cnt().read().bits() };
+    IRQ_AT.store(t, Ordering::Relaxed);
+    IRQ_PENDING.store(true, Ordering::Release);
+    // SAFETY: writing 1 clears line 4's pending bit and touches no other line.
+    unsafe { (*pac::EXTI::ptr()).pr().write(|w| w.bits(1 << 4)) };
+}
+
+#[entry]
+fn main() -> ! {
+    let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+        halt()
+    };
+    // 8 MHz crystal (Betaflight's SYSTEM_HSE_MHZ), 168 MHz core, 48 MHz for USB.
+    let mut rcc = dp
+        .RCC
+        .freeze(Config::hse(8.MHz()).sysclk(168.MHz()).require_pll48clk());
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let mut delay = cp.SYST.delay(&rcc.clocks);
+
+    // The core's clock: TIM2, 32 bits at 1 MHz, free-running.
+    let mut tim2 = dp.TIM2.counter_us(&mut rcc);
+    if tim2.start(u32::MAX.micros()).is_err() {
+        halt()
+    }
+
+    // The IMU: SPI1 (PA5 SCK, PA6 MISO, PA7 MOSI), mode 3, CS on PA4.
+    let spi = Spi::new(
+        dp.SPI1,
+        (Some(gpioa.pa5), Some(gpioa.pa6), Some(gpioa.pa7)),
+        Mode {
+            polarity: Polarity::IdleHigh,
+            phase: Phase::CaptureOnSecondTransition,
+        },
+        SPI_HZ.Hz(),
+        &mut rcc,
+    );
+    let mut cs = gpioa.pa4.into_push_pull_output();
+    cs.set_high();
+    // Setting a GPIO of this HAL cannot fail.
+    let Ok(spi) = ExclusiveDevice::new_no_delay(spi, cs);
+    // The camera trigger on the CAMERA_CONTROL pad (PB14), low when idle.
+    let trigger = gpiob.pb14.into_push_pull_output();
+    let mut path = SamplePath::new(Icm42688::new(spi, Settings::new(ODR)), trigger);
+
+    // INT1 on PC4: rising edge (push-pull, active high, pulsed), EXTI4.
+    let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
+    let mut exti = dp.EXTI;
+    let mut int1 = gpioc.pc4.into_pull_down_input();
+    int1.make_interrupt_source(&mut syscfg);
+    int1.trigger_on_edge(&mut exti, Edge::Rising);
+    int1.enable_interrupt(&mut exti);
+
+    // SAFETY: the only reference to DEVICE, taken once before the loop; the interrupt
+    // handler does not use it.
+    #[allow(clippy::deref_addrof)]
+    let device = unsafe { &mut *(&raw mut DEVICE) };
+    let mut clock = Clock64::new();
+    // Without a working IMU the core still serves a host that samples (it refuses `Sampling`
+    // from the core with `NoOnboardImu`).
+    let imu_ok = path
+        .start(clock.extend(tim2.now().ticks()), &mut delay)
+        .is_ok();
+    device.device.set_onboard_imu(imu_ok);
+    // SAFETY: the handler only touches atomics and EXTI's pending register.
+    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::EXTI4) };
+
+    // USB CDC-ACM on PA11/PA12.
+    let Some(ep_memory) = cortex_m::singleton!(: [u32; 1024] = [0; 1024]) else {
+        halt()
+    };
+    let usb = USB::new(
+        (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
+        (gpioa.pa11, gpioa.pa12),
+        &rcc.clocks,
+    );
+    let usb_bus = UsbBus::new(usb, ep_memory);
+    let mut serial = SerialPort::new_with_store(&usb_bus, [0u8; 1024], [0u8; 2048]);
+    let Ok(builder) = UsbDeviceBuilder::new(&usb_bus, UsbVidPid(0x16c0, 0x27dd))
+        .device_class(usbd_serial::USB_CLASS_CDC)
+        .strings(&[StringDescriptors::default()
+            .manufacturer("fusion-core")
+            .product("visual-inertial core")
+            .serial_number("F405")])
+    else {
+        halt()
+    };
+    let mut usb_dev = builder.build();
+
+    let mut frame = [0u8; MAX_FRAME_LEN];
+    let mut rx = [0u8; 64];
+    loop {
+        if usb_dev.poll(&mut [&mut serial])
+            && let Ok(n) = serial.read(&mut rx)
+            && n > 0
+        {
+            device.receive(&rx[..n], &mut |bytes| send(&mut serial, bytes));
+        }
+        // The loop's time before the interrupt's: an interrupt taken after this reading is
+        // later than it, one taken before it maps to its past (`Clock64`).
+        let now = clock.extend(tim2.now().ticks());
+        let mut out = |msg: CoreToHost| {
+            if let Ok(bytes) = encode_frame(&msg, &mut frame) {
+                send(&mut serial, bytes);
+            }
+        };
+        if IRQ_PENDING.swap(false, Ordering::Acquire) {
+            let t_irq = clock.extend(IRQ_AT.load(Ordering::Relaxed));
+            // A failed SPI transfer loses this read's samples; the next read's time stamps
+            // count them and the core reports the gap.
+            let _ = path.on_interrupt(t_irq, &mut device.device, &mut delay, &mut out);
+        }
+        let _ = path.poll(now, &mut device.device, &mut delay, &mut out);
+    }
+}
+
+/// Writes one frame to the host. A frame that does not fit the USB buffer (no host reading)
+/// is cut short: the host's decoder rejects it by its CRC and resynchronises at the next
+/// delimiter, so a slow host loses whole frames, never reads a wrong one.
+fn send<B: usb_device::bus::UsbBus>(
+    serial: &mut SerialPort<'_, B, [u8; 1024], [u8; 2048]>,
+    bytes: &[u8],
+) {
+    let _ = serial.write(bytes);
+}
+
+/// Stops here (the debugger shows where); only reachable at boot, before any input.
+fn halt() -> ! {
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[panic_handler]
+fn panic(_: &core::panic::PanicInfo) -> ! {
+    cortex_m::interrupt::disable();
+    halt()
+}
