@@ -27,6 +27,42 @@ pub enum OnboardEvent {
     Drift(f32),
 }
 
+/// The counters of a [`SamplingReport`], kept without its event: an enum whose data-less
+/// variants sit in a niche of another's field is not all zero bytes in any of them, and the
+/// device must be (see [`Onboard::new`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct Counts {
+    t_us: u64,
+    samples: u32,
+    lost: u32,
+    part_resets: u32,
+    late_reads: u32,
+    drift_ppm: f32,
+}
+
+impl Counts {
+    const ZERO: Counts = Counts {
+        t_us: 0,
+        samples: 0,
+        lost: 0,
+        part_resets: 0,
+        late_reads: 0,
+        drift_ppm: 0.0,
+    };
+
+    fn report(&self, event: SamplingEvent) -> SamplingReport {
+        SamplingReport {
+            t_us: self.t_us,
+            event,
+            samples: self.samples,
+            lost: self.lost,
+            part_resets: self.part_resets,
+            late_reads: self.late_reads,
+            drift_ppm: self.drift_ppm,
+        }
+    }
+}
+
 /// The core's sampling state.
 #[derive(Clone, Copy, Debug)]
 pub struct Onboard {
@@ -35,7 +71,7 @@ pub struct Onboard {
     sampling: Sampling,
     /// Triggers fired since sampling started.
     triggers: u32,
-    report: SamplingReport,
+    counts: Counts,
     last_report_us: Option<u64>,
 }
 
@@ -51,21 +87,15 @@ impl Onboard {
         raw_imu: false,
     };
 
-    /// No IMU on board, the host sampling (`const`, for the device's `static`).
+    /// No IMU on board, the host sampling (`const`, for the device's `static`). All zero
+    /// bytes, as the device is, so that a firmware `static` holding it stays in `.bss` (a
+    /// stored `SamplingReport` moved the whole device, 18 KB, into `.data` and flash).
     pub const fn new() -> Self {
         Onboard {
             present: false,
             sampling: Self::HOST,
             triggers: 0,
-            report: SamplingReport {
-                t_us: 0,
-                event: SamplingEvent::Stopped,
-                samples: 0,
-                lost: 0,
-                part_resets: 0,
-                late_reads: 0,
-                drift_ppm: 0.0,
-            },
+            counts: Counts::ZERO,
             last_report_us: None,
         }
     }
@@ -100,27 +130,19 @@ impl Onboard {
             return Err(());
         }
         self.sampling = s;
-        let t_us = self.report.t_us;
         let event = if self.core_samples() {
             self.triggers = 0;
-            self.report = SamplingReport {
-                t_us,
-                event: SamplingEvent::Started,
-                samples: 0,
-                lost: 0,
-                part_resets: 0,
-                late_reads: 0,
-                drift_ppm: self.report.drift_ppm,
+            self.counts = Counts {
+                t_us: self.counts.t_us,
+                drift_ppm: self.counts.drift_ppm,
+                ..Counts::ZERO
             };
             self.last_report_us = None;
             SamplingEvent::Started
         } else {
             SamplingEvent::Stopped
         };
-        Ok(SamplingReport {
-            event,
-            ..self.report
-        })
+        Ok(self.counts.report(event))
     }
 
     /// Takes one event from the sample path. Returns what the core sends for it besides the
@@ -133,8 +155,8 @@ impl Onboard {
         }
         match *event {
             OnboardEvent::Sample(s) => {
-                self.report.t_us = s.t_us;
-                self.report.samples = self.report.samples.saturating_add(1);
+                self.counts.t_us = s.t_us;
+                self.counts.samples = self.counts.samples.saturating_add(1);
                 if self.sampling.raw_imu {
                     o.raw = Some(s);
                 }
@@ -150,38 +172,32 @@ impl Onboard {
                     .is_none_or(|t| s.t_us < t || s.t_us - t >= REPORT_EVERY_US);
                 if due {
                     self.last_report_us = Some(s.t_us);
-                    o.report = Some(SamplingReport {
-                        event: SamplingEvent::Periodic,
-                        ..self.report
-                    });
+                    o.report = Some(self.counts.report(SamplingEvent::Periodic));
                 }
             }
             OnboardEvent::Gap(g) => {
                 // A reset is counted by `PartReset`; its gap says what it cost.
-                self.report.lost = self.report.lost.saturating_add(g.lost);
-                o.report = Some(SamplingReport {
-                    event: SamplingEvent::Gap(g),
-                    ..self.report
-                });
+                self.counts.lost = self.counts.lost.saturating_add(g.lost);
+                o.report = Some(self.counts.report(SamplingEvent::Gap(g)));
             }
             OnboardEvent::PartReset => {
-                self.report.part_resets = self.report.part_resets.saturating_add(1);
+                self.counts.part_resets = self.counts.part_resets.saturating_add(1);
             }
             OnboardEvent::LateRead => {
-                self.report.late_reads = self.report.late_reads.saturating_add(1);
+                self.counts.late_reads = self.counts.late_reads.saturating_add(1);
             }
             OnboardEvent::Drift(ppm) => {
                 if ppm.is_finite() {
-                    self.report.drift_ppm = ppm;
+                    self.counts.drift_ppm = ppm;
                 }
             }
         }
         o
     }
 
-    /// The counters as they stand.
+    /// The counters as they stand (as a periodic report would send them).
     pub fn report(&self) -> SamplingReport {
-        self.report
+        self.counts.report(SamplingEvent::Periodic)
     }
 }
 

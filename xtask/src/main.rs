@@ -388,6 +388,9 @@ fn build_firmware(steps: &mut Steps) -> Result<(), String> {
     steps.run("firmware images", build)
 }
 
+/// Most initialised static data a firmware image may hold [bytes].
+const MAX_FIRMWARE_DATA: u64 = 1024;
+
 /// Runs the benchmark image under QEMU with one instruction per virtual nanosecond, and
 /// prints it with the images' flash and RAM footprint.
 fn firmware_report(steps: &mut Steps) -> Result<(), String> {
@@ -419,6 +422,16 @@ fn firmware_report(steps: &mut Steps) -> Result<(), String> {
                 .map(|(_, s)| *s)
                 .sum::<u64>()
         };
+        // The device is all zero bytes when built (`Device::new`), so its `static` lives in
+        // `.bss`: a field whose initial value is not all zeros moves the whole device (18 KB)
+        // into `.data`, and so into flash too (found in issue 36).
+        if size(".data") > MAX_FIRMWARE_DATA {
+            return Err(format!(
+                "firmware {image}: .data is {} bytes (at most {MAX_FIRMWARE_DATA}): a static \
+                 that is not all zero bytes, such as the device, is copied from flash",
+                size(".data")
+            ));
+        }
         let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
         let ram = size(".data") + size(".bss") + size(".uninit");
         println!(
