@@ -13,6 +13,10 @@ use std::sync::mpsc::Receiver;
 use std::thread::JoinHandle;
 
 use fusion_core::device::{Counters, DeviceIo};
+use icm42688::Settings;
+use protocol::CoreToHost;
+
+use crate::sim::sensor_board::SimulatedImu;
 
 use crate::transport::{self, Duplex};
 
@@ -67,6 +71,8 @@ pub struct Board {
     core: Core,
     pin: ResetPin,
     report: BoardReport,
+    /// The board's own IMU, where it has one ([`Board::fit_imu`]).
+    imu: Option<SimulatedImu>,
 }
 
 /// The device, of either width. On the heap: the f64 device is 26 KB.
@@ -97,6 +103,7 @@ impl Board {
                 counters: Counters::default(),
                 model: None,
             },
+            imu: None,
         };
         board.power_on(precision);
         board
@@ -107,6 +114,43 @@ impl Board {
             Precision::F32 => Core::F32(Box::default()),
             Precision::F64 => Core::F64(Box::default()),
         };
+        // The core that boots knows its board's wiring.
+        let fitted = self.imu.is_some();
+        match &mut self.core {
+            Core::F32(io) => io.device.set_onboard_imu(fitted),
+            Core::F64(io) => io.device.set_onboard_imu(fitted),
+        }
+    }
+
+    /// Fits the board with a simulated ICM-42688-P at `settings` (protocol/PROTOCOL.md §7),
+    /// configured at MCU time `now_us`: the core then may sample it when the host asks.
+    pub fn fit_imu(&mut self, settings: Settings, now_us: u64) -> Result<(), String> {
+        self.imu = Some(SimulatedImu::start(settings, now_us)?);
+        self.power_on(self.precision());
+        Ok(())
+    }
+
+    /// One reading taken by the board's IMU at MCU time `t_us`, through its sample path into
+    /// the core; the core's messages, as encoded frames, are appended to `out`. Returns
+    /// whether the camera was triggered. A board without an IMU fails.
+    pub fn imu_sample(
+        &mut self,
+        t_us: u64,
+        gyro: [f64; 3],
+        accel: [f64; 3],
+        out: &mut Vec<u8>,
+    ) -> Result<bool, String> {
+        let imu = self.imu.as_mut().ok_or("the board has no IMU of its own")?;
+        let mut buf = vec![0u8; protocol::limits::MAX_FRAME_LEN];
+        let mut send = |m: CoreToHost| {
+            if let Ok(frame) = protocol::encode_frame(&m, &mut buf) {
+                out.extend_from_slice(frame);
+            }
+        };
+        match &mut self.core {
+            Core::F32(io) => imu.sample(t_us, gyro, accel, &mut io.device, &mut send),
+            Core::F64(io) => imu.sample(t_us, gyro, accel, &mut io.device, &mut send),
+        }
     }
 
     fn precision(&self) -> Precision {

@@ -1710,3 +1710,77 @@ fn i35_live_bad_input_is_named_and_what_was_tracked_is_written() {
         "the stream ended abnormally after",
     );
 }
+
+/// Issue 36: `--imu-on-core` replays the tiny desktop-fast dataset with the core sampling its
+/// own IMU: the readings through a simulated ICM-42688-P and the board's sample path, the
+/// frames paired with the core's triggers. Its trajectory is the host-driven replay's of the
+/// samples the core reported (`core_imu.csv`), byte for byte; the core's time stamps are the
+/// dataset's; and what the mode cannot do is refused by name.
+#[test]
+fn i36_the_core_sampling_its_own_imu_tracks_as_the_host_driven_replay_of_its_samples() {
+    let ds = dataset();
+    let out = tmp("i36-core");
+    let (stdout, _) = expect(
+        &track_args(
+            &ds,
+            &out,
+            &["--link", "inproc", "--imu-on-core", "--overlay-every", "0"],
+        ),
+        0,
+    );
+    assert!(stdout.contains("core_imu.csv"), "{stdout}");
+    let sum = summary(&out);
+    assert_eq!(sum["stopped_early"], false);
+    // The samples the core took: every one of the dataset's, at its time stamp.
+    let stamps = |p: &Path| -> Vec<u64> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .map(|l| l.split(',').next().unwrap().parse().unwrap())
+            .collect()
+    };
+    let taken = stamps(&out.join("core_imu.csv"));
+    let truth = stamps(&ds.join("mav0/imu0/data.csv"));
+    assert_eq!(taken, truth, "the core's stamps against the dataset's");
+    // The host-driven replay of those samples: the same trajectory, byte for byte.
+    let replay = tmp("i36-replay-data");
+    copy_dir(&ds, &replay, "imu0");
+    std::fs::create_dir_all(replay.join("mav0/imu0")).unwrap();
+    std::fs::copy(
+        ds.join("mav0/imu0/sensor.yaml"),
+        replay.join("mav0/imu0/sensor.yaml"),
+    )
+    .unwrap();
+    std::fs::copy(out.join("core_imu.csv"), replay.join("mav0/imu0/data.csv")).unwrap();
+    let host = tmp("i36-host");
+    expect(
+        &track_args(
+            &replay,
+            &host,
+            &["--link", "inproc", "--overlay-every", "0"],
+        ),
+        0,
+    );
+    let core_run = std::fs::read(out.join("trajectory.tum")).unwrap();
+    assert!(core_run.len() > 100, "{} bytes", core_run.len());
+    assert!(
+        core_run == std::fs::read(host.join("trajectory.tum")).unwrap(),
+        "the core-sampled and host-driven trajectories differ"
+    );
+    // Refused by name: a board that is not the in-process one, the vision-only model.
+    for (more, problem) in [
+        (
+            vec!["--link", "sim", "--imu-on-core"],
+            "--imu-on-core: the dataset's IMU is replayed through a simulated ICM-42688-P on the in-process board: use --link inproc",
+        ),
+        (
+            vec!["--link", "inproc", "--imu-on-core", "--filter", "vision"],
+            "the core's own IMU is for the inertial models",
+        ),
+    ] {
+        let bad = tmp("i36-bad");
+        let (_, se) = expect(&track_args(&ds, &bad, &more), 2);
+        assert!(se.contains(problem), "{more:?}: {se}");
+    }
+}

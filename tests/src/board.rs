@@ -3,31 +3,13 @@
 //! driver's device, which samples its own IMU (protocol/PROTOCOL.md §7). The device's answers
 //! go back to the [`Driver`], which answers the frames as the host would.
 
-use std::cell::RefCell;
-use std::rc::Rc;
-
-use embedded_hal::spi::{Operation, SpiDevice};
-use firmware_sim::sim::sensor_board::{NoDelay, TriggerLine};
+use firmware_sim::sim::sensor_board::{NoDelay, SharedPart, TriggerLine};
 use fusion_core::Kernels;
-use icm42688::{Icm42688, Settings, SimIcm42688};
+use icm42688::{Icm42688, Settings};
 use protocol::{CoreToHost, HostToCore, ImuSample, SampleSource, Sampling};
 use sample_path::SamplePath;
 
 use crate::harness::Driver;
-
-/// The simulated part, shared by the board's driver and the simulation that feeds it.
-#[derive(Clone, Default)]
-pub struct SharedPart(pub Rc<RefCell<SimIcm42688>>);
-
-impl embedded_hal::spi::ErrorType for SharedPart {
-    type Error = core::convert::Infallible;
-}
-
-impl SpiDevice for SharedPart {
-    fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), Self::Error> {
-        self.0.borrow_mut().transaction(ops)
-    }
-}
 
 /// How the MCU serves a sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -84,12 +66,12 @@ impl Board {
 
     /// The part resets (a brown-out) now.
     pub fn reset_part(&self) {
-        self.part.0.borrow_mut().power_on_reset();
+        self.part.part().power_on_reset();
     }
 
     /// The next packet the part stores gets a corrupt header.
     pub fn corrupt_next(&self) {
-        self.part.0.borrow_mut().corrupt_next_header();
+        self.part.part().corrupt_next_header();
     }
 
     /// The next sample, served as `serve` says.
@@ -100,12 +82,11 @@ impl Board {
         let (_, reading) = driver.last.expect("a sample was just taken");
         let f = |v: nalgebra::Vector3<f64>| [v[0], v[1], v[2]];
         self.part
-            .0
-            .borrow_mut()
+            .part()
             .sample(s.t_us, f(reading.gyro), f(reading.accel), 25.0);
         let mut answers = Vec::new();
         let mut out = |m| answers.push(m);
-        if serve == Serve::Interrupt && self.part.0.borrow().interrupt_pending() {
+        if serve == Serve::Interrupt && self.part.part().interrupt_pending() {
             self.path
                 .on_interrupt(s.t_us, &mut driver.device, &mut NoDelay, &mut out)
                 .expect("the simulated part answers");

@@ -6,8 +6,10 @@
 
 use core::cell::RefCell;
 use core::convert::Infallible;
+use std::sync::{Arc, Mutex};
 
-use fusion_core::Device;
+use embedded_hal::spi::{Operation, SpiDevice};
+use fusion_core::{Device, Kernels};
 use icm42688::sim::SharedSim;
 use icm42688::{Icm42688, Odr, Settings, SimIcm42688};
 use protocol::CoreToHost;
@@ -144,4 +146,90 @@ pub fn run(
     run.dropped_on_overflow = part.borrow().dropped_on_overflow();
     run.trigger_pulses = path.trigger_pin().pulses;
     Ok(run)
+}
+
+/// The simulated part, shared between the board's driver (through the SPI bus) and the
+/// simulation that feeds it readings; `Send`, so a board that holds one can run on a thread.
+#[derive(Clone, Default)]
+pub struct SharedPart(pub Arc<Mutex<SimIcm42688>>);
+
+impl SharedPart {
+    /// The part, for the simulation's side (readings, faults).
+    pub fn part(&self) -> std::sync::MutexGuard<'_, SimIcm42688> {
+        // A panic elsewhere while the part was held leaves its registers as they were.
+        self.0
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+}
+
+impl embedded_hal::spi::ErrorType for SharedPart {
+    type Error = Infallible;
+}
+
+impl SpiDevice for SharedPart {
+    fn transaction(&mut self, ops: &mut [Operation<'_, u8>]) -> Result<(), Infallible> {
+        self.part().transaction(ops)
+    }
+}
+
+/// A board's own simulated IMU: the part and the sample path that reads it into the core, for
+/// a host that replays recorded readings through the sensor board's path (`track
+/// --imu-on-core`). The MCU's clock is the readings' (no drift), and each interrupt is served
+/// at once; the faults are [`run`]'s.
+pub struct SimulatedImu {
+    part: SharedPart,
+    path: SamplePath<SharedPart, TriggerLine>,
+    /// The offset of the part's time stamp counter from the MCU's clock [µs].
+    part_offset_us: u64,
+}
+
+impl SimulatedImu {
+    /// A part at `settings`, configured by the board's driver at MCU time `now_us`.
+    pub fn start(settings: Settings, now_us: u64) -> Result<Self, String> {
+        let part = SharedPart::default();
+        let mut path = SamplePath::new(
+            Icm42688::new(part.clone(), settings),
+            TriggerLine::default(),
+        );
+        path.start(now_us, &mut NoDelay)
+            .map_err(|e| e.to_string())?;
+        Ok(SimulatedImu {
+            part,
+            path,
+            part_offset_us: 5_000,
+        })
+    }
+
+    /// The part's settings.
+    pub fn settings(&self) -> &Settings {
+        self.path.imu().settings()
+    }
+
+    /// One reading taken by the part at MCU time `t_us`, and the board's turn: the interrupt
+    /// (if the part raised one) and the main loop, into `device`, whose messages go to `out`.
+    /// Returns whether the camera's trigger line pulsed.
+    pub fn sample<T: Kernels>(
+        &mut self,
+        t_us: u64,
+        gyro: [f64; 3],
+        accel: [f64; 3],
+        device: &mut Device<T>,
+        out: &mut dyn FnMut(CoreToHost),
+    ) -> Result<bool, String> {
+        self.part
+            .part()
+            .sample(t_us + self.part_offset_us, gyro, accel, 25.0);
+        let pulses = self.path.trigger_pin().pulses;
+        let pending = self.part.part().interrupt_pending();
+        if pending {
+            self.path
+                .on_interrupt(t_us, device, &mut NoDelay, out)
+                .map_err(|e| e.to_string())?;
+        }
+        self.path
+            .poll(t_us, device, &mut NoDelay, out)
+            .map_err(|e| e.to_string())?;
+        Ok(self.path.trigger_pin().pulses != pulses)
+    }
 }

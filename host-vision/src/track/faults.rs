@@ -112,6 +112,11 @@ impl FaultyLink {
         self.link
     }
 
+    /// The link itself, to feed the in-process board's simulated IMU.
+    pub fn link_mut(&mut self) -> &mut CoreLink {
+        &mut self.link
+    }
+
     /// Sends `msg`, a frame's correspondences with the faults' outliers among them.
     pub fn send(&mut self, msg: &HostToCore) -> Result<(), TrackerError> {
         let f = &self.faults;

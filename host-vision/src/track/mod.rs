@@ -16,6 +16,7 @@ pub use ::vision::assess;
 pub mod config;
 mod faults;
 mod frame_row;
+mod on_core;
 pub mod output;
 pub mod overlay;
 pub mod plot;
@@ -215,6 +216,10 @@ pub struct TrackOptions {
     /// and go on from its last sample, without configuring or initialising it again if it is
     /// still tracking.
     pub attach: bool,
+    /// The core samples its own IMU and fires the camera (protocol/PROTOCOL.md §7): the
+    /// dataset's IMU readings go through a simulated ICM-42688-P and the board's sample path
+    /// on the in-process board, and the frames are paired with the core's triggers.
+    pub imu_on_core: bool,
     /// Frames from a video, camera or image folder instead of the dataset's (vision-only;
     /// `dataset` is then that input, for reports).
     pub frames: Option<crate::frames::FrameInput>,
@@ -248,6 +253,7 @@ impl TrackOptions {
             timeout: Duration::from_secs(10),
             overwrite: false,
             attach: false,
+            imu_on_core: false,
             frames: None,
             camera: None,
             max_frames: None,
@@ -271,6 +277,11 @@ impl TrackOptions {
     pub fn check(&self, dataset: &Dataset) -> Result<usize, TrackError> {
         let bad = |m: String| Err(TrackError::Option(m));
         self.check_common()?;
+        if self.vision_only() && self.imu_on_core {
+            return bad(
+                "--imu-on-core: the core's own IMU is for the inertial models (--filter gyro, gravity or acc), not the vision-only one".into(),
+            );
+        }
         if self.vision_only() {
             return self.check_vision().map(|()| 0);
         }
@@ -582,6 +593,9 @@ pub fn run(
             )?;
             Ran::of(finished, outcome)
         }
+        None if options.imu_on_core => {
+            on_core::track(options, &dataset, link, &model, end, &interrupt, progress)?
+        }
         None => track_imu(options, &dataset, link, &model, end, &interrupt, progress)?,
     };
     let Ran {
@@ -625,7 +639,7 @@ pub fn run(
         Err(_) => (true, None),
     };
     out.keep();
-    let (frames, summary, written) = output::write_all(
+    let (frames, summary, mut written) = output::write_all(
         &dataset,
         options,
         output::Seen {
@@ -640,6 +654,9 @@ pub fn run(
         stopped_early,
         outcome.as_ref().err().map(|e| e.to_string()),
     )?;
+    if options.imu_on_core {
+        written.push(on_core::write_core_imu(&options.out, &record)?);
+    }
     outcome?;
     Ok(TrackRun {
         log: record.log,
@@ -806,6 +823,7 @@ fn inertial_config(options: &TrackOptions, dataset: &Dataset) -> Result<TrackerC
         keep_image_every: options.overlay_every,
         session_id: new_session_id(),
         search_floor: Duration::ZERO,
+        imu_on_core: None,
     })
 }
 

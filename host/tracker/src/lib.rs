@@ -43,6 +43,7 @@ pub use link::{CoreLink, LinkSpec};
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
 pub use tracker::inertial::ImuSample;
 pub use tracker::{
-    Answers, Event, Finished, Frame, FrameReport, Pose, Start, State, Tracker, TrackerConfig,
+    Answers, Event, Finished, Frame, FrameReport, ImuOnCore, Pose, Start, State, Tracker,
+    TrackerConfig,
 };
 pub use transport::{CoreTransport, Incoming};

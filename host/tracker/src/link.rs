@@ -427,20 +427,50 @@ impl CoreLink {
                 let mut out = Vec::new();
                 board.receive(&bytes, &mut out);
                 board.delivered(out.len());
-                let mut reader = FrameReader::new(io::Cursor::new(out));
-                let mut answers = answers.borrow_mut();
-                loop {
-                    match reader.recv::<CoreToHost>() {
-                        Ok(m) => answers.push_back(Incoming::Message(m)),
-                        Err(RecvError::Frame(e)) => answers.push_back(Incoming::Rejected(e)),
-                        // All the answers taken (the core answers whole frames).
-                        Err(_) => break,
-                    }
-                }
+                queue_answers(out, answers);
             }
         }
         self.messages_out += 1;
         Ok(())
+    }
+
+    /// Fits the in-process board with a simulated ICM-42688-P at `settings`
+    /// (`track --imu-on-core`): the core may then sample its own IMU. Other links' boards
+    /// have the IMU they were built with.
+    pub fn fit_simulated_imu(&mut self, settings: icm42688::Settings) -> Result<(), TrackerError> {
+        let (board, _) = self.local.as_mut().ok_or_else(|| {
+            TrackerError::Config(format!(
+                "link {}: only the in-process board (inproc) has a simulated IMU to fit",
+                self.name
+            ))
+        })?;
+        board.fit_imu(settings, 0).map_err(TrackerError::Core)
+    }
+
+    /// One reading into the in-process board's simulated IMU at the board's time `t_us`: the
+    /// board's sample path reads it into the core, whose messages wait for the host as its
+    /// answers do. Returns whether the core triggered the camera.
+    pub fn simulated_imu_sample(
+        &mut self,
+        t_us: u64,
+        gyro: [f64; 3],
+        accel: [f64; 3],
+    ) -> Result<bool, TrackerError> {
+        let name = &self.name;
+        let (Some((board, _)), Some(Connection::InProcess { answers, .. })) =
+            (self.local.as_mut(), self.conn.as_ref())
+        else {
+            return Err(TrackerError::Link(format!(
+                "link {name}: no in-process board connected to sample"
+            )));
+        };
+        let mut out = Vec::new();
+        let triggered = board
+            .imu_sample(t_us, gyro, accel, &mut out)
+            .map_err(TrackerError::Core)?;
+        board.delivered(out.len());
+        queue_answers(out, answers);
+        Ok(triggered)
     }
 
     /// Waits up to `timeout` for the next item.
@@ -595,6 +625,20 @@ impl Threaded {
             rx,
             stop,
             reader,
+        }
+    }
+}
+
+/// Decodes the in-process board's answers (whole frames) into the queue the host reads.
+fn queue_answers(bytes: Vec<u8>, answers: &RefCell<VecDeque<Incoming>>) {
+    let mut reader = FrameReader::new(io::Cursor::new(bytes));
+    let mut answers = answers.borrow_mut();
+    loop {
+        match reader.recv::<CoreToHost>() {
+            Ok(m) => answers.push_back(Incoming::Message(m)),
+            Err(RecvError::Frame(e)) => answers.push_back(Incoming::Rejected(e)),
+            // All the answers taken (the core answers whole frames).
+            Err(_) => break,
         }
     }
 }

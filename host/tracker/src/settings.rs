@@ -67,6 +67,30 @@ pub enum Answers {
     WhenReady,
 }
 
+/// The core samples its own IMU and triggers the camera (protocol/PROTOCOL.md §7): the
+/// program pushes frames only, and the tracker pairs each with the core's `Trigger`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuOnCore {
+    /// The core fires the camera every this many IMU samples.
+    pub trigger_every: u16,
+    /// The longest a frame may come after its trigger [s] (exposure, read-out, transfer):
+    /// a frame later than that is refused with the delay, and a trigger that no frame
+    /// followed within it counts as a frame the camera dropped. Less than the trigger
+    /// period, so that a frame pairs with one trigger only.
+    pub max_delay_s: f64,
+}
+
+impl ImuOnCore {
+    /// A trigger every `trigger_every` samples at `imu_rate_hz`, with frames expected within
+    /// half the trigger period.
+    pub fn new(trigger_every: u16, imu_rate_hz: f64) -> Self {
+        ImuOnCore {
+            trigger_every,
+            max_delay_s: 0.5 * f64::from(trigger_every) / imu_rate_hz,
+        }
+    }
+}
+
 /// How the tracker runs.
 #[derive(Debug, Clone)]
 pub struct TrackerConfig {
@@ -105,6 +129,9 @@ pub struct TrackerConfig {
     /// The shortest time a search takes: an answer found sooner is held back until then, as
     /// on a slower machine (zero: none). For reproducing a slow machine's live runs.
     pub search_floor: Duration,
+    /// Inertial models: the core samples its own IMU and fires the camera; `None`: the
+    /// program pushes the IMU's samples ([`crate::Tracker::push_imu`]).
+    pub imu_on_core: Option<ImuOnCore>,
 }
 
 impl TrackerConfig {
@@ -137,6 +164,7 @@ impl TrackerConfig {
             keep_image_every: 0,
             session_id: 1,
             search_floor: Duration::ZERO,
+            imu_on_core: None,
         }
     }
 }
@@ -159,6 +187,11 @@ pub(crate) fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
         if config.attach {
             return bad("attaching to a running core is for runs with an IMU".into());
         }
+        if config.imu_on_core.is_some() {
+            return bad(
+                "the core's own IMU is for the inertial models, not the vision-only one".into(),
+            );
+        }
         return Ok(());
     }
     let rate = config.rig.imu_rate_hz;
@@ -172,6 +205,41 @@ pub(crate) fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
             "the latency must be a non-negative number of seconds, got {}",
             config.latency_s
         ));
+    }
+    if let Some(on_core) = &config.imu_on_core {
+        check_imu_on_core(config, on_core)?;
+    }
+    Ok(())
+}
+
+/// What a run with the core's own IMU needs: a trigger it can fire, a delay bound that pairs
+/// each frame with one trigger, and a start pose (the cold start and the attach push their
+/// own samples' history, which the core's own IMU does not give the host).
+fn check_imu_on_core(config: &TrackerConfig, on_core: &ImuOnCore) -> Result<(), TrackerError> {
+    let bad = |m: String| Err(TrackerError::Config(m));
+    let every = on_core.trigger_every;
+    if every == 0 || every > protocol::validate::MAX_TRIGGER_EVERY {
+        return bad(format!(
+            "the core's trigger must fire every 1 to {} samples, got {every}",
+            protocol::validate::MAX_TRIGGER_EVERY
+        ));
+    }
+    let period_s = f64::from(every) / config.rig.imu_rate_hz;
+    let d = on_core.max_delay_s;
+    if !(d.is_finite() && d > 0.0 && d < period_s) {
+        return bad(format!(
+            "the frame delay bound must be positive and under the trigger period ({:.1} ms), got {d} s",
+            period_s * 1e3
+        ));
+    }
+    if config.start == Start::Locate {
+        return bad("with the core sampling its own IMU, give a start pose: the cold start is not supported in that mode yet".into());
+    }
+    if config.attach {
+        return bad(
+            "attaching to a running core is not supported with the core sampling its own IMU yet"
+                .into(),
+        );
     }
     Ok(())
 }

@@ -326,6 +326,13 @@ pub struct TrackArgs {
     /// again if it is still tracking.
     #[arg(long)]
     pub attach: bool,
+    /// The core samples its own IMU and fires the camera every k-th sample, as on sensor
+    /// hardware (protocol/PROTOCOL.md §7): the dataset's IMU goes through a simulated
+    /// ICM-42688-P and the board's sample path on the in-process board (--link inproc), the
+    /// frames are paired with the core's triggers, and the samples the core took are written
+    /// as core_imu.csv.
+    #[arg(long)]
+    pub imu_on_core: bool,
 }
 
 /// Filter model on the command line.

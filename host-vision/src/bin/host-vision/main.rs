@@ -339,6 +339,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         seed: 1,
     };
     o.attach = a.attach;
+    o.imu_on_core = a.imu_on_core;
     let interrupt = interrupt_flag();
     let mut bar = Bar::new(TRACK_BAR);
     let name = format!("track {:?}", o.filter).to_lowercase();

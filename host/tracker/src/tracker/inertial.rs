@@ -22,6 +22,7 @@ use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason};
 use vision::{FrameImage, FrameJob};
 
 use super::cold_start::{AtTrigger, LocateJob, Searcher};
+use super::on_core::OnCore;
 use super::outage::{Attempt, MAX_BACKLOG_US, Open};
 use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::error::TrackerError;
@@ -86,6 +87,8 @@ pub(crate) struct Inertial {
     pub last_sent_us: Option<u64>,
     /// A link error met while faults were injected: the outage of the next sample.
     pub deferred: Option<String>,
+    /// The core samples its own IMU: the pairing of frames with its triggers.
+    pub on_core: Option<OnCore>,
 }
 
 impl Inertial {
@@ -103,6 +106,7 @@ impl Inertial {
             attached_after_us: None,
             last_sent_us: None,
             deferred: None,
+            on_core: None,
         }
     }
 }
@@ -146,12 +150,16 @@ impl<T: CoreTransport> Tracker<T> {
         let latency = (self.config.latency_s * self.config.rig.imu_rate_hz).round() as usize;
         let mut inertial = Inertial::new(latency, cold.then(Searcher::default));
         inertial.attached_after_us = attached;
+        inertial.on_core = self.config.imu_on_core.map(OnCore::new);
         self.inertial = Some(inertial);
         if attached.is_none() {
             self.send_confirmed(
                 &HostToCore::Configure(core_config),
                 StatusReason::Configured,
             )?;
+            if let Some(on_core) = self.config.imu_on_core {
+                self.start_sampling(on_core)?;
+            }
             if !cold {
                 let init = HostToCore::Init(self.init_message()?);
                 self.send_confirmed(&init, StatusReason::HostRequest)?;
@@ -199,6 +207,11 @@ impl<T: CoreTransport> Tracker<T> {
     pub fn push_imu(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
         if let Some(why) = &self.stopped {
             return Err(TrackerError::Stopped(why.clone()));
+        }
+        if self.imu_on_core() {
+            return Err(TrackerError::Config(
+                "the core samples its own IMU in this run: the program pushes frames only".into(),
+            ));
         }
         let inertial = self.imu_mut()?;
         if let Some(last) = inertial.last_ns
@@ -374,7 +387,12 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// At a trigger: the frame to the vision thread at the core's prediction.
-    fn frame_step(&mut self, frame: Frame, t_us: u64, due: usize) -> Result<(), TrackerError> {
+    pub(crate) fn frame_step(
+        &mut self,
+        frame: Frame,
+        t_us: u64,
+        due: usize,
+    ) -> Result<(), TrackerError> {
         let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
             return Ok(());
         };
@@ -522,6 +540,7 @@ impl<T: CoreTransport> Tracker<T> {
             }
             self.barrier()?;
         }
+        self.finish_on_core();
         if interrupted {
             return Ok(());
         }
@@ -550,7 +569,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// The state after a sample at `t_us`: locating until the cold start found the model;
     /// lost while the loss rule says so; tracking while the core tracks (or dead-reckons a
     /// short stretch); starting before.
-    fn judge_inertial(&mut self, t_us: u64) {
+    pub(crate) fn judge_inertial(&mut self, t_us: u64) {
         let mode = self.record.log.mode();
         let searching = self.inertial.as_ref().and_then(|i| i.searcher.as_ref());
         let state = match searching.map(|s| (s.started(), s.lost(t_us))) {

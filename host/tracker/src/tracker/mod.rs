@@ -26,6 +26,7 @@
 
 mod cold_start;
 pub mod inertial;
+mod on_core;
 mod outage;
 
 use std::collections::VecDeque;
@@ -46,7 +47,7 @@ use crate::record::Record;
 use crate::rig::HandEye;
 use crate::search::Search;
 use crate::settings::check_config;
-pub use crate::settings::{Answers, Frame, Start, TrackerConfig};
+pub use crate::settings::{Answers, Frame, ImuOnCore, Start, TrackerConfig};
 use crate::transport::CoreTransport;
 use crate::worker::{VisionWorker, is_textured};
 
@@ -256,7 +257,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// error stops it: it then refuses every later frame and sample, and [`Self::finish`]
     /// returns what was tracked.
     ///
-    /// With an IMU the frame waits for the next sample pushed, which triggered it.
+    /// With an IMU the frame waits for the next sample pushed, which triggered it; with the
+    /// core sampling its own IMU, for the core's trigger before it ([`Self::pump`]).
     pub fn push_frame(&mut self, frame: Frame) -> Result<(), TrackerError> {
         if let Some(why) = &self.stopped {
             return Err(TrackerError::Stopped(why.clone()));
@@ -272,6 +274,7 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let (t_us, image) = match checked {
             Ok(Some(c)) => c,
+            Ok(None) if self.imu_on_core() => return self.pump(),
             Ok(None) => return Ok(()),
             Err(e) => {
                 // Refused, and recorded as a frame that could not be used.
@@ -295,6 +298,9 @@ impl<T: CoreTransport> Tracker<T> {
     fn queue_frame(&mut self, frame: Frame) -> Result<(), TrackerError> {
         if let FrameImage::Decoded(image) = &frame.image {
             self.check_size(frame.index, image)?;
+        }
+        if self.imu_on_core() {
+            return self.queue_on_core(frame);
         }
         let inertial = self.imu_mut()?;
         if inertial.queued.is_some() {
