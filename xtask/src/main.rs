@@ -273,6 +273,12 @@ fn demo(extra: &[String]) -> Result<(), String> {
 /// Packages whose tests run again under GL (llvmpipe): those that render.
 const GL_PACKAGES: &[&str] = &["host-vision", "render", "features"];
 
+/// Test executables of those packages run on Vulkan only: the real-video cube tests cover no
+/// GL-specific code (the depth resolve is render_geometry's), cost 87 s of the budget on GL,
+/// and their GL run died once in CI with SIGSEGV inside the driver, not reproduced here in
+/// nine runs (issue 36's note).
+const GL_SKIPPED: &[&str] = &["host-vision test visp_cube"];
+
 fn test() -> Result<(), String> {
     let start = Instant::now();
     let mut steps = Steps::default();
@@ -335,7 +341,9 @@ fn test() -> Result<(), String> {
     steps.run("doc tests", doc)?;
     let gl: Vec<TestBinary> = binaries
         .into_iter()
-        .filter(|b| GL_PACKAGES.contains(&b.package.as_str()))
+        .filter(|b| {
+            GL_PACKAGES.contains(&b.package.as_str()) && !GL_SKIPPED.contains(&b.name.as_str())
+        })
         .collect();
     run_tests(&mut steps, &gl, "gl")?;
 
