@@ -783,18 +783,33 @@ fn track_imu(
             outcome = Err(e.into());
             break;
         }
-        if k % 50 == 0 || k + 1 == end {
-            let r = tracker.record();
-            progress(k + 1, end, r.results.len(), r.log.mode());
-        }
+        sample_progress(&tracker, k, end, progress);
     }
+    Ok(wind_up(tracker, outcome, end, progress))
+}
+
+/// The progress bar after sample `k` of `end` (every 50th, and the last).
+fn sample_progress(tracker: &Tracker<FaultyLink>, k: usize, end: usize, progress: Progress) {
+    if k.is_multiple_of(50) || k + 1 == end {
+        let r = tracker.record();
+        progress(k + 1, end, r.results.len(), r.log.mode());
+    }
+}
+
+/// The end of a run with an IMU: finished, or abandoned where interrupted (`Ok(false)`).
+fn wind_up(
+    tracker: Tracker<FaultyLink>,
+    outcome: Result<bool, TrackError>,
+    end: usize,
+    progress: Progress,
+) -> Ran {
     let finished = match outcome {
         Ok(false) => tracker.abandon(),
         _ => tracker.finish(),
     };
     let r = &finished.record;
     progress(end, end, r.results.len(), r.log.mode());
-    Ok(Ran::of(finished, outcome))
+    Ran::of(finished, outcome)
 }
 
 /// The tracker's settings of a run with an IMU.

@@ -125,35 +125,36 @@ pub(super) fn track(
             .simulated_imu_sample(t_us, row.gyro.into(), row.accel.into())
             .map_err(TrackError::from)
             .and_then(|triggered| match triggered {
-                true => push_triggered(options, dataset, &mut tracker, &mut next_frame, k, cam),
+                true => {
+                    let expected = first + next_frame * usize::from(every);
+                    push_triggered(
+                        options,
+                        dataset,
+                        &mut tracker,
+                        &mut next_frame,
+                        (k, expected),
+                        cam,
+                    )
+                }
                 false => tracker.pump().map_err(TrackError::from),
             });
         if let Err(e) = step {
             outcome = Err(e);
             break;
         }
-        if k % 50 == 0 || k + 1 == end {
-            let r = tracker.record();
-            progress(k + 1, end, r.results.len(), r.log.mode());
-        }
+        super::sample_progress(&tracker, k, end, progress);
     }
-    let finished = match outcome {
-        Ok(false) => tracker.abandon(),
-        _ => tracker.finish(),
-    };
-    let r = &finished.record;
-    progress(end, end, r.results.len(), r.log.mode());
-    Ok(Ran::of(finished, outcome))
+    Ok(super::wind_up(tracker, outcome, end, progress))
 }
 
-/// The core fired the camera at sample `k`: the dataset's next frame, which must be that
-/// sample's, goes to the tracker.
+/// The core fired the camera at sample `k`: the dataset's next frame, which the trigger plan
+/// put at sample `expected`, goes to the tracker.
 fn push_triggered(
     options: &TrackOptions,
     dataset: &Dataset,
     tracker: &mut Tracker<FaultyLink>,
     next_frame: &mut usize,
-    k: usize,
+    (k, expected): (usize, usize),
     cam: &crate::camera::Camera,
 ) -> Result<(), TrackError> {
     let f = *next_frame;
@@ -164,7 +165,7 @@ fn push_triggered(
     *next_frame += 1;
     let stamp0 = dataset.imu[0].stamp;
     let t = |stamp: u64| (stamp - stamp0) as f64 * 1e-9;
-    if dataset.triggers().get(f).map(|&(_, at)| at) != Some(k) {
+    if k != expected {
         return Err(TrackError::Option(format!(
             "--imu-on-core: the core triggered frame {f} at the sample of t = {:.4} s, and the dataset's frame {f} is at t = {:.4} s",
             t(dataset.imu[k].stamp),
