@@ -21,8 +21,8 @@ import sys
 import tempfile
 
 BENCH = sys.argv[1] if len(sys.argv) > 1 else "target/thumbv7em-none-eabihf/release/bench"
-MARKS = ["mark_imu_steps", "mark_correspondence", "mark_message", "mark_frame_part",
-         "mark_other", "mark_stop"]
+MARKS = ["mark_imu_steps", "mark_correspondence", "mark_contour", "mark_message",
+         "mark_frame_part", "mark_other", "mark_stop"]
 MODELS = ["gyro", "gravity", "acc", "vision"]
 
 
@@ -105,7 +105,7 @@ def run(path, marks):
                         if mark == "mark_imu_steps":
                             phase = "imu_steps_" + MODELS[k]
                         else:
-                            phase = "correspondence_" + ("acc", "vision")[k // 16]
+                            phase = mark[5:] + ("_acc", "_vision")[k // 16]
                     occurrences[phase] += 1
                 elif phase is not None:
                     counts[phase][key] += 1

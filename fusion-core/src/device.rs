@@ -4,10 +4,10 @@
 
 use nalgebra::Vector3;
 use protocol::{
-    Capacities, Config, CoreToHost, Correspondences, DecodeError, Decoder, ErrorCode, Health,
-    HostToCore, Init, InitAttitude, MAX_CORRESPONDENCES_PER_FRAME, MAX_CORRESPONDENCES_PER_MESSAGE,
-    MAX_FRAME_LEN, Mode, PosePrediction, StateReport, Status, StatusReason, UpdateOutcome,
-    UpdateReport, encode_frame, handshake, sym_index,
+    Capacities, Config, CoreToHost, DecodeError, Decoder, ErrorCode, Health, HostToCore, Init,
+    InitAttitude, MAX_CORRESPONDENCES_PER_FRAME, MAX_CORRESPONDENCES_PER_MESSAGE, MAX_FRAME_LEN,
+    Mode, PosePrediction, StateReport, Status, StatusReason, UpdateOutcome, UpdateReport,
+    encode_frame, handshake, sym_index,
 };
 
 use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing};
@@ -15,9 +15,10 @@ use crate::divergence::Monitor;
 use crate::filter::{Filter, ImuSample, MAX_STEPS_PER_SAMPLE};
 use crate::init::{StillWindow, initialise};
 use crate::kernels::Kernels;
-use crate::models::correspondence::{self, Observation, Rejection};
+use crate::models::correspondence::Rejection;
 use crate::onboard::{Onboard, OnboardEvent};
 use crate::params::Params;
+use crate::part::Part;
 use crate::quat::{self, Quat};
 use crate::scalar::Scalar;
 use crate::state::{self, ACC, ACC_BIAS, GYRO_BIAS, OMEGA, POS, State, VEL};
@@ -336,7 +337,8 @@ impl<T: Kernels> Device<T> {
                     out(CoreToHost::error(ErrorCode::NoOnboardImu));
                 }
             },
-            HostToCore::Correspondences(c) => self.correspondences(c, out),
+            HostToCore::Correspondences(c) => self.correspondences(Part::Points(c), out),
+            HostToCore::Contours(c) => self.correspondences(Part::Contours(c), out),
             HostToCore::Query => {
                 out(CoreToHost::Status(Status {
                     t_us: self.last_t_us.unwrap_or(0),
@@ -826,10 +828,10 @@ impl<T: Kernels> Device<T> {
         }
     }
 
-    fn correspondences(&mut self, c: &Correspondences, out: Out) {
+    fn correspondences(&mut self, c: Part<'_>, out: Out) {
         let mut report = UpdateReport {
-            frame_id: c.frame_id,
-            part: c.part,
+            frame_id: c.frame_id(),
+            part: c.index(),
             outcome: UpdateOutcome::Applied,
             accepted: 0,
             rejected: 0,
@@ -844,7 +846,7 @@ impl<T: Kernels> Device<T> {
         };
         // Older frames' pending updates go first, so this frame's snapshot is current.
         loop {
-            let older = self.delay.dirty_frames().find(|&f| f != c.frame_id);
+            let older = self.delay.dirty_frames().find(|&f| f != c.frame_id());
             let Some(older) = older else { break };
             if !self.flush(older, &prm, out) {
                 report.outcome = UpdateOutcome::NotRunning;
@@ -852,10 +854,10 @@ impl<T: Kernels> Device<T> {
                 return;
             }
         }
-        let newer_applied = self.delay.newer_frame_applied(c.frame_id);
-        let snap = match self.delay.find(c.frame_id, c.trigger_us) {
+        let newer_applied = self.delay.newer_frame_applied(c.frame_id());
+        let snap = match self.delay.find(c.frame_id(), c.trigger_us()) {
             Ok(_) if newer_applied => Err(UpdateOutcome::TooOld),
-            Ok(s) if s.parts_done & (1 << c.part) != 0 => Err(UpdateOutcome::Duplicate),
+            Ok(s) if s.parts_done & (1 << c.index()) != 0 => Err(UpdateOutcome::Duplicate),
             Ok(s) => Ok(s),
             Err(Missing::TooOld) => Err(UpdateOutcome::TooOld),
             Err(Missing::Unknown) => Err(UpdateOutcome::UnknownFrame),
@@ -877,8 +879,8 @@ impl<T: Kernels> Device<T> {
         }
         // Frames on either side of a gap are not consecutive looks at one state
         // (docs/FILTER.md §9, test 1).
-        if !c.items.is_empty() {
-            self.monitor.look(c.trigger_us, no_vision_us(&prm));
+        if !c.is_empty() {
+            self.monitor.look(c.trigger_us(), no_vision_us(&prm));
         }
         // Test 3 judges the frame's updates from the quaternion they started at (docs/FILTER.md
         // §6, §9).
@@ -889,16 +891,16 @@ impl<T: Kernels> Device<T> {
         let mut diverged = None;
         let mut error_sum = T::zero();
         let mut error_count = 0u32;
-        for item in &c.items {
-            let obs = Observation::<T>::from_wire(item);
-            if let Some(proj) = correspondence::project(&snap.predicted, &prm.hand_eye, &obs.m_w) {
-                error_sum += (proj - obs.m_n).norm();
+        for item in c.items() {
+            let applied = item.apply(&mut snap.filter.st, &snap.predicted, &prm);
+            if let Some(e) = applied.prediction_error {
+                error_sum += e;
                 error_count += 1;
             }
-            let (s_i, result) = correspondence::update(&mut snap.filter.st, &prm, &obs);
+            let s_i = applied.nis;
             // Capacity equals the message's, so this cannot fail.
             let _ = report.residuals.push(s_i.to_wire());
-            match result {
+            match applied.result {
                 Ok(()) => {
                     report.accepted += 1;
                     Counters::bump(&mut self.counters.accepted);
@@ -913,7 +915,7 @@ impl<T: Kernels> Device<T> {
                     });
                 }
             }
-            if let Some(reason) = self.monitor.residual(c.frame_id, s_i, &prm) {
+            if let Some(reason) = self.monitor.residual(c.frame_id(), s_i, &prm) {
                 diverged.get_or_insert(reason);
             }
         }
@@ -940,9 +942,9 @@ impl<T: Kernels> Device<T> {
             diverged = Some(StatusReason::QuaternionNorm);
         }
         crate::ekf::condition(&mut snap.filter.st.p, prm.n);
-        snap.parts_done |= 1 << c.part;
+        snap.parts_done |= 1 << c.index();
         snap.dirty |= report.accepted > 0;
-        let complete = snap.parts_done.count_ones() as u8 >= c.parts;
+        let complete = snap.parts_done.count_ones() as u8 >= c.parts();
         let needs_flush = complete && snap.dirty;
         if complete && let Some(reason) = self.monitor.close_frame(&prm) {
             diverged.get_or_insert(reason);
@@ -952,7 +954,7 @@ impl<T: Kernels> Device<T> {
             report.prediction_error = (error_sum / T::c(error_count as f64)).to_wire();
         }
         Counters::bump(&mut self.counters.parts_applied);
-        let frame_id = c.frame_id;
+        let frame_id = c.frame_id();
         out(CoreToHost::UpdateReport(report.clone()));
 
         if let Some(reason) = diverged {

@@ -7,7 +7,8 @@
 //! firmware builds `fusion-core` at opt-level 3 and everything else for size):
 //!
 //! - [`StateKernels`]: the covariance norm, the finiteness test and the camera pose;
-//! - [`UpdateKernel`]: the update by one correspondence;
+//! - [`UpdateKernel`]: the update by one 2D/3D correspondence;
+//! - [`ContourKernel`]: the update by one contour correspondence;
 //! - [`StepKernel`]: one IMU step.
 //!
 //! A trait of the scalar, [`crate::Scalar`], could not declare them: they take the state, the
@@ -15,10 +16,11 @@
 //! bound of the device loop, and of code generic over the scalar that runs the filter.
 
 pub use crate::filter::StepKernel;
+pub use crate::models::contour::ContourKernel;
 pub use crate::models::correspondence::UpdateKernel;
 pub use crate::state::StateKernels;
 
 /// A scalar with every hot path of the filter compiled in this crate (`f32` and `f64`).
-pub trait Kernels: StateKernels + UpdateKernel + StepKernel {}
+pub trait Kernels: StateKernels + UpdateKernel + ContourKernel + StepKernel {}
 
-impl<T: StateKernels + UpdateKernel + StepKernel> Kernels for T {}
+impl<T: StateKernels + UpdateKernel + ContourKernel + StepKernel> Kernels for T {}

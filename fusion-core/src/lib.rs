@@ -10,12 +10,14 @@
 //! | time update (7, 12, 15) | [`models::motion`] |
 //! | gyro measurement (9) | [`models::gyro`] |
 //! | correspondence measurement (10), gate (17) | [`models::correspondence`] |
+//! | contour measurement (10c) | [`models::contour`] |
 //! | accelerometer measurement (13, 16) | [`models::accel`] |
 //! | measurement update (LDLᵀ-decorrelated scalar updates, symmetric form) | [`ekf`] |
 //! | outlier gate (17) | [`models::correspondence::update`] |
 //! | divergence monitor (docs/FILTER.md §9) | [`divergence`] |
 //! | (re)initialisation | [`init`] |
 //! | delayed correspondences | [`delay`] |
+//! | a frame's part of either kind, applied item by item | [`part`] |
 //! | device loop (protocol messages in and out) | [`device`] |
 //! | the core's own IMU: sampling mode, triggers, sampling reports | [`onboard`] |
 //!
@@ -37,6 +39,7 @@ pub mod kernels;
 pub mod models;
 pub mod onboard;
 pub mod params;
+pub mod part;
 pub mod quat;
 pub mod scalar;
 pub mod state;

@@ -115,6 +115,12 @@ pub enum InvalidField {
     /// A `Sampling` request with `trigger_every` above
     /// [`crate::validate::MAX_TRIGGER_EVERY`], or `raw_imu` with the host sampling (since 3.1).
     Sampling,
+    /// Contour correspondence `index` (within its message) has a normal that is not a unit
+    /// vector (since 3.2).
+    ContourNormal {
+        /// Index within the message.
+        index: u8,
+    },
 }
 
 impl fmt::Display for InvalidField {
@@ -164,6 +170,12 @@ impl fmt::Display for InvalidField {
                 "sampling request invalid (trigger_every above the limit, or raw IMU asked of \
                  a core the host samples for)",
             ),
+            InvalidField::ContourNormal { index } => {
+                write!(
+                    f,
+                    "contour correspondence {index}: normal not a unit vector"
+                )
+            }
         }
     }
 }

@@ -70,6 +70,11 @@ pub enum HostToCore {
     /// core answers [`CoreToHost::Sampling`] with [`SamplingEvent::Started`], or
     /// [`ErrorCode::NoOnboardImu`] if it has no IMU of its own (protocol/PROTOCOL.md §7).
     Sampling(Sampling),
+    /// One part of one camera frame's contour correspondences (since 3.2): model points on
+    /// the object's silhouette, each found in the image along its contour normal. A frame's
+    /// [`Correspondences`] and [`Contours`] parts are numbered together
+    /// ([`frame_messages`]).
+    Contours(Contours),
 }
 
 /// Who samples the IMU, and what the core streams of it (since 3.1).
@@ -377,10 +382,45 @@ pub struct Correspondences {
     pub items: Vec<Correspondence, MAX_CORRESPONDENCES_PER_MESSAGE>,
 }
 
+/// One contour correspondence (since 3.2): a model point on the object's silhouette, the
+/// contour's normal at its predicted projection, and where the contour was found along that
+/// normal. It constrains the projection along the normal only (docs/FILTER.md §5, eq. 10c):
+/// `nᵀ π(m_w) = d`.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+pub struct ContourPoint {
+    /// Model point on the silhouette, in the world `m_w` [m].
+    pub m_w: [f32; 3],
+    /// Its covariance [m²].
+    pub cov_w: Sym3,
+    /// Unit normal of the contour, normalised image coordinates.
+    pub n: [f32; 2],
+    /// Where the contour lies along the normal: `d = nᵀ u` for the found contour point `u`
+    /// (normalised image coordinates).
+    pub d: f32,
+    /// Variance of `d` (normalised units²), positive.
+    pub var_d: f32,
+}
+
+/// One part of one camera frame's contour correspondences (since 3.2). The header is that of
+/// [`Correspondences`]; `part` and `parts` count the frame's messages of both kinds.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+pub struct Contours {
+    /// Frame id from the core's [`PosePrediction`].
+    pub frame_id: u32,
+    /// Trigger time stamp of that frame [µs].
+    pub trigger_us: u64,
+    /// Index of this part among the frame's parts of both kinds.
+    pub part: u8,
+    /// Number of parts of this frame, both kinds, `1 ≤ parts ≤ MAX_PARTS_PER_FRAME`.
+    pub parts: u8,
+    /// The contour correspondences of this part.
+    pub items: Vec<ContourPoint, MAX_CORRESPONDENCES_PER_MESSAGE>,
+}
+
 /// A frame's correspondences do not fit into [`MAX_PARTS_PER_FRAME`] messages.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TooManyCorrespondences {
-    /// How many were offered.
+    /// How many were offered (both kinds).
     pub count: usize,
 }
 
@@ -388,45 +428,86 @@ impl core::fmt::Display for TooManyCorrespondences {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         write!(
             f,
-            "{} correspondences exceed the protocol's {} per frame",
-            self.count,
-            crate::limits::MAX_CORRESPONDENCES_PER_FRAME
+            "{} correspondences need more than the protocol's {} messages of {} per frame",
+            self.count, MAX_PARTS_PER_FRAME, MAX_CORRESPONDENCES_PER_MESSAGE
         )
     }
 }
 
 impl core::error::Error for TooManyCorrespondences {}
 
+/// A `heapless::Vec` of one message's items from a slice of at most its capacity.
+fn message_items<T: Copy>(chunk: &[T]) -> Vec<T, MAX_CORRESPONDENCES_PER_MESSAGE> {
+    let mut items = Vec::new();
+    for c in chunk {
+        // Cannot fail: callers chunk by MAX_CORRESPONDENCES_PER_MESSAGE.
+        let _ = items.push(*c);
+    }
+    items
+}
+
+/// Splits one frame's measurements into as many messages as needed (never truncates): the
+/// 2D/3D correspondences' parts first, then the contours', numbered together. A frame with
+/// neither still yields one empty [`Correspondences`] part, so the core learns that the frame
+/// was processed and saw nothing.
+pub fn frame_messages<'a>(
+    frame_id: u32,
+    trigger_us: u64,
+    points: &'a [Correspondence],
+    contours: &'a [ContourPoint],
+) -> Result<impl Iterator<Item = HostToCore> + 'a, TooManyCorrespondences> {
+    let m = MAX_CORRESPONDENCES_PER_MESSAGE;
+    let point_parts = points.len().div_ceil(m);
+    let contour_parts = contours.len().div_ceil(m);
+    let parts = (point_parts + contour_parts).max(1);
+    if parts > MAX_PARTS_PER_FRAME {
+        return Err(TooManyCorrespondences {
+            count: points.len() + contours.len(),
+        });
+    }
+    // Both fit in u8: parts ≤ MAX_PARTS_PER_FRAME (checked above).
+    let parts_u8 = parts as u8;
+    // `point_parts`, or the one empty part of a frame with nothing.
+    let first_contour = parts - contour_parts;
+    let point_msgs = (0..first_contour).map(move |k| {
+        let chunk = points
+            .get(k * m..((k + 1) * m).min(points.len()))
+            .unwrap_or(&[]);
+        HostToCore::Correspondences(Correspondences {
+            frame_id,
+            trigger_us,
+            part: k as u8,
+            parts: parts_u8,
+            items: message_items(chunk),
+        })
+    });
+    let contour_msgs = (0..contour_parts).map(move |k| {
+        let chunk = &contours[k * m..((k + 1) * m).min(contours.len())];
+        HostToCore::Contours(Contours {
+            frame_id,
+            trigger_us,
+            part: (first_contour + k) as u8,
+            parts: parts_u8,
+            items: message_items(chunk),
+        })
+    });
+    Ok(point_msgs.chain(contour_msgs))
+}
+
 impl Correspondences {
-    /// Splits one frame's correspondences into as many messages as needed (never truncates).
-    /// A frame with no correspondences still yields one empty part, so the core learns that
-    /// the frame was processed and saw nothing.
+    /// Splits one frame's 2D/3D correspondences into as many messages as needed (never
+    /// truncates); [`frame_messages`] with no contours.
     pub fn split(
         frame_id: u32,
         trigger_us: u64,
         all: &[Correspondence],
     ) -> Result<impl Iterator<Item = Correspondences> + '_, TooManyCorrespondences> {
-        if all.len() > crate::limits::MAX_CORRESPONDENCES_PER_FRAME {
-            return Err(TooManyCorrespondences { count: all.len() });
-        }
-        let parts = all.len().div_ceil(MAX_CORRESPONDENCES_PER_MESSAGE).max(1);
-        Ok((0..parts).map(move |part| {
-            let start = part * MAX_CORRESPONDENCES_PER_MESSAGE;
-            let end = (start + MAX_CORRESPONDENCES_PER_MESSAGE).min(all.len());
-            let mut items = Vec::new();
-            for c in &all[start..end] {
-                // Cannot fail: each chunk holds at most MAX_CORRESPONDENCES_PER_MESSAGE.
-                let _ = items.push(*c);
-            }
-            Correspondences {
-                frame_id,
-                trigger_us,
-                // Both fit in u8: parts ≤ MAX_PARTS_PER_FRAME (checked above).
-                part: part as u8,
-                parts: parts as u8,
-                items,
-            }
-        }))
+        Ok(
+            frame_messages(frame_id, trigger_us, all, &[])?.filter_map(|m| match m {
+                HostToCore::Correspondences(c) => Some(c),
+                _ => None,
+            }),
+        )
     }
 }
 
@@ -758,6 +839,7 @@ impl HostToCore {
             HostToCore::Init(_) => "Init",
             HostToCore::Imu(_) => "Imu",
             HostToCore::Correspondences(_) => "Correspondences",
+            HostToCore::Contours(_) => "Contours",
             HostToCore::Reset => "Reset",
             HostToCore::Tick(_) => "Tick",
             HostToCore::Query => "Query",
@@ -847,6 +929,69 @@ mod tests {
         assert_eq!(
             Correspondences::split(0, 0, &all).err(),
             Some(TooManyCorrespondences { count: all.len() })
+        );
+    }
+
+    #[test]
+    fn a_frame_of_both_kinds_is_numbered_together_points_first() {
+        let points: heapless::Vec<Correspondence, 40> = (0..20).map(corr).collect();
+        let contours: heapless::Vec<ContourPoint, 40> = (0..33)
+            .map(|i| ContourPoint {
+                m_w: [0.0, 0.0, i as f32],
+                cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+                n: [1.0, 0.0],
+                d: 0.0,
+                var_d: 1e-6,
+            })
+            .collect();
+        let msgs: heapless::Vec<HostToCore, 8> =
+            frame_messages(3, 5, &points, &contours).unwrap().collect();
+        // 2 point parts (16 + 4), then 3 contour parts (16 + 16 + 1).
+        assert_eq!(msgs.len(), 5);
+        let mut seen_points = 0;
+        let mut seen_contours = 0;
+        for (i, m) in msgs.iter().enumerate() {
+            match m {
+                HostToCore::Correspondences(c) => {
+                    assert!(i < 2);
+                    assert_eq!(
+                        (c.frame_id, c.trigger_us, c.part, c.parts),
+                        (3, 5, i as u8, 5)
+                    );
+                    assert_eq!(
+                        &c.items[..],
+                        &points[seen_points..seen_points + c.items.len()]
+                    );
+                    seen_points += c.items.len();
+                }
+                HostToCore::Contours(c) => {
+                    assert!(i >= 2);
+                    assert_eq!(
+                        (c.frame_id, c.trigger_us, c.part, c.parts),
+                        (3, 5, i as u8, 5)
+                    );
+                    let want = &contours[seen_contours..seen_contours + c.items.len()];
+                    assert_eq!(&c.items[..], want);
+                    seen_contours += c.items.len();
+                }
+                other => panic!("unexpected {}", other.kind()),
+            }
+            assert!(m.validate().is_ok());
+        }
+        assert_eq!((seen_points, seen_contours), (20, 33));
+        // Contours alone: no empty point part.
+        let only: heapless::Vec<HostToCore, 8> =
+            frame_messages(3, 5, &[], &contours).unwrap().collect();
+        assert_eq!(only.len(), 3);
+        assert!(only.iter().all(|m| matches!(m, HostToCore::Contours(_))));
+        // The parts of both kinds are counted against one limit: 8 × 16 points and one contour
+        // need nine messages.
+        let full = [corr(0); MAX_CORRESPONDENCES_PER_MESSAGE * MAX_PARTS_PER_FRAME];
+        assert_eq!(
+            frame_messages(0, 0, &full, &contours[..1]).err(),
+            Some(TooManyCorrespondences {
+                count: full.len() + 1
+            })
         );
     }
 }

@@ -61,11 +61,26 @@ pub const fn correspondence(m_n: [f32; 2], m_w: [f32; 3]) -> Correspondence {
     }
 }
 
+/// A contour correspondence with small isotropic covariances: the contour found at `d` along
+/// the unit normal `n`.
+pub const fn contour(m_w: [f32; 3], n: [f32; 2], d: f32) -> ContourPoint {
+    ContourPoint {
+        m_w,
+        cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+        n,
+        d,
+        var_d: 1e-6,
+    }
+}
+
 /// Named host messages, one per kind (two for `Init`).
-pub fn host_messages() -> [(&'static str, HostToCore); 11] {
+pub fn host_messages() -> [(&'static str, HostToCore); 12] {
     let mut items = Vec::new();
     let _ = items.push(correspondence([0.125, -0.25], [0.5, 0.25, 0.0]));
     let _ = items.push(correspondence([-0.0625, 0.5], [0.0, 0.1, 0.2]));
+    let mut contours = Vec::new();
+    let _ = contours.push(contour([0.5, 0.25, 0.0], [0.6, -0.8], 0.25));
+    let _ = contours.push(contour([0.0, 0.1, 0.2], [0.0, 1.0], -0.125));
     [
         (
             "Hello",
@@ -134,6 +149,16 @@ pub fn host_messages() -> [(&'static str, HostToCore); 11] {
             HostToCore::Sampling(Sampling {
                 source: SampleSource::Core { trigger_every: 4 },
                 raw_imu: false,
+            }),
+        ),
+        (
+            "Contours",
+            HostToCore::Contours(Contours {
+                frame_id: 42,
+                trigger_us: 1_000_000,
+                part: 1,
+                parts: 2,
+                items: contours,
             }),
         ),
     ]

@@ -4,7 +4,7 @@
 use crate::error::InvalidField;
 use crate::limits::MAX_PARTS_PER_FRAME;
 use crate::messages::{
-    Config, Correspondence, Correspondences, HostToCore, Init, InitAttitude, InitSigma, ModelKind,
+    Config, ContourPoint, Correspondence, HostToCore, Init, InitAttitude, InitSigma, ModelKind,
     SampleSource, Sym2, Sym3,
 };
 
@@ -61,7 +61,14 @@ fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
                 Ok(())
             }
         }
-        HostToCore::Correspondences(c) => correspondences(c),
+        HostToCore::Correspondences(c) => {
+            part_index(c.part, c.parts)?;
+            each(&c.items, correspondence)
+        }
+        HostToCore::Contours(c) => {
+            part_index(c.part, c.parts)?;
+            each(&c.items, contour)
+        }
         HostToCore::Sampling(s) => match s.source {
             SampleSource::Host if s.raw_imu => Err(InvalidField::Sampling),
             SampleSource::Core { trigger_every } if trigger_every > MAX_TRIGGER_EVERY => {
@@ -212,14 +219,17 @@ fn init(i: &Init) -> Result<(), InvalidField> {
     }
 }
 
-fn correspondences(c: &Correspondences) -> Result<(), InvalidField> {
-    let parts = c.parts as usize;
-    if parts == 0 || parts > MAX_PARTS_PER_FRAME || c.part >= c.parts {
+fn part_index(part: u8, parts: u8) -> Result<(), InvalidField> {
+    if parts == 0 || parts as usize > MAX_PARTS_PER_FRAME || part >= parts {
         return Err(InvalidField::CorrespondencePart);
     }
-    for (i, item) in c.items.iter().enumerate() {
+    Ok(())
+}
+
+fn each<T>(items: &[T], check: fn(&T, u8) -> Result<(), InvalidField>) -> Result<(), InvalidField> {
+    for (i, item) in items.iter().enumerate() {
         // Fits: items hold at most MAX_CORRESPONDENCES_PER_MESSAGE (< 256) entries.
-        correspondence(item, i as u8)?;
+        check(item, i as u8)?;
     }
     Ok(())
 }
@@ -230,6 +240,26 @@ fn correspondence(c: &Correspondence, index: u8) -> Result<(), InvalidField> {
         return Err(InvalidField::CorrespondenceNotFinite { index });
     }
     if pd2(&c.cov_n) && psd3(&c.cov_w) {
+        Ok(())
+    } else {
+        Err(InvalidField::CorrespondenceCovariance { index })
+    }
+}
+
+/// How far a contour normal's norm may be from 1.
+pub const UNIT_NORMAL_TOLERANCE: f32 = 1e-3;
+
+fn contour(c: &ContourPoint, index: u8) -> Result<(), InvalidField> {
+    if !all_finite(&c.m_w) || !all_finite(&c.cov_w) || !all_finite(&c.n) || !c.d.is_finite() {
+        return Err(InvalidField::CorrespondenceNotFinite { index });
+    }
+    // |‖n‖² − 1| ≈ 2 |‖n‖ − 1| (no square root in core).
+    let n2 = c.n[0] * c.n[0] + c.n[1] * c.n[1];
+    if (n2 - 1.0).abs() > 2.0 * UNIT_NORMAL_TOLERANCE {
+        return Err(InvalidField::ContourNormal { index });
+    }
+    // A zero variance of d with an exact model point makes the innovation variance zero.
+    if c.var_d > 0.0 && c.var_d.is_normal() && psd3(&c.cov_w) {
         Ok(())
     } else {
         Err(InvalidField::CorrespondenceCovariance { index })
@@ -461,6 +491,66 @@ mod tests {
         assert_eq!(
             corr(0, 1, bad),
             Err(InvalidField::CorrespondenceCovariance { index: 1 })
+        );
+    }
+
+    #[test]
+    fn bad_contour_fields_are_named() {
+        let contours = |part, parts, c: ContourPoint| {
+            let mut items = heapless::Vec::new();
+            let _ = items.push(samples::contour([0.0; 3], [1.0, 0.0], 0.0));
+            let _ = items.push(c);
+            HostToCore::Contours(Contours {
+                frame_id: 1,
+                trigger_us: 1,
+                part,
+                parts,
+                items,
+            })
+            .validate()
+        };
+        let ok = samples::contour([1.0, 2.0, 3.0], [0.6, 0.8], 0.1);
+        assert_eq!(contours(1, 2, ok), Ok(()));
+        assert_eq!(contours(2, 2, ok), Err(InvalidField::CorrespondencePart));
+        assert_eq!(contours(0, 9, ok), Err(InvalidField::CorrespondencePart));
+        let named = |edit: fn(&mut ContourPoint)| {
+            let mut c = ok;
+            edit(&mut c);
+            contours(0, 1, c)
+        };
+        let index = 1;
+        assert_eq!(
+            named(|c| c.d = f32::INFINITY),
+            Err(InvalidField::CorrespondenceNotFinite { index })
+        );
+        assert_eq!(
+            named(|c| c.n[1] = f32::NAN),
+            Err(InvalidField::CorrespondenceNotFinite { index })
+        );
+        assert_eq!(
+            named(|c| c.n = [0.6, 0.81]),
+            Err(InvalidField::ContourNormal { index })
+        );
+        assert_eq!(
+            named(|c| c.n = [0.0, 0.0]),
+            Err(InvalidField::ContourNormal { index })
+        );
+        assert_eq!(named(|c| c.n = [0.6, 0.8005]), Ok(()));
+        assert_eq!(
+            named(|c| c.var_d = 0.0),
+            Err(InvalidField::CorrespondenceCovariance { index })
+        );
+        assert_eq!(
+            named(|c| c.var_d = -1e-6),
+            Err(InvalidField::CorrespondenceCovariance { index })
+        );
+        assert_eq!(
+            named(|c| c.var_d = f32::MIN_POSITIVE / 2.0),
+            Err(InvalidField::CorrespondenceCovariance { index })
+        );
+        assert_eq!(
+            named(|c| c.cov_w = [1.0, 2.0, 0.0, 1.0, 0.0, 1.0]),
+            Err(InvalidField::CorrespondenceCovariance { index })
         );
     }
 

@@ -91,6 +91,16 @@ fn correspondence() -> impl Strategy<Value = Correspondence> {
     })
 }
 
+fn contour() -> impl Strategy<Value = ContourPoint> {
+    (a::<3>(), a::<6>(), a::<2>(), f(), f()).prop_map(|(m_w, cov_w, n, d, var_d)| ContourPoint {
+        m_w,
+        cov_w,
+        n,
+        d,
+        var_d,
+    })
+}
+
 fn host_message() -> impl Strategy<Value = HostToCore> {
     prop_oneof![
         version().prop_map(|version| HostToCore::Hello(Hello { version })),
@@ -158,6 +168,22 @@ fn host_message() -> impl Strategy<Value = HostToCore> {
             ),
         (any::<u64>(), any::<bool>())
             .prop_map(|(t_us, trigger)| HostToCore::Tick(Tick { t_us, trigger })),
+        (
+            any::<u32>(),
+            any::<u64>(),
+            any::<u8>(),
+            any::<u8>(),
+            vec(contour(), 0..=MAX_CORRESPONDENCES_PER_MESSAGE)
+        )
+            .prop_map(|(frame_id, trigger_us, part, parts, items)| {
+                HostToCore::Contours(Contours {
+                    frame_id,
+                    trigger_us,
+                    part,
+                    parts,
+                    items: items.into_iter().collect(),
+                })
+            }),
     ]
 }
 
@@ -216,6 +242,10 @@ fn invalid_field() -> impl Strategy<Value = InvalidField> {
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceNotFinite { index }),
         any::<u8>().prop_map(|index| InvalidField::CorrespondenceCovariance { index }),
         Just(InvalidField::CovarianceThreshold),
+        Just(InvalidField::Session),
+        Just(InvalidField::Resume),
+        Just(InvalidField::Sampling),
+        any::<u8>().prop_map(|index| InvalidField::ContourNormal { index }),
     ]
 }
 

@@ -13,6 +13,16 @@ fn worst_correspondence() -> Correspondence {
     }
 }
 
+fn worst_contour() -> ContourPoint {
+    ContourPoint {
+        m_w: [f32::MAX; 3],
+        cov_w: [f32::MAX; 6],
+        n: [f32::MAX; 2],
+        d: f32::MAX,
+        var_d: f32::MAX,
+    }
+}
+
 fn worst_host() -> Vec<(&'static str, HostToCore)> {
     let v = Version {
         major: u16::MAX,
@@ -75,6 +85,18 @@ fn worst_host() -> Vec<(&'static str, HostToCore)> {
                     trigger_every: u16::MAX,
                 },
                 raw_imu: true,
+            }),
+        ),
+        (
+            "Contours",
+            HostToCore::Contours(Contours {
+                frame_id: u32::MAX,
+                trigger_us: u64::MAX,
+                part: u8::MAX,
+                parts: u8::MAX,
+                items: [worst_contour(); MAX_CORRESPONDENCES_PER_MESSAGE]
+                    .into_iter()
+                    .collect(),
             }),
         ),
     ]
@@ -256,7 +278,8 @@ fn every_message_kind_has_a_worst_case() {
             "Reset",
             "Query",
             "Resume",
-            "Sampling"
+            "Sampling",
+            "Contours"
         ]
     );
     let core: Vec<&str> = worst_core().iter().map(|(_, m)| m.kind()).collect();

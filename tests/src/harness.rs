@@ -10,11 +10,11 @@ use firmware_sim::sim::trajectory::{Kinematics, Trajectory};
 use fusion_core::{Device, Kernels, Scalar};
 use nalgebra::{UnitQuaternion, Vector2, Vector3};
 use protocol::{
-    Config, CoreToHost, Correspondence, Correspondences, ErrorCode, Hello, HostToCore, ImuSample,
-    Init, Mode, PROTOCOL_VERSION, Status, Tick, UpdateOutcome, UpdateReport,
+    Config, ContourPoint, CoreToHost, Correspondence, ErrorCode, Hello, HostToCore, ImuSample,
+    Init, Mode, PROTOCOL_VERSION, Status, Tick, UpdateOutcome, UpdateReport, frame_messages,
 };
-use rand::SeedableRng;
 use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
 
 /// Everything that defines one simulated run.
 pub struct Scenario {
@@ -53,6 +53,20 @@ pub struct Scenario {
     pub init: Init,
     /// Seed of all noise.
     pub seed: u64,
+    /// Which kind of correspondence the host sends.
+    pub measure: Measure,
+}
+
+/// Which kind of correspondence the simulated host sends (protocol 3.2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Measure {
+    /// 2D/3D correspondences (eq. 10).
+    Points,
+    /// Each registration seen along a contour normal of random direction (eq. 10c): one degree
+    /// of freedom per point, as a silhouette edge gives.
+    Contours,
+    /// Every other registration as a contour, in the same frame.
+    Both,
 }
 
 /// One correspondence's prediction error, measured by the harness.
@@ -318,12 +332,46 @@ impl<'s, T: Kernels> Driver<'s, T> {
             }
         }
         self.out.sent += corrs.len();
-        let parts: Vec<Correspondences> = Correspondences::split(p.frame_id, p.t_us, &corrs)
+        let (points, contours) = self.as_measured(&corrs);
+        let msgs: Vec<HostToCore> = frame_messages(p.frame_id, p.t_us, &points, &contours)
             .expect("within the protocol's per-frame bound")
             .collect();
-        for part in parts {
-            self.send(&HostToCore::Correspondences(part));
+        for msg in msgs {
+            self.send(&msg);
         }
+    }
+
+    /// The registrations as the scenario's [`Measure`] sends them: a contour keeps a
+    /// registration's component along a normal of random direction, with the registration's
+    /// variance along it.
+    fn as_measured(
+        &mut self,
+        corrs: &[Correspondence],
+    ) -> (Vec<Correspondence>, Vec<ContourPoint>) {
+        let mut points = Vec::new();
+        let mut contours = Vec::new();
+        for (i, c) in corrs.iter().enumerate() {
+            let contour = match self.sc.measure {
+                Measure::Points => false,
+                Measure::Contours => true,
+                Measure::Both => i % 2 == 1,
+            };
+            if !contour {
+                points.push(*c);
+                continue;
+            }
+            let angle: f64 = self.rng.random_range(0.0..std::f64::consts::TAU);
+            let n = [angle.cos() as f32, angle.sin() as f32];
+            contours.push(ContourPoint {
+                m_w: c.m_w,
+                cov_w: c.cov_w,
+                n,
+                d: n[0] * c.m_n[0] + n[1] * c.m_n[1],
+                // Isotropic registrations: the variance along any normal.
+                var_d: c.cov_n[0],
+            });
+        }
+        (points, contours)
     }
 
     /// Continues the same run against another scenario (for example a changed scene); the
@@ -491,6 +539,7 @@ pub mod scenes {
                 attitude,
             },
             seed,
+            measure: Measure::Points,
         }
     }
 }

@@ -4,7 +4,7 @@
 
 use fusion_core::{Device, DeviceIo, Kernels};
 use proptest::test_runner::TestCaseError;
-use protocol::{CoreToHost, Correspondences, HostToCore, Mode, ModelKind};
+use protocol::{CoreToHost, HostToCore, Mode, ModelKind};
 use tests::harness::{Driver, scenes};
 
 /// Small deterministic generator (xorshift64*).
@@ -154,6 +154,28 @@ fn agreeing(p: &protocol::PosePrediction, offset: f32) -> Vec<protocol::Correspo
         .collect()
 }
 
+/// Every other correspondence as a contour along a fixed oblique normal through its point.
+fn as_points_and_contours(
+    corrs: Vec<protocol::Correspondence>,
+) -> (Vec<protocol::Correspondence>, Vec<protocol::ContourPoint>) {
+    let (mut points, mut contours) = (Vec::new(), Vec::new());
+    for (i, c) in corrs.into_iter().enumerate() {
+        if i % 2 == 0 {
+            points.push(c);
+        } else {
+            let n = [0.6, 0.8];
+            contours.push(protocol::ContourPoint {
+                m_w: c.m_w,
+                cov_w: c.cov_w,
+                n,
+                d: n[0] * c.m_n[0] + n[1] * c.m_n[1],
+                var_d: c.cov_n[0],
+            });
+        }
+    }
+    (points, contours)
+}
+
 /// Issue 32, defect 1: one message's work is bounded whatever its time stamps say. A running
 /// core (each model's clock message, f32 and f64) gets random sequences of samples (some any
 /// `u64` time, some up to 3 s after the last), `Resume`s at any time, `Init`s, queries and
@@ -229,10 +251,10 @@ fn no_message_costs_more_than_a_fixed_number_of_time_updates() {
                 Op::Answer { age, offset } => match predictions.iter().rev().nth(age) {
                     Some(p) => {
                         let p: &protocol::PosePrediction = p;
-                        let corrs = agreeing(p, offset);
-                        Correspondences::split(p.frame_id, p.t_us, &corrs)
+                        // Every other one as a contour (protocol 3.2): parts of both kinds.
+                        let (points, contours) = as_points_and_contours(agreeing(p, offset));
+                        protocol::frame_messages(p.frame_id, p.t_us, &points, &contours)
                             .map_err(|e| format!("{e:?}"))?
-                            .map(HostToCore::Correspondences)
                             .collect()
                     }
                     None => Vec::new(),

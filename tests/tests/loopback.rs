@@ -5,10 +5,10 @@
 fn selftest_over_a_pty_pair_passes_and_reports_every_message_kind() {
     let report = host_vision::selftest::run_over_pty(500).expect("self-test");
     assert_eq!(report.imu_samples, 500);
-    // 2 Hellos + the sample messages but Hello and Reset (9 since the Sampling of 3.1)
+    // 2 Hellos + the sample messages but Hello and Reset (10 since the Contours of 3.2)
     // + 500 IMU + Reset.
     let samples = protocol::samples::host_messages().len() - 2;
-    assert_eq!(samples, 9);
+    assert_eq!(samples, 10);
     assert_eq!(report.host_messages_checked, 2 + samples + 500 + 1);
     assert_eq!(
         report.core_messages_checked,

@@ -10,6 +10,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use firmware::{stack, timer::Timer};
 use fusion_core::filter::{Filter, ImuSample};
 use fusion_core::init::{StillWindow, initial_state};
+use fusion_core::models::contour::{self, ContourObservation};
 use fusion_core::models::correspondence::{self, Observation};
 use fusion_core::params::Params;
 use fusion_core::{DeviceIo, quat};
@@ -45,6 +46,8 @@ marks! {
     mark_other = 5u32;
     /// End of a timed region.
     mark_stop = 6u32;
+    /// Start of one `contour_update*`.
+    mark_contour = 7u32;
 }
 
 /// `timer.instructions(f)` between a start mark and [`mark_stop`].
@@ -155,6 +158,37 @@ fn bench_correspondence(timer: &Timer, model: ModelKind) {
         hprintln!("BENCH correspondence_update {}", total / n);
     } else {
         hprintln!("BENCH correspondence_update_{} {}", model.name(), total / n);
+    }
+}
+
+/// The same 16 model points as [`bench_correspondence`], each as a contour correspondence
+/// (eq. 10c): found 1 px-ish off along a normal that turns from point to point.
+#[inline(never)]
+fn bench_contour(timer: &Timer, model: ModelKind) {
+    let (prm, f) = warmed(model);
+    let pose = fusion_core::state::camera_pose(&f.st, &prm.hand_eye);
+    let r_wc = quat::rot(&pose.q_cw).transpose();
+    let mut total = 0;
+    let n = 16;
+    for i in 0..n {
+        let p_c = Vector3::new(-0.3 + 0.04 * i as f32, 0.1 - 0.01 * i as f32, 2.0);
+        let (sin, cos) = fusion_core::trig::sin_cos_f32(0.4 * i as f32);
+        let normal = Vector2::new(cos, sin);
+        let obs = ContourObservation {
+            m_w: pose.c_w + r_wc * p_c,
+            cov_w: Matrix3::identity() * 1e-6,
+            n: normal,
+            d: normal.dot(&Vector2::new(p_c.x / p_c.z, p_c.y / p_c.z)) + 0.001,
+            var_d: 1e-5,
+        };
+        let mut st = f.st.clone();
+        let (ins, _) = timed(timer, mark_contour, || contour::update(&mut st, &prm, &obs));
+        total += ins;
+    }
+    if model == ModelKind::Acc {
+        hprintln!("BENCH contour_update {}", total / n);
+    } else {
+        hprintln!("BENCH contour_update_{} {}", model.name(), total / n);
     }
 }
 
@@ -410,6 +444,8 @@ fn main() -> ! {
     bench_imu_steps(&timer);
     bench_correspondence(&timer, ModelKind::Acc);
     bench_correspondence(&timer, ModelKind::Vision);
+    bench_contour(&timer, ModelKind::Acc);
+    bench_contour(&timer, ModelKind::Vision);
     calibrate(&timer);
     // Stack of the device loop alone: repaint, run the session, measure.
     stack::paint();

@@ -193,7 +193,7 @@ pub(crate) fn update_generic<T: Scalar>(
 
 /// [`update`], compiled in this crate for each scalar (why: [`crate::kernels`]).
 pub trait UpdateKernel: Scalar {
-    /// [`update`] (every correspondence).
+    /// [`update`] (every 2D/3D correspondence).
     fn correspondence_update(
         st: &mut State<Self>,
         prm: &Params<Self>,
