@@ -90,6 +90,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "contour",
+        dir: "host/contour/src",
+        module: &[],
+    },
+    Tree {
         name: "vision",
         dir: "host/vision/src",
         module: &[],

@@ -1,0 +1,26 @@
+#![deny(missing_docs)]
+#![warn(clippy::too_many_lines)]
+//! The contour modality (docs/VISION.md §9): objects without texture tracked by their
+//! silhouette. Per frame:
+//!
+//! - [`silhouette`]: points on the outer contour of the model rendered at the predicted pose,
+//!   spread along it, each with its outward normal and its model point (from the rendered
+//!   depth);
+//! - [`statistics`]: the grey-level statistics of the object and of its background next to
+//!   the contour, learnt while tracking, and the pixel-wise posterior they give;
+//! - [`line`]: along each normal, a correspondence line in the live image: where the contour
+//!   lies, with its variance, from the posteriors (eq. K1-K3), coarse to fine; lines that leave
+//!   the image, cross another part of the model or say nothing are refused by name;
+//! - [`measure`]: all of it for one frame, the contour correspondences sent to the fusion core
+//!   (`protocol::ContourPoint`, docs/FILTER.md eq. 10c), and the judgement of a pose by its
+//!   contour (the rms along the normals, the silhouette's agreement with the statistics).
+
+pub mod line;
+pub mod measure;
+pub mod silhouette;
+pub mod statistics;
+
+pub use line::{LineConfig, LineRejection, LineResult};
+pub use measure::{ContourConfig, ContourMeasurement, Contours, Tally};
+pub use silhouette::{ContourSample, SampleConfig};
+pub use statistics::ColourModel;

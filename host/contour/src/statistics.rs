@@ -1,0 +1,201 @@
+//! The grey levels of the object and of its background next to its contour, learnt while
+//! tracking (docs/VISION.md §9.2, eq. K1), and the pixel-wise posterior that a grey level is the
+//! object's.
+
+use features::GrayF32;
+use image::GrayImage;
+
+use crate::silhouette::ContourSample;
+
+/// Histogram bins over the grey levels 0–255.
+pub const BINS: usize = 32;
+
+/// Probability every bin keeps at least, so that a grey level never seen on one side does not
+/// make a posterior of exactly 0 or 1 (one such pixel would veto a contour position).
+const FLOOR: f32 = 1e-3;
+
+/// The object's and the background's grey-level distributions next to the contour.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColourModel {
+    fg: [f32; BINS],
+    bg: [f32; BINS],
+    learnt: bool,
+}
+
+impl Default for ColourModel {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+fn bin(grey: f32) -> usize {
+    ((grey.clamp(0.0, 255.0) as usize) * BINS / 256).min(BINS - 1)
+}
+
+/// Normalises counts into a distribution with every bin at least [`FLOOR`] (before the final
+/// normalisation); `None` when nothing was counted.
+fn distribution(counts: &[f32; BINS]) -> Option<[f32; BINS]> {
+    let total: f32 = counts.iter().sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let mut p = counts.map(|c| (c / total).max(FLOOR));
+    let sum: f32 = p.iter().sum();
+    p.iter_mut().for_each(|v| *v /= sum);
+    Some(p)
+}
+
+impl ColourModel {
+    /// Nothing learnt: every posterior is ½.
+    pub fn new() -> Self {
+        Self {
+            fg: [1.0 / BINS as f32; BINS],
+            bg: [1.0 / BINS as f32; BINS],
+            learnt: false,
+        }
+    }
+
+    /// Whether anything was learnt.
+    pub fn learnt(&self) -> bool {
+        self.learnt
+    }
+
+    /// Eq. K1: the posterior that a pixel of grey level `grey` belongs to the object,
+    /// `p(y|f) / (p(y|f) + p(y|b))` (equal priors).
+    pub fn posterior(&self, grey: f32) -> f32 {
+        let k = bin(grey);
+        let (f, b) = (self.fg[k], self.bg[k]);
+        f / (f + b)
+    }
+
+    /// How far apart the two distributions are: their total variation distance
+    /// `½ Σ |p_f − p_b|`, 0 for identical ones (an object that looks like its background), 1
+    /// for disjoint ones.
+    pub fn separation(&self) -> f32 {
+        0.5 * self
+            .fg
+            .iter()
+            .zip(&self.bg)
+            .map(|(f, b)| (f - b).abs())
+            .sum::<f32>()
+    }
+
+    /// Learns from `live` along the normals of `samples`, pixels 1 to `band` px inside the
+    /// contour for the object and outside it for the background, where `mask` (the rendering
+    /// at the pose the frame was tracked at) agrees: `p ← (1 − rate) p + rate p_frame`, or the
+    /// frame's distributions outright the first time. Returns whether both sides had pixels.
+    pub fn learn(
+        &mut self,
+        live: &GrayF32,
+        mask: &GrayImage,
+        samples: &[ContourSample],
+        band: usize,
+        rate: f32,
+    ) -> bool {
+        let mut fg = [0.0f32; BINS];
+        let mut bg = [0.0f32; BINS];
+        let in_mask = |x: f64, y: f64| {
+            let (xi, yi) = (x.round(), y.round());
+            xi >= 0.0
+                && yi >= 0.0
+                && (xi as u32) < mask.width()
+                && (yi as u32) < mask.height()
+                && mask.get_pixel(xi as u32, yi as u32).0[0] > 0
+        };
+        for s in samples {
+            for t in 1..=band {
+                // Half a pixel back to the border pixel's centre, then t pixels in or out.
+                let t = t as f64 - 0.5;
+                let inner = s.pixel - s.normal * t;
+                let outer = s.pixel + s.normal * t;
+                if let Some(y) = live
+                    .sample(inner.x, inner.y)
+                    .filter(|_| in_mask(inner.x, inner.y))
+                {
+                    fg[bin(y)] += 1.0;
+                }
+                if let Some(y) = live
+                    .sample(outer.x, outer.y)
+                    .filter(|_| !in_mask(outer.x, outer.y))
+                {
+                    bg[bin(y)] += 1.0;
+                }
+            }
+        }
+        let (Some(f), Some(b)) = (distribution(&fg), distribution(&bg)) else {
+            return false;
+        };
+        let rate = if self.learnt {
+            rate.clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        for (old, new) in self.fg.iter_mut().zip(f) {
+            *old += rate * (new - *old);
+        }
+        for (old, new) in self.bg.iter_mut().zip(b) {
+            *old += rate * (new - *old);
+        }
+        self.learnt = true;
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::silhouette::{SampleConfig, sample, tests::disc_frame};
+
+    fn image(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> GrayF32 {
+        let data = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| f(x, y))
+            .collect();
+        GrayF32::new(w, h, data).unwrap()
+    }
+
+    #[test]
+    fn a_bright_object_on_a_dark_textured_background_is_told_apart() {
+        let frame = disc_frame((320, 240), (160.0, 120.0), 60.0);
+        let samples = sample(&frame, &SampleConfig::default());
+        let on =
+            |x: usize, y: usize| (x as f64 - 160.0).powi(2) + (y as f64 - 120.0).powi(2) <= 3600.0;
+        // Object: 200 ± a little; background: a checkerboard of 20 and 90.
+        let live = image(320, 240, |x, y| {
+            if on(x, y) {
+                198.0 + (x % 3) as f32
+            } else if (x / 4 + y / 4).is_multiple_of(2) {
+                20.0
+            } else {
+                90.0
+            }
+        });
+        let mut m = ColourModel::new();
+        assert!(!m.learnt());
+        assert_eq!(m.posterior(200.0), 0.5);
+        assert!(m.learn(&live, &frame.mask, &samples, 8, 0.2));
+        assert!(m.learnt());
+        assert!(m.posterior(199.0) > 0.95, "{}", m.posterior(199.0));
+        assert!(m.posterior(20.0) < 0.05 && m.posterior(90.0) < 0.05);
+        assert!(m.separation() > 0.9, "{}", m.separation());
+        // Learning a second time at rate 0.2 moves the distributions a fifth of the way.
+        let flat = image(320, 240, |_, _| 90.0);
+        let before = m.posterior(90.0);
+        assert!(m.learn(&flat, &frame.mask, &samples, 8, 0.2));
+        assert!(m.posterior(90.0) > before && m.posterior(90.0) < 0.5);
+    }
+
+    #[test]
+    fn an_object_that_looks_like_its_background_separates_nothing() {
+        let frame = disc_frame((320, 240), (160.0, 120.0), 60.0);
+        let samples = sample(&frame, &SampleConfig::default());
+        let live = image(320, 240, |x, y| ((x * 7 + y * 13) % 256) as f32);
+        let mut m = ColourModel::new();
+        assert!(m.learn(&live, &frame.mask, &samples, 8, 0.2));
+        assert!(m.separation() < 0.3, "{}", m.separation());
+        // Nothing to learn from: no samples.
+        let mut fresh = ColourModel::new();
+        assert!(!fresh.learn(&live, &frame.mask, &[], 8, 0.2));
+        assert!(!fresh.learnt());
+    }
+}
