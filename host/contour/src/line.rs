@@ -259,7 +259,7 @@ mod tests {
 
     fn learnt(live: &GrayF32, frame: &render::Frame, samples: &[ContourSample]) -> ColourModel {
         let mut m = ColourModel::new();
-        assert!(m.learn(live, &frame.mask, samples, 10, 1.0));
+        assert!(m.learn(live, Some(&frame.mask), samples, 10, 1.0));
         m
     }
 
@@ -315,7 +315,7 @@ mod tests {
         // An object that looks like its background: nothing to learn, nothing found.
         let same = live((320, 240), (160.0, 120.0), 60.5, 70.0, |_, _| 70.0);
         let mut flat = ColourModel::new();
-        flat.learn(&same, &frame.mask, &samples, 10, 1.0);
+        flat.learn(&same, Some(&frame.mask), &samples, 10, 1.0);
         for s in &samples {
             let r = search(&same, &frame.mask, s, &flat, &cfg);
             assert!(

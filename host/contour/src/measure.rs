@@ -258,7 +258,7 @@ mod tests {
         let mut stats = ColourModel::new();
         let at_rest = live((160.0, 120.0), 50.5);
         let samples = sample(&frame, &cfg.sample);
-        assert!(stats.learn(&at_rest, &frame.mask, &samples, cfg.band_px, 1.0));
+        assert!(stats.learn(&at_rest, Some(&frame.mask), &samples, cfg.band_px, 1.0));
         let moved = live((164.0, 120.0), 50.5);
         let c = measure(&frame, &moved, &stats, &cfg);
         assert_eq!(c.tally.sampled, samples.len());
@@ -309,7 +309,7 @@ mod tests {
         let samples = sample(&frame, &cfg.sample);
         stats.learn(
             &live((160.0, 120.0), 50.5),
-            &frame.mask,
+            Some(&frame.mask),
             &samples,
             cfg.band_px,
             1.0,

@@ -82,25 +82,30 @@ impl ColourModel {
 
     /// Learns from `live` along the normals of `samples`, pixels 1 to `band` px inside the
     /// contour for the object and outside it for the background, where `mask` (the rendering
-    /// at the pose the frame was tracked at) agrees: `p ← (1 − rate) p + rate p_frame`, or the
-    /// frame's distributions outright the first time. Returns whether both sides had pixels.
+    /// the samples came from) agrees, if given: `p ← (1 − rate) p + rate p_frame`, or the
+    /// frame's distributions outright the first time. Without a mask the samples are contours
+    /// found in `live` (their sides are what the lines found). Returns whether both sides had
+    /// pixels.
     pub fn learn(
         &mut self,
         live: &GrayF32,
-        mask: &GrayImage,
+        mask: Option<&GrayImage>,
         samples: &[ContourSample],
         band: usize,
         rate: f32,
     ) -> bool {
         let mut fg = [0.0f32; BINS];
         let mut bg = [0.0f32; BINS];
-        let in_mask = |x: f64, y: f64| {
+        // Whether the rendering puts (x, y) on the object's side (`object`), or no mask says.
+        let agrees = |x: f64, y: f64, object: bool| {
+            let Some(mask) = mask else { return true };
             let (xi, yi) = (x.round(), y.round());
-            xi >= 0.0
+            let inside = xi >= 0.0
                 && yi >= 0.0
                 && (xi as u32) < mask.width()
                 && (yi as u32) < mask.height()
-                && mask.get_pixel(xi as u32, yi as u32).0[0] > 0
+                && mask.get_pixel(xi as u32, yi as u32).0[0] > 0;
+            inside == object
         };
         for s in samples {
             for t in 1..=band {
@@ -110,13 +115,13 @@ impl ColourModel {
                 let outer = s.pixel + s.normal * t;
                 if let Some(y) = live
                     .sample(inner.x, inner.y)
-                    .filter(|_| in_mask(inner.x, inner.y))
+                    .filter(|_| agrees(inner.x, inner.y, true))
                 {
                     fg[bin(y)] += 1.0;
                 }
                 if let Some(y) = live
                     .sample(outer.x, outer.y)
-                    .filter(|_| !in_mask(outer.x, outer.y))
+                    .filter(|_| agrees(outer.x, outer.y, false))
                 {
                     bg[bin(y)] += 1.0;
                 }
@@ -173,7 +178,7 @@ mod tests {
         let mut m = ColourModel::new();
         assert!(!m.learnt());
         assert_eq!(m.posterior(200.0), 0.5);
-        assert!(m.learn(&live, &frame.mask, &samples, 8, 0.2));
+        assert!(m.learn(&live, Some(&frame.mask), &samples, 8, 0.2));
         assert!(m.learnt());
         assert!(m.posterior(199.0) > 0.95, "{}", m.posterior(199.0));
         assert!(m.posterior(20.0) < 0.05 && m.posterior(90.0) < 0.05);
@@ -181,7 +186,7 @@ mod tests {
         // Learning a second time at rate 0.2 moves the distributions a fifth of the way.
         let flat = image(320, 240, |_, _| 90.0);
         let before = m.posterior(90.0);
-        assert!(m.learn(&flat, &frame.mask, &samples, 8, 0.2));
+        assert!(m.learn(&flat, Some(&frame.mask), &samples, 8, 0.2));
         assert!(m.posterior(90.0) > before && m.posterior(90.0) < 0.5);
     }
 
@@ -191,11 +196,11 @@ mod tests {
         let samples = sample(&frame, &SampleConfig::default());
         let live = image(320, 240, |x, y| ((x * 7 + y * 13) % 256) as f32);
         let mut m = ColourModel::new();
-        assert!(m.learn(&live, &frame.mask, &samples, 8, 0.2));
+        assert!(m.learn(&live, Some(&frame.mask), &samples, 8, 0.2));
         assert!(m.separation() < 0.3, "{}", m.separation());
         // Nothing to learn from: no samples.
         let mut fresh = ColourModel::new();
-        assert!(!fresh.learn(&live, &frame.mask, &[], 8, 0.2));
+        assert!(!fresh.learn(&live, Some(&frame.mask), &[], 8, 0.2));
         assert!(!fresh.learnt());
     }
 }

@@ -8,6 +8,12 @@ pub enum TrackerError {
         "the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow"
     )]
     Untextured,
+    /// The model has no texture, and a pose was to be found without a start pose: the cold
+    /// start (and every later search) finds a model by its texture.
+    #[error(
+        "the model has no textured material: the cold start finds a model by its texture, so an untextured model is tracked by its contour from a start pose (give one), and cannot be searched for when lost"
+    )]
+    NeedsStartPose,
     /// The transport to the core could not be opened.
     #[error(transparent)]
     Transport(#[from] firmware_sim::transport::TransportError),

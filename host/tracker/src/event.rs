@@ -42,7 +42,7 @@ pub struct FrameReport {
     /// withhold it (the frames after a flip, until it is confirmed): the record's
     /// [`Record::tracked`] is final.
     pub tracked: Option<bool>,
-    /// Correspondences sent to the core.
+    /// Correspondences sent to the core, of both kinds (2D/3D and contour).
     pub correspondences: usize,
 }
 

@@ -165,15 +165,15 @@ impl Record {
             }
             Err(e) => return Err(e),
         };
-        let items = &result.correspondences;
-        if !items.is_empty() {
+        let (points, contours) = (&result.correspondences, &result.contours);
+        if !points.is_empty() || !contours.is_empty() {
             let core_id = self.log.core_frame_id(frame_id);
-            let parts = protocol::Correspondences::split(core_id, trigger_us, items)
-                .map_err(|e| TrackerError::Core(format!("frame {frame_id}: {e:?}")))?;
+            let parts = protocol::frame_messages(core_id, trigger_us, points, contours)
+                .map_err(|e| TrackerError::Core(format!("frame {frame_id}: {e}")))?;
             for part in parts {
-                link.send(&protocol::HostToCore::Correspondences(part))?;
+                link.send(&part)?;
             }
-            self.sent_correspondences += items.len();
+            self.sent_correspondences += points.len() + contours.len();
         }
         self.results.push((frame_id, result));
         Ok(())

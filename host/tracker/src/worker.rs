@@ -12,10 +12,9 @@ use vision::{Assessment, FrameJob, FrameResult, Vision, VisionOptions};
 
 use crate::error::TrackerError;
 
-/// Whether the model has a textured material: the tracker registers the model's texture.
-pub fn is_textured(model: &model::Model) -> bool {
-    model.materials.iter().any(|m| m.texture.is_some())
-}
+/// Whether the model has a textured material, which registering its texture and searching for
+/// it need.
+pub use vision::is_textured;
 
 /// The vision thread, with the channels to it. Stopped and joined on drop, so that no early
 /// return leaves the renderer to be torn down by the process's exit.
@@ -239,7 +238,7 @@ fn vision_worker(
     ready: Sender<Result<Ready, TrackerError>>,
 ) {
     let setup = || -> Result<(Vision, Ready), TrackerError> {
-        if !is_textured(&model) {
+        if options.modality.texture() && !is_textured(&model) {
             return Err(TrackerError::Untextured);
         }
         let vision = Vision::new(camera, &model, options)?;

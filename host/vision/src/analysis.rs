@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use image::GrayImage;
 use nalgebra::{Matrix2, UnitQuaternion, Vector2, Vector3};
-use protocol::{Correspondence, PosePrediction};
+use protocol::{ContourPoint, Correspondence, PosePrediction};
 use rayon::prelude::*;
 
 use camera::{Camera, CameraPose, UndistortMap};
@@ -24,6 +24,7 @@ use render::{RenderView, Renderer};
 
 use crate::VisionError;
 use crate::assess::{Assessment, Contrast, contrast, masked_ncc, reprojection_rms};
+use crate::contours::{ContourFrame, ContourState, Modality};
 
 /// Image-analysis parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -44,6 +45,10 @@ pub struct VisionOptions {
     /// Registrations that no rigid pose explains with the frame's others are not sent
     /// (`None`: all are sent, the core's gate alone judges them).
     pub outliers: Option<OutlierRule>,
+    /// Which measurements a frame makes: the texture's, the contour's, or both.
+    pub modality: Modality,
+    /// The contour modality's parameters.
+    pub contour: contour::ContourConfig,
 }
 
 impl Default for VisionOptions {
@@ -56,6 +61,8 @@ impl Default for VisionOptions {
             exposure: 0.008,
             blur_sigma_per_px: 0.5,
             outliers: Some(OutlierRule::default()),
+            modality: Modality::Texture,
+            contour: contour::ContourConfig::default(),
         }
     }
 }
@@ -125,6 +132,8 @@ pub struct StageTimes {
     pub pyramids: f64,
     /// Registration of all selected features.
     pub klt: f64,
+    /// The contour's lines.
+    pub contour: f64,
     /// The whole frame.
     pub total: f64,
 }
@@ -144,8 +153,14 @@ pub struct FrameResult {
     pub features: Vec<FeatureOutcome>,
     /// The correspondences to send.
     pub correspondences: Vec<Correspondence>,
+    /// The contour correspondences to send (after the correspondences).
+    pub contours: Vec<ContourPoint>,
+    /// What the contour's lines gave (all zero without the contour modality).
+    pub contour_tally: contour::Tally,
     /// Mean distance predicted → registered, px (the paper's prediction error).
     pub prediction_error_px: Option<f64>,
+    /// Mean distance along the normals between the predicted contour and the one found, px.
+    pub contour_error_px: Option<f64>,
     /// Fraction of the image covered by the rendered model.
     pub model_coverage: f64,
     /// Stage timings.
@@ -181,6 +196,8 @@ struct LastFrame {
     live: GrayImage,
     /// Registered pixel and model point of each correspondence sent, in the order sent.
     registered: Vec<Registration>,
+    /// The contour measurements sent, in the order sent (after the correspondences).
+    contours: Vec<contour::ContourMeasurement>,
 }
 
 /// The host's image analysis, with its renderer and feature map.
@@ -191,6 +208,7 @@ pub struct Vision {
     renderer: Renderer,
     map: FeatureMap,
     options: VisionOptions,
+    contour: ContourState,
     last: Option<LastFrame>,
     /// The last rendering (of a frame, an assessment or a contrast), whose buffers the next
     /// one fills.
@@ -252,6 +270,7 @@ impl Vision {
             undistort,
             renderer,
             map: FeatureMap::new(options.map),
+            contour: ContourState::new(options.contour),
             options,
             last: None,
             rendering: None,
@@ -260,8 +279,10 @@ impl Vision {
 
     /// Judges the last analysed frame at `pose`, the core's estimate after that frame's
     /// update: the reprojection rms there of the correspondences the core applied (`applied`,
-    /// one flag per correspondence sent, in order; the gated ones are outliers it did not
-    /// use), and the model rendered there against the live image ([`crate::assess`]).
+    /// one flag per correspondence sent, in order, then one per contour correspondence; the
+    /// gated ones are outliers it did not use), and the model rendered there against the live
+    /// image ([`crate::assess`]): its correlation where the model has texture, its silhouette's
+    /// agreement with the object's statistics where the frame measured the contour.
     pub fn assess(
         &mut self,
         pose: &CameraPose,
@@ -270,10 +291,12 @@ impl Vision {
         let Some(last) = &self.last else {
             return Ok(Assessment::default());
         };
+        let points = last.registered.len();
+        let (applied_points, applied_contours) = applied.split_at(points.min(applied.len()));
         let used: Vec<Registration> = last
             .registered
             .iter()
-            .zip(applied)
+            .zip(applied_points)
             .filter(|(_, a)| **a)
             .map(|(r, _)| *r)
             .collect();
@@ -287,12 +310,28 @@ impl Vision {
             reuse,
         )?;
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
+        let (contours, contour_rms_px, silhouette) = if self.options.modality.contour() {
+            let live = GrayF32::from_gray8(&last.live)?;
+            self.contour.judge(
+                &last.contours,
+                applied_contours,
+                pose,
+                &self.ideal.pinhole,
+                &rendering,
+                &live,
+            )
+        } else {
+            (0, None, None)
+        };
         self.rendering = Some(rendering);
         Ok(Assessment {
             features,
             rms_px,
             ncc,
             ncc_pixels,
+            contours,
+            contour_rms_px,
+            silhouette,
         })
     }
 
@@ -598,7 +637,8 @@ impl Vision {
         Ok((live, target, rendering))
     }
 
-    /// Analyses one frame.
+    /// Analyses one frame: the texture's registrations and the contour's lines, as the
+    /// options' modality says.
     pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, VisionError> {
         let t0 = Instant::now();
         let mut times = StageTimes::default();
@@ -612,26 +652,91 @@ impl Vision {
             far: self.options.clip.1,
         };
         let (live, target, rendering) = self.render_beside_live(&raw, view, t0, &mut times)?;
+        let (w, h) = (self.camera.width, self.camera.height);
+        let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
+            / (w as f64 * h as f64);
+        let texture = if self.options.modality.texture() {
+            self.texture_step(&job, view, &rendering, &target, model_coverage, &mut times)?
+        } else {
+            TextureStep::default()
+        };
+        let contours = if self.options.modality.contour() && model_coverage > 0.0 {
+            let t = Instant::now();
+            let live_f = target.level(0).ok_or(features::ImageError::BadSize {
+                width: 0,
+                height: 0,
+            })?;
+            let c = self
+                .contour
+                .measure(&rendering, live_f, &self.ideal.pinhole);
+            times.contour = t.elapsed().as_secs_f64();
+            c
+        } else {
+            ContourFrame::default()
+        };
+        let outline = if job.keep_image {
+            mask_outline(&rendering.mask)
+        } else {
+            Vec::new()
+        };
+        // The live image stays for the judgement; only an overlay's frame needs a copy.
+        let image = job.keep_image.then(|| live.clone());
+        self.last = Some(LastFrame {
+            live,
+            registered: texture.registered,
+            contours: contours.measurements,
+        });
+        self.rendering = Some(rendering);
+        times.total = t0.elapsed().as_secs_f64();
+        Ok(FrameResult {
+            visible: texture.visible,
+            added: texture.added,
+            retired: texture.retired,
+            features: texture.features,
+            correspondences: texture.correspondences,
+            contours: contours.wire,
+            contour_tally: contours.tally,
+            prediction_error_px: (texture.error_count > 0)
+                .then(|| texture.error_sum / texture.error_count as f64),
+            contour_error_px: contours.error_px,
+            model_coverage,
+            times,
+            image,
+            outline,
+            job,
+        })
+    }
+
+    /// The texture's part of [`Self::process`]: the map's visible features, new ones where it
+    /// needs them, a spread subset registered with the KLT until enough succeeded, the
+    /// outliers dropped, the rest made correspondences. Fills the extract, pyramid and KLT
+    /// times.
+    fn texture_step(
+        &mut self,
+        job: &FrameJob,
+        view: RenderView,
+        rendering: &render::Frame,
+        target: &Pyramid,
+        model_coverage: f64,
+        times: &mut StageTimes,
+    ) -> Result<TextureStep, VisionError> {
         let klt = &self.options.klt;
         let (w, h) = (self.camera.width, self.camera.height);
         let frame_index = job.index as u64;
-        let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
-            / (w as f64 * h as f64);
-
         let t = Instant::now();
-        let mut visible = self.map.predict_visible(&view, w, h, Some(&rendering));
+        let mut visible = self.map.predict_visible(&view, w, h, Some(rendering));
         let predicted = t.elapsed().as_secs_f64();
         let blur = klt.template_sigma(self.options.blur_sigma);
         let levels = klt.levels;
         let (added, extracting, template) =
-            self.extract_beside_template(&visible, &rendering, model_coverage, frame_index, blur)?;
+            self.extract_beside_template(&visible, rendering, model_coverage, frame_index, blur)?;
         let template = template.map(|(template, took)| {
             times.pyramids += took;
             template
         });
         let t = Instant::now();
         if added > 0 {
-            visible = self.map.predict_visible(&view, w, h, Some(&rendering));
+            visible = self.map.predict_visible(&view, w, h, Some(rendering));
         }
         times.extract = predicted + extracting + t.elapsed().as_secs_f64();
         // Candidates in registration order; registration stops once `subset_size` succeeded
@@ -644,17 +749,16 @@ impl Vision {
             h,
             cfg.max_candidates.min(2 * wanted + 4).max(wanted),
         );
-
-        let mut features = Vec::with_capacity(selected.len());
-        let mut correspondences = Vec::with_capacity(selected.len());
-        let mut registered = Vec::with_capacity(selected.len());
-        let mut error_sum = 0.0;
-        let mut error_count = 0usize;
+        let mut out = TextureStep {
+            visible: visible.len(),
+            added,
+            ..TextureStep::default()
+        };
         if !selected.is_empty() {
             let t = Instant::now();
             let template = match template {
                 Some(template) => template,
-                None => build_template(&rendering, levels, blur)?,
+                None => build_template(rendering, levels, blur)?,
             };
             times.pyramids += t.elapsed().as_secs_f64();
 
@@ -664,41 +768,37 @@ impl Vision {
                 .filter_map(|p| Some((p, self.map.get(p.id).copied()?)))
                 .collect();
             let attempts =
-                register_until(&candidates, wanted, &template, &target, &self.options.klt);
-            (error_sum, error_count) = self.record_attempts(
+                register_until(&candidates, wanted, &template, target, &self.options.klt);
+            (out.error_sum, out.error_count) = self.record_attempts(
                 attempts,
-                &pose,
+                &view.pose,
                 job.omega_c.as_ref(),
                 frame_index,
-                (&mut features, &mut correspondences, &mut registered),
+                (
+                    &mut out.features,
+                    &mut out.correspondences,
+                    &mut out.registered,
+                ),
             );
             times.klt = t.elapsed().as_secs_f64();
         }
-        let retired = self.map.retire().len();
-        let outline = if job.keep_image {
-            mask_outline(&rendering.mask)
-        } else {
-            Vec::new()
-        };
-        // The live image stays for the judgement; only an overlay's frame needs a copy.
-        let image = job.keep_image.then(|| live.clone());
-        self.last = Some(LastFrame { live, registered });
-        self.rendering = Some(rendering);
-        times.total = t0.elapsed().as_secs_f64();
-        Ok(FrameResult {
-            visible: visible.len(),
-            added,
-            retired,
-            features,
-            correspondences,
-            prediction_error_px: (error_count > 0).then(|| error_sum / error_count as f64),
-            model_coverage,
-            times,
-            image,
-            outline,
-            job,
-        })
+        out.retired = self.map.retire().len();
+        Ok(out)
     }
+}
+
+/// What [`Vision::texture_step`] gave a frame.
+#[derive(Debug, Default)]
+struct TextureStep {
+    visible: usize,
+    added: usize,
+    retired: usize,
+    features: Vec<FeatureOutcome>,
+    correspondences: Vec<Correspondence>,
+    registered: Vec<Registration>,
+    /// Sum and count of the registrations' distances from their predictions [px].
+    error_sum: f64,
+    error_count: usize,
 }
 
 /// One registration attempt: the predicted feature, its map entry and the KLT's answer.

@@ -8,7 +8,10 @@
 //!   consistent but wrong pose (a few features agreeing on the wrong orientation); the rendering
 //!   shows whether the whole model sits where the image has it.
 //!
-//! A frame is **tracked** when both hold ([`TrackedRule`]).
+//! A frame is **tracked** when both hold ([`TrackedRule`]). Where a frame has too few
+//! features (an object without texture), its contour judges it instead (docs/VISION.md §9.4):
+//! the rms along the normals of the contour correspondences the core applied, and the
+//! silhouette's agreement with the object's statistics (eq. K5) in place of the correlation.
 
 use image::GrayImage;
 use serde::Serialize;
@@ -28,6 +31,14 @@ pub struct Assessment {
     pub ncc: Option<f64>,
     /// Model pixels the correlation ran over.
     pub ncc_pixels: usize,
+    /// Contour correspondences the core applied whose model point projects in front of the
+    /// camera.
+    pub contours: usize,
+    /// Their rms along the normals at the estimated pose [px].
+    pub contour_rms_px: Option<f64>,
+    /// The silhouette's agreement with the object's statistics at the estimated pose (eq.
+    /// K5; ½ is chance, 1 a perfect fit).
+    pub silhouette: Option<f64>,
 }
 
 /// Fewest model pixels for a correlation worth reporting (a model a few pixels wide says
@@ -160,6 +171,13 @@ pub struct TrackedRule {
     pub min_features: usize,
     /// Smallest rendered-vs-live correlation.
     pub min_ncc: f64,
+    /// The contour form, for a frame with fewer than `min_features` features: fewest applied
+    /// contour correspondences.
+    pub min_contours: usize,
+    /// The contour form: largest rms along the normals [px].
+    pub max_contour_rms_px: f64,
+    /// The contour form: smallest silhouette agreement (eq. K5).
+    pub min_silhouette: f64,
 }
 
 impl Default for TrackedRule {
@@ -169,21 +187,36 @@ impl Default for TrackedRule {
     /// a wrong pose at about 0. Half the unoccluded value still passes a model half hidden by
     /// an occluder that is itself uncorrelated (the mug), so a half-visible model at the right
     /// pose counts, a wrong pose does not.
+    ///
+    /// The contour form: at least 20 contour correspondences (an eighth of the lines sampled),
+    /// 2 px rms along the normals (a line's σ is about 1.3 px, docs/VISION.md §9.3), and an
+    /// agreement of 0.7: half-way from chance (½) to the 0.9 and more of a silhouette that
+    /// fits an object distinct from its background.
     fn default() -> Self {
         TrackedRule {
             max_rms_px: 1.5,
             min_features: 10,
             min_ncc: 0.3,
+            min_contours: 20,
+            max_contour_rms_px: 2.0,
+            min_silhouette: 0.7,
         }
     }
 }
 
 impl TrackedRule {
-    /// Whether `a` is a tracked frame.
+    /// Whether `a` is a tracked frame: by its features, or, with too few of them, by its
+    /// contour.
     pub fn holds(&self, a: &Assessment) -> bool {
-        a.features >= self.min_features
-            && a.rms_px.is_some_and(|r| r <= self.max_rms_px)
-            && a.ncc.is_some_and(|c| c >= self.min_ncc)
+        if a.features >= self.min_features {
+            a.rms_px.is_some_and(|r| r <= self.max_rms_px)
+                && a.ncc.is_some_and(|c| c >= self.min_ncc)
+        } else {
+            a.contours >= self.min_contours
+                && a.contour_rms_px
+                    .is_some_and(|r| r <= self.max_contour_rms_px)
+                && a.silhouette.is_some_and(|s| s >= self.min_silhouette)
+        }
     }
 }
 
@@ -303,12 +336,33 @@ mod tests {
             rms_px: Some(1.0),
             ncc: Some(0.5),
             ncc_pixels: 5000,
+            ..Assessment::default()
         };
         assert!(rule.holds(&a));
         a.ncc = Some(0.05);
         assert!(!rule.holds(&a));
         a.ncc = Some(0.5);
         a.features = 9;
+        assert!(!rule.holds(&a));
+        // Too few features: the contour judges, and its silhouette replaces the correlation.
+        a.contours = 40;
+        a.contour_rms_px = Some(1.2);
+        a.silhouette = Some(0.85);
+        a.ncc = None;
+        assert!(rule.holds(&a));
+        a.silhouette = Some(0.6);
+        assert!(!rule.holds(&a));
+        a.silhouette = Some(0.85);
+        a.contour_rms_px = Some(2.5);
+        assert!(!rule.holds(&a));
+        a.contour_rms_px = Some(1.2);
+        a.contours = 19;
+        assert!(!rule.holds(&a));
+        // With enough features, the features judge: a good contour does not save a bad fit.
+        a.contours = 40;
+        a.features = 12;
+        a.rms_px = Some(3.0);
+        a.ncc = Some(0.5);
         assert!(!rule.holds(&a));
     }
 }

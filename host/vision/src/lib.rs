@@ -3,15 +3,19 @@
 //! One camera frame through the vision host (docs/ARCHITECTURE.md §3, docs/VISION.md): the live
 //! image undistorted, the model rendered at the predicted pose, features registered with the
 //! photometric KLT, outliers dropped, correspondences made ([`analysis`], [`Vision`]); and the
-//! pose estimated with the frame judged without ground truth ([`assess`], [`TrackedRule`]).
+//! pose estimated with the frame judged without ground truth ([`assess`], [`TrackedRule`]); for
+//! objects without texture, or beside it, the model's contour ([`contours`], docs/VISION.md
+//! §9).
 //!
 //! The cold start (`locate`) and the tracker build on it.
 
 pub mod analysis;
 pub mod assess;
+pub mod contours;
 
 pub use analysis::{FrameImage, FrameJob, FrameResult, Verified, Vision, VisionOptions};
 pub use assess::{Assessment, Contrast, TrackedRule};
+pub use contours::{Modality, is_textured};
 
 use std::path::PathBuf;
 

@@ -466,7 +466,7 @@ impl<T: CoreTransport> Tracker<T> {
             self.record.latency.sent(p.index, after);
         }
         let correspondences = match self.record.results.get(results) {
-            Some((_, r)) => r.correspondences.len(),
+            Some((_, r)) => r.correspondences.len() + r.contours.len(),
             None => 0,
         };
         self.events.push_back(Event::Frame(FrameReport {

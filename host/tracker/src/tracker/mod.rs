@@ -150,17 +150,23 @@ impl<T: CoreTransport> Tracker<T> {
     pub fn new(config: TrackerConfig, model: &model::Model, core: T) -> Result<Self, TrackerError> {
         let vision_only = config.model == ModelKind::Vision;
         check_config(&config)?;
-        if !is_textured(model) {
+        // The texture modality and the searches (the cold start, the tilt checks) need the
+        // model's texture; the contour modality tracks a model without one from a start pose.
+        let searchable = is_textured(model);
+        if config.vision.modality.texture() && !searchable {
             return Err(TrackerError::Untextured);
+        }
+        if !searchable && config.start == Start::Locate {
+            return Err(TrackerError::NeedsStartPose);
         }
         let (worker, ready) =
             VisionWorker::start(config.camera, model.clone(), vision_options(&config))?;
-        let search = if vision_only || config.start == Start::Locate {
+        let search = if searchable && (vision_only || config.start == Start::Locate) {
             Some(search_worker(&config, model.clone())?)
         } else {
             None
         };
-        let spare = search.is_none().then(|| model.clone());
+        let spare = (search.is_none() && searchable).then(|| model.clone());
         let hand_eye = if vision_only {
             HandEye::IDENTITY
         } else {
@@ -474,6 +480,10 @@ impl<T: CoreTransport> Tracker<T> {
             return Ok(());
         }
         self.set_state(State::Lost);
+        if self.search.is_none() {
+            // An untextured model: lost until its contour is found again, never searched.
+            return Ok(());
+        }
         let busy = self.in_search.is_some() || self.record.tilt.in_flight();
         if let Some(lost_at) = self.loss.search_due(t_us, busy) {
             self.searcher()?
@@ -593,7 +603,7 @@ impl<T: CoreTransport> Tracker<T> {
         index: usize,
     ) -> Result<(), TrackerError> {
         match (image, judged) {
-            (Some(image), Some(j)) if j.tracked => {
+            (Some(image), Some(j)) if j.tracked && self.search.is_some() => {
                 self.searcher()?.send_tilt_check(image, j.pose)?;
                 self.record.tilt.sent(index, j.frame_id, j.pose);
                 self.since_check = 0;
@@ -619,7 +629,7 @@ impl<T: CoreTransport> Tracker<T> {
         };
         self.set_state(state);
         let correspondences = match self.record.results.last() {
-            Some((_, r)) if r.job.index == index => r.correspondences.len(),
+            Some((_, r)) if r.job.index == index => r.correspondences.len() + r.contours.len(),
             _ => 0,
         };
         self.events.push_back(Event::Frame(FrameReport {
@@ -679,10 +689,9 @@ impl<T: CoreTransport> Tracker<T> {
     /// down elsewhere). A run given its start pose gets its search thread (and renderer) here.
     pub fn relocate(&mut self) -> Result<(), TrackerError> {
         if self.search.is_none() {
-            let model = self
-                .model
-                .take()
-                .ok_or_else(|| TrackerError::VisionThread("no model for a search thread".into()))?;
+            // Without texture there is nothing to search by (the spare model is kept for
+            // textured models only).
+            let model = self.model.take().ok_or(TrackerError::NeedsStartPose)?;
             self.search = Some(search_worker(&self.config, model)?);
         }
         match self.inertial.as_mut() {
@@ -817,7 +826,12 @@ fn search_worker(
     config: &TrackerConfig,
     model: model::Model,
 ) -> Result<VisionWorker, TrackerError> {
-    let mut worker = VisionWorker::start(config.camera, model, vision_options(config))?.0;
+    // Searches find and verify a pose by the model's texture, whatever tracking measures.
+    let options = vision::VisionOptions {
+        modality: vision::Modality::Texture,
+        ..vision_options(config)
+    };
+    let mut worker = VisionWorker::start(config.camera, model, options)?.0;
     worker.set_search_floor(config.search_floor);
     Ok(worker)
 }

@@ -1,0 +1,153 @@
+//! The contour modality's part of a frame (docs/VISION.md §9): which modalities a frame uses,
+//! the object's statistics kept from frame to frame, the frame's contour correspondences, and
+//! the contour form of its judgement.
+
+use features::GrayF32;
+use protocol::ContourPoint;
+use serde::Serialize;
+
+use camera::{CameraPose, Pinhole};
+use contour::measure::{contour_rms, measure, silhouette_agreement};
+use contour::{ColourModel, ContourConfig, ContourMeasurement, ContourSample, Tally};
+use model::Model;
+
+/// Which measurements a frame makes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Modality {
+    /// The model's texture: FAST corners registered by the photometric KLT (2D/3D
+    /// correspondences).
+    #[default]
+    Texture,
+    /// The model's silhouette: contour correspondences (docs/VISION.md §9).
+    Contour,
+    /// Both, in one frame.
+    Both,
+}
+
+impl Modality {
+    /// Whether the frame registers the texture.
+    pub fn texture(self) -> bool {
+        matches!(self, Modality::Texture | Modality::Both)
+    }
+
+    /// Whether the frame measures the contour.
+    pub fn contour(self) -> bool {
+        matches!(self, Modality::Contour | Modality::Both)
+    }
+
+    /// What a model gives: its texture where it has one, its contour where it has none.
+    pub fn for_model(model: &Model) -> Self {
+        if is_textured(model) {
+            Modality::Texture
+        } else {
+            Modality::Contour
+        }
+    }
+}
+
+/// Whether `model` has a textured material, which the texture modality needs.
+pub fn is_textured(model: &Model) -> bool {
+    model.materials.iter().any(|m| m.texture.is_some())
+}
+
+/// Fewest contours found, and the least share of the lines sampled, for a frame to teach the
+/// statistics: a frame whose lines mostly failed may have found wrong contours.
+const LEARN_MIN_FOUND: usize = 10;
+
+/// One frame's contour measurements.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ContourFrame {
+    /// The contour correspondences to send, one per measurement, in order.
+    pub wire: Vec<ContourPoint>,
+    /// The measurements they came from.
+    pub measurements: Vec<ContourMeasurement>,
+    /// What the lines gave.
+    pub tally: Tally,
+    /// Mean distance along the normals between the rendered contour and the one found [px]:
+    /// the contour's prediction error.
+    pub error_px: Option<f64>,
+}
+
+/// The contour modality between frames: its parameters and the object's statistics.
+#[derive(Debug, Clone)]
+pub struct ContourState {
+    config: ContourConfig,
+    colour: ColourModel,
+}
+
+impl ContourState {
+    /// Nothing learnt yet.
+    pub fn new(config: ContourConfig) -> Self {
+        Self {
+            config,
+            colour: ColourModel::new(),
+        }
+    }
+
+    /// The object's statistics.
+    pub fn colour(&self) -> &ColourModel {
+        &self.colour
+    }
+
+    /// Measures the contour of `rendering` (the model at the predicted pose) in `live`, and
+    /// learns the statistics: from the rendering itself the first time (the start pose is
+    /// taken as right), then along the contours found.
+    pub fn measure(
+        &mut self,
+        rendering: &render::Frame,
+        live: &GrayF32,
+        pinhole: &Pinhole,
+    ) -> ContourFrame {
+        let cfg = &self.config;
+        if !self.colour.learnt() {
+            let samples = contour::silhouette::sample(rendering, &cfg.sample);
+            self.colour
+                .learn(live, Some(&rendering.mask), &samples, cfg.band_px, 1.0);
+        }
+        let c = measure(rendering, live, &self.colour, cfg);
+        if c.measurements.len() >= LEARN_MIN_FOUND && 2 * c.tally.found >= c.tally.sampled {
+            let found: Vec<ContourSample> = c
+                .measurements
+                .iter()
+                .map(|m| ContourSample {
+                    pixel: m.found_pixel(),
+                    ..m.sample
+                })
+                .collect();
+            self.colour
+                .learn(live, None, &found, cfg.band_px, cfg.learn_rate);
+        }
+        let n = c.measurements.len();
+        let error_px = (n > 0).then(|| {
+            c.measurements
+                .iter()
+                .map(|m| m.line.offset_px.abs())
+                .sum::<f64>()
+                / n as f64
+        });
+        ContourFrame {
+            wire: c.measurements.iter().map(|m| m.to_wire(pinhole)).collect(),
+            measurements: c.measurements,
+            tally: c.tally,
+            error_px,
+        }
+    }
+
+    /// The contour form of a frame's judgement at `pose`: the applied measurements' count and
+    /// rms along the normals [px], and the silhouette agreement (eq. K5) of `rendering` (the
+    /// model at `pose`) with `live`.
+    pub fn judge(
+        &self,
+        measurements: &[ContourMeasurement],
+        applied: &[bool],
+        pose: &CameraPose,
+        pinhole: &Pinhole,
+        rendering: &render::Frame,
+        live: &GrayF32,
+    ) -> (usize, Option<f64>, Option<f64>) {
+        let (n, rms) = contour_rms(measurements, applied, pose, pinhole);
+        let agreement = silhouette_agreement(rendering, live, &self.colour, &self.config);
+        (n, rms, agreement)
+    }
+}
