@@ -1273,8 +1273,10 @@ fn i33_p07_a_second_run_into_a_busy_folder_is_refused() {
 }
 
 /// Issue 33, point 9: an untextured model with a start pose ran for 0.5 s with nothing
-/// accepted, then failed with "cold start: …" though no cold start was asked for. It is
-/// refused before anything runs, with the reason that applies, and nothing is written.
+/// accepted, then failed with "cold start: …" though no cold start was asked for. Asked to
+/// register its texture, it is refused before anything runs, with the reason that applies,
+/// and nothing is written (issue 37: by default such a model is tracked by its contour); and
+/// asked to find it without a start pose, too (the cold start finds models by their texture).
 #[test]
 fn i33_p09_an_untextured_model_is_refused_up_front() {
     let ds = dataset();
@@ -1289,15 +1291,30 @@ fn i33_p09_an_untextured_model_is_refused_up_front() {
     std::fs::write(model.join("scene.mtl"), plain).unwrap();
     let obj = model.join("scene.obj");
     let out = tmp("i33-p09");
-    let (_, err) = expect(&track_args(&ds, &out, &["--model", s(&obj)]), 1);
+    let (_, err) = expect(
+        &track_args(&ds, &out, &["--model", s(&obj), "--modality", "texture"]),
+        1,
+    );
     assert_eq!(
         err,
         format!(
-            "Error: {}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow\n",
+            "Error: {}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the texture modality registers the model's texture, so an untextured model gives it nothing to follow; track it by its contour (--modality contour, or auto)\n",
             obj.display()
         )
     );
     assert!(!err.contains("cold start"));
+    assert!(!out.exists(), "nothing written");
+    let (_, err) = expect(
+        &track_args(&ds, &out, &["--model", s(&obj), "--cold-start"]),
+        1,
+    );
+    assert_eq!(
+        err,
+        format!(
+            "Error: {}: the model has no textured material, and no start pose was given: the cold start finds a model by its texture, so an untextured model is tracked by its contour from a start pose (--start-pose, --start-position/--start-yaw, or the dataset's ground truth)\n",
+            obj.display()
+        )
+    );
     assert!(!out.exists(), "nothing written");
 }
 

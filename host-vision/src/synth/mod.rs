@@ -32,7 +32,7 @@ use rand::SeedableRng;
 use rand::rngs::StdRng;
 
 pub use frames::{FrameOptions, FrameSynth, SynthFrame, live_camera};
-pub use scene::{SceneModels, TextureOptions, write_obj};
+pub use scene::{SceneModels, TextureOptions, UNTEXTURED_COLOUR, write_obj};
 
 use crate::camera::{Camera, CameraError, Distortion};
 use crate::render::RenderError;
@@ -410,6 +410,7 @@ pub fn run(
         "render_size": synth.render_size(),
         "texture_scale": options.textures.scale,
         "user_textures": options.textures.user_images,
+        "untextured": options.textures.untextured,
         "adapter": report.adapter,
     });
     manifest["scene"] = serde_json::json!({

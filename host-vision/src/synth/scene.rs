@@ -25,7 +25,15 @@ pub struct TextureOptions {
     pub user_images: Vec<PathBuf>,
     /// Explicit textures by quad name (tests).
     pub overrides: HashMap<String, Arc<RgbaImage>>,
+    /// The modelled surfaces in this one linear RGB colour, with no texture: an object
+    /// without texture (issue 37). The unmodelled surroundings keep theirs.
+    pub untextured: Option<[f32; 3]>,
 }
+
+/// The solid colour of `synth --untextured`: an orange whose grey (BT.601 luma 0.53) lies
+/// between the generated textures' dark and bright grey levels, so that only its statistics
+/// beside the contour, not a brightness threshold, tell it from its surroundings.
+pub const UNTEXTURED_COLOUR: [f32; 3] = [0.85, 0.45, 0.15];
 
 impl TextureOptions {
     /// Generated textures at full density, up to 4096 texels per side.
@@ -96,19 +104,24 @@ impl SceneModels {
         };
         let mut model = Model::default();
         for (i, q) in scene.modelled.iter().enumerate() {
-            let user = (!users.is_empty()).then(|| &users[i % users.len()]);
-            add_quad(&mut model, q, texture_of(q, user));
+            match options.untextured {
+                Some([r, g, b]) => add_quad(&mut model, q, None, [r, g, b, 1.0]),
+                None => {
+                    let user = (!users.is_empty()).then(|| &users[i % users.len()]);
+                    add_quad(&mut model, q, Some(texture_of(q, user)), [1.0; 4]);
+                }
+            }
         }
         let mut live = model.clone();
         for q in &scene.unmodelled {
-            add_quad(&mut live, q, texture_of(q, None));
+            add_quad(&mut live, q, Some(texture_of(q, None)), [1.0; 4]);
         }
         let occluders = scene
             .occluders
             .iter()
             .map(|o| {
                 let mut m = Model::default();
-                add_quad(&mut m, &o.quad, texture_of(&o.quad, None));
+                add_quad(&mut m, &o.quad, Some(texture_of(&o.quad, None)), [1.0; 4]);
                 m
             })
             .collect();
@@ -120,12 +133,12 @@ impl SceneModels {
     }
 }
 
-fn add_quad(model: &mut Model, q: &Quad, texture: Arc<RgbaImage>) {
+fn add_quad(model: &mut Model, q: &Quad, texture: Option<Arc<RgbaImage>>, base_colour: [f32; 4]) {
     let material = model.materials.len();
     model.materials.push(Material {
         name: q.name.clone(),
-        base_colour: [1.0; 4],
-        texture: Some(texture),
+        base_colour,
+        texture,
     });
     let c = q.corners.map(|p| f32x3(&p));
     model.meshes.push(quad_mesh(&q.name, c, material));
@@ -157,9 +170,10 @@ pub fn write_obj(dir: &Path, model: &Model) -> Result<PathBuf, SynthError> {
         base += mesh.positions.len();
     }
     for mat in &model.materials {
+        let [r, g, b, _] = mat.base_colour;
         let _ = writeln!(
             mtl,
-            "newmtl {}\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1",
+            "newmtl {}\nKa 1 1 1\nKd {r} {g} {b}\nKs 0 0 0\nillum 1",
             mat.name
         );
         if let Some(tex) = &mat.texture {

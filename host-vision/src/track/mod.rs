@@ -79,9 +79,15 @@ pub enum TrackError {
     /// The model has no texture, and the tracker registers the texture (issue 33: refused
     /// before anything runs, not half a second into the run by the cold start).
     #[error(
-        "{0}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the tracker registers the model's texture, so an untextured model gives it nothing to follow"
+        "{0}: the model has no textured material (an MTL without map_Kd, or a glTF material without a base colour texture): the texture modality registers the model's texture, so an untextured model gives it nothing to follow; track it by its contour (--modality contour, or auto)"
     )]
     Untextured(PathBuf),
+    /// The model has no texture, and no start pose was given: the cold start finds a model by
+    /// its texture.
+    #[error(
+        "{0}: the model has no textured material, and no start pose was given: the cold start finds a model by its texture, so an untextured model is tracked by its contour from a start pose (--start-pose, --start-position/--start-yaw, or the dataset's ground truth)"
+    )]
+    NeedsStartPose(PathBuf),
     /// An output file could not be written.
     #[error("{path}: {source}")]
     Output {
@@ -167,6 +173,32 @@ pub struct Start {
     pub cold: bool,
 }
 
+impl TrackOptions {
+    /// These options with the modality `model` (loaded from `path`) is tracked by: the one
+    /// asked for, or what the model gives. Refuses the texture modality for a model without
+    /// texture, and the cold start for it (which finds models by their texture).
+    fn with_modality_for(
+        &self,
+        model: &crate::model::Model,
+        path: &std::path::Path,
+        dataset: &Dataset,
+    ) -> Result<TrackOptions, TrackError> {
+        let textured = ::vision::is_textured(model);
+        let modality = self
+            .modality
+            .unwrap_or_else(|| ::vision::Modality::for_model(model));
+        if modality.texture() && !textured {
+            return Err(TrackError::Untextured(path.to_path_buf()));
+        }
+        if !textured && self.start.is_cold(dataset) {
+            return Err(TrackError::NeedsStartPose(path.to_path_buf()));
+        }
+        let mut options = self.clone();
+        options.vision.modality = modality;
+        Ok(options)
+    }
+}
+
 impl Start {
     /// Whether this start is found in the frames rather than given: asked for, or nothing
     /// given and no ground truth to take it from.
@@ -231,6 +263,9 @@ pub struct TrackOptions {
     /// with no start pose and no ground truth finds the model itself, frame by frame, until a
     /// pose is verified.
     pub cache: PathBuf,
+    /// Which measurements frames make; `None`: what the model gives (its texture where it has
+    /// one, its contour where it has none, [`vision::Modality::for_model`]).
+    pub modality: Option<::vision::Modality>,
 }
 
 impl TrackOptions {
@@ -258,6 +293,7 @@ impl TrackOptions {
             camera: None,
             max_frames: None,
             cache: crate::locate::database::default_cache_dir(),
+            modality: None,
         }
     }
 
@@ -583,9 +619,7 @@ pub fn run(
         .map_err(|e| TrackError::Tracker(TrackerError::Core(e)))?;
     let link = FaultyLink::new(CoreLink::open_noisy(&spec, noise)?, &options.faults);
     let model = crate::model::load(&model_path)?;
-    if !tracker::worker::is_textured(&model) {
-        return Err(TrackError::Untextured(model_path));
-    }
+    let options = &options.with_modality_for(&model, &model_path, &dataset)?;
     let ran = match frames.take() {
         Some(source) => {
             let (finished, outcome) = vision_only::track_frames(

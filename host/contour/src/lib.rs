@@ -7,20 +7,25 @@
 //!   spread along it, each with its outward normal and its model point (from the rendered
 //!   depth);
 //! - [`statistics`]: the grey-level statistics of the object and of its background next to
-//!   the contour, learnt while tracking, and the pixel-wise posterior they give;
+//!   the contour, for all of it and per region of the model, learnt while tracking, and the
+//!   pixel-wise posterior they give;
 //! - [`line`]: along each normal, a correspondence line in the live image: where the contour
 //!   lies, with its variance, from the posteriors (eq. K1-K3), coarse to fine; lines that leave
 //!   the image, cross another part of the model or say nothing are refused by name;
-//! - [`measure`]: all of it for one frame, the contour correspondences sent to the fusion core
+//! - [`outliers`]: the lines no rigid pose explains together with the others (eq. K6-K7), the
+//!   contour form of the registrations' outlier rule;
+//! - [`measure`]: all of it for one frame, each line as long as the prediction's covariance
+//!   asks (eq. K8), the contour correspondences sent to the fusion core
 //!   (`protocol::ContourPoint`, docs/FILTER.md eq. 10c), and the judgement of a pose by its
 //!   contour (the rms along the normals, the silhouette's agreement with the statistics).
 
 pub mod line;
 pub mod measure;
+pub mod outliers;
 pub mod silhouette;
 pub mod statistics;
 
 pub use line::{LineConfig, LineRejection, LineResult};
 pub use measure::{ContourConfig, ContourMeasurement, Contours, Tally};
 pub use silhouette::{ContourSample, SampleConfig};
-pub use statistics::ColourModel;
+pub use statistics::{ColourModel, Histograms};

@@ -4,14 +4,14 @@
 
 use features::GrayF32;
 use image::GrayImage;
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Matrix6, Vector2, Vector3};
 use rayon::prelude::*;
 
 use camera::{CameraPose, Pinhole};
 use protocol::ContourPoint;
 use render::Frame;
 
-use crate::line::{LineConfig, LineRejection, LineResult, search};
+use crate::line::{LineConfig, LineRejection, LineResult, half_length, search};
 use crate::silhouette::{ContourSample, SampleConfig, sample};
 use crate::statistics::ColourModel;
 
@@ -112,6 +112,8 @@ pub struct Tally {
     pub not_found: usize,
     /// Lines whose object and background look alike.
     pub ambiguous: usize,
+    /// Lines that found a contour no rigid pose explains with the others' (eq. K7), not sent.
+    pub outliers: usize,
 }
 
 /// One frame's contour measurements.
@@ -123,18 +125,67 @@ pub struct Contours {
     pub tally: Tally,
 }
 
+/// Eq. K8: the standard deviation [px] of `sample`'s contour position along its normal that
+/// the prediction implies, from the covariance `cov` of the camera pose `[c_w, θ]` (θ a
+/// world-frame rotation vector, protocol `PosePrediction`) at `pose`, in the ideal pinhole
+/// `pin`: `J_c Σ_cc J_cᵀ + J_θ Σ_θθ J_θᵀ + 2 |J_c Σ_cθ J_θᵀ|` with `J = n_pᵀ ∂π/∂p_c ∂p_c/∂[c_w,
+/// θ]`, `∂p_c/∂c_w = −R_cw`, `∂p_c/∂θ = R_cw [m_w − c_w]×`. The cross term is taken at its
+/// worst sign, so the bound holds whichever way round the rotation error is defined.
+pub fn predicted_sigma_px(
+    sample: &ContourSample,
+    pose: &CameraPose,
+    pin: &Pinhole,
+    cov: &Matrix6<f64>,
+) -> f64 {
+    let p = pose.world_to_camera(&sample.m_w);
+    if p.z <= 0.0 {
+        return f64::INFINITY;
+    }
+    let n = sample.normal;
+    // n_pᵀ ∂(u, v)/∂p_c.
+    let d_p = Vector3::new(
+        n.x * pin.fx / p.z,
+        (n.x * pin.skew + n.y * pin.fy) / p.z,
+        -(n.x * (pin.fx * p.x + pin.skew * p.y) + n.y * pin.fy * p.y) / (p.z * p.z),
+    );
+    let r_cw = pose.q_cw.to_rotation_matrix().into_inner();
+    let j_c: Vector3<f64> = -(r_cw.transpose() * d_p);
+    let v = sample.m_w - pose.c_w;
+    // d_pᵀ R [v]× δθ = (R ᵀ d_p)ᵀ (v × δθ) = ((R ᵀ d_p) × v)ᵀ δθ.
+    let j_t: Vector3<f64> = (r_cw.transpose() * d_p).cross(&v);
+    let cc = cov.fixed_view::<3, 3>(0, 0);
+    let ct = cov.fixed_view::<3, 3>(0, 3);
+    let tt = cov.fixed_view::<3, 3>(3, 3);
+    let var = (j_c.transpose() * cc * j_c)[0]
+        + (j_t.transpose() * tt * j_t)[0]
+        + 2.0 * (j_c.transpose() * ct * j_t)[0].abs();
+    var.max(0.0).sqrt()
+}
+
 /// Samples the contour of `rendering` (the model at the predicted pose) and searches each line
-/// in `live` (the undistorted live image) with the statistics `stats`.
+/// in `live` (the undistorted live image) with the statistics `stats`, each as far as the
+/// prediction's covariance `cov` of `[c_w, θ]` says (eq. K8; `None`: the longest lines).
 pub fn measure(
     rendering: &Frame,
     live: &GrayF32,
     stats: &ColourModel,
     cfg: &ContourConfig,
+    cov: Option<&Matrix6<f64>>,
 ) -> Contours {
     let samples = sample(rendering, &cfg.sample);
+    let view = &rendering.view;
     let results: Vec<Result<LineResult, LineRejection>> = samples
         .par_iter()
-        .map(|s| search(live, &rendering.mask, s, stats, &cfg.line))
+        .map(|s| {
+            let half = match cov {
+                Some(cov) => half_length(
+                    &cfg.line,
+                    predicted_sigma_px(s, &view.pose, &view.pinhole, cov),
+                ),
+                None => cfg.line.coarse_half_length_px,
+            };
+            search(live, &rendering.mask, s, stats, &cfg.line, half)
+        })
         .collect();
     let mut out = Contours {
         tally: Tally {
@@ -215,7 +266,7 @@ pub fn silhouette_agreement(
                     continue;
                 }
                 if let Some(y) = live.sample(p.x, p.y) {
-                    let pf = f64::from(stats.posterior(y));
+                    let pf = f64::from(stats.at(&s.m_w).posterior(y));
                     sum += if object { pf } else { 1.0 - pf };
                     n += 1;
                 }
@@ -260,7 +311,7 @@ mod tests {
         let samples = sample(&frame, &cfg.sample);
         assert!(stats.learn(&at_rest, Some(&frame.mask), &samples, cfg.band_px, 1.0));
         let moved = live((164.0, 120.0), 50.5);
-        let c = measure(&frame, &moved, &stats, &cfg);
+        let c = measure(&frame, &moved, &stats, &cfg, None);
         assert_eq!(c.tally.sampled, samples.len());
         assert_eq!(c.tally.found, c.measurements.len());
         assert!(c.tally.found * 10 >= c.tally.sampled * 9, "{:?}", c.tally);
@@ -295,6 +346,27 @@ mod tests {
         assert_eq!(n, c.measurements.len());
         let rms = rms.unwrap();
         assert!(rms > 2.0 && rms < 3.5, "{rms}");
+    }
+
+    /// A camera 1 m from the disc, uncertain by 1 cm along x: the contour point on the right
+    /// (normal +x) moves by fx · 0.01 = 5 px per σ, the top one (normal −y) not at all; the
+    /// same for a rotation of 0.01 rad about the vertical (world y, the camera's y here).
+    #[test]
+    fn the_predicted_sigma_along_a_normal_follows_the_pose_covariance() {
+        let frame = disc_frame((320, 240), (160.0, 120.0), 50.0);
+        let samples = sample(&frame, &ContourConfig::default().sample);
+        let right = samples.iter().find(|s| s.normal.x > 0.99).unwrap();
+        let top = samples.iter().find(|s| s.normal.y < -0.99).unwrap();
+        let (pose, pin) = (&frame.view.pose, &frame.view.pinhole);
+        let mut cov = Matrix6::zeros();
+        cov[(0, 0)] = 1e-4;
+        assert!((predicted_sigma_px(right, pose, pin, &cov) - 5.0).abs() < 0.05);
+        assert!(predicted_sigma_px(top, pose, pin, &cov) < 0.05);
+        let mut cov = Matrix6::zeros();
+        cov[(4, 4)] = 1e-4;
+        assert!((predicted_sigma_px(right, pose, pin, &cov) - 5.0).abs() < 0.3);
+        assert!(predicted_sigma_px(top, pose, pin, &cov) < 0.3);
+        assert_eq!(predicted_sigma_px(right, pose, pin, &Matrix6::zeros()), 0.0);
     }
 
     #[test]

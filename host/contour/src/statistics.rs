@@ -1,9 +1,15 @@
 //! The grey levels of the object and of its background next to its contour, learnt while
 //! tracking (docs/VISION.md §9.2, eq. K1), and the pixel-wise posterior that a grey level is the
-//! object's.
+//! object's. Statistics are kept for the whole contour and for regions of it attached to the
+//! model (RBOT's local histograms): a background that is a bright wall behind one edge and a
+//! floor of the object's own grey below another tells the object apart at the first edge,
+//! which one histogram for all of it would not.
+
+use std::collections::HashMap;
 
 use features::GrayF32;
 use image::GrayImage;
+use nalgebra::Vector3;
 
 use crate::silhouette::ContourSample;
 
@@ -14,11 +20,85 @@ pub const BINS: usize = 32;
 /// make a posterior of exactly 0 or 1 (one such pixel would veto a contour position).
 const FLOOR: f32 = 1e-3;
 
-/// The object's and the background's grey-level distributions next to the contour.
+/// Pixels' worth of the whole contour's distribution a region's counts are mixed with: a region
+/// seen by one line (about 10 pixels a side) leans on the whole contour's statistics, one seen
+/// by many on its own.
+const REGION_PRIOR: f32 = 10.0;
+
+/// Regions per extent of the model's contour points (their bounding box's diagonal).
+const REGIONS_ACROSS: f64 = 8.0;
+
+/// An object and a background distribution.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ColourModel {
+pub struct Histograms {
     fg: [f32; BINS],
     bg: [f32; BINS],
+}
+
+impl Histograms {
+    const UNIFORM: Histograms = Histograms {
+        fg: [1.0 / BINS as f32; BINS],
+        bg: [1.0 / BINS as f32; BINS],
+    };
+
+    /// Eq. K1: the posterior that a pixel of grey level `grey` belongs to the object,
+    /// `p(y|f) / (p(y|f) + p(y|b))` (equal priors).
+    pub fn posterior(&self, grey: f32) -> f32 {
+        let k = bin(grey);
+        let (f, b) = (self.fg[k], self.bg[k]);
+        f / (f + b)
+    }
+
+    /// `self ← (1 − rate) self + rate new`.
+    fn blend(&mut self, new: &Histograms, rate: f32) {
+        for (old, new) in self.fg.iter_mut().zip(&new.fg) {
+            *old += rate * (new - *old);
+        }
+        for (old, new) in self.bg.iter_mut().zip(&new.bg) {
+            *old += rate * (new - *old);
+        }
+    }
+}
+
+/// Pixel counts of one frame, per side.
+#[derive(Debug, Clone)]
+struct Counts {
+    fg: [f32; BINS],
+    bg: [f32; BINS],
+}
+
+impl Counts {
+    const ZERO: Counts = Counts {
+        fg: [0.0; BINS],
+        bg: [0.0; BINS],
+    };
+
+    /// The distributions, mixed with `prior`'s at `weight` pixels' worth; `None` when a side
+    /// has no pixels and no prior.
+    fn histograms(&self, prior: Option<(&Histograms, f32)>) -> Option<Histograms> {
+        let side = |counts: &[f32; BINS], prior: Option<&[f32; BINS]>, weight: f32| {
+            let mut c = *counts;
+            if let Some(p) = prior {
+                c.iter_mut().zip(p).for_each(|(c, p)| *c += weight * p);
+            }
+            distribution(&c)
+        };
+        let (p, w) = prior.map_or((None, 0.0), |(h, w)| (Some(h), w));
+        Some(Histograms {
+            fg: side(&self.fg, p.map(|h| &h.fg), w)?,
+            bg: side(&self.bg, p.map(|h| &h.bg), w)?,
+        })
+    }
+}
+
+/// The object's and the background's grey-level distributions next to the contour: for all of
+/// it, and per region of the model.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ColourModel {
+    global: Histograms,
+    local: HashMap<[i64; 3], Histograms>,
+    /// Side of a region [m], from the first contour learnt from.
+    region_m: Option<f64>,
     learnt: bool,
 }
 
@@ -45,12 +125,22 @@ fn distribution(counts: &[f32; BINS]) -> Option<[f32; BINS]> {
     Some(p)
 }
 
+/// A tenth of the diagonal of the box around `samples`' model points [m] (at least 1 mm).
+fn region_size(samples: &[ContourSample]) -> Option<f64> {
+    let first = samples.first()?.m_w;
+    let (lo, hi) = samples.iter().fold((first, first), |(lo, hi), s| {
+        (lo.inf(&s.m_w), hi.sup(&s.m_w))
+    });
+    Some(((hi - lo).norm() / REGIONS_ACROSS).max(1e-3))
+}
+
 impl ColourModel {
     /// Nothing learnt: every posterior is ½.
     pub fn new() -> Self {
         Self {
-            fg: [1.0 / BINS as f32; BINS],
-            bg: [1.0 / BINS as f32; BINS],
+            global: Histograms::UNIFORM,
+            local: HashMap::new(),
+            region_m: None,
             learnt: false,
         }
     }
@@ -60,22 +150,36 @@ impl ColourModel {
         self.learnt
     }
 
-    /// Eq. K1: the posterior that a pixel of grey level `grey` belongs to the object,
-    /// `p(y|f) / (p(y|f) + p(y|b))` (equal priors).
-    pub fn posterior(&self, grey: f32) -> f32 {
-        let k = bin(grey);
-        let (f, b) = (self.fg[k], self.bg[k]);
-        f / (f + b)
+    fn region(&self, m_w: &Vector3<f64>) -> Option<[i64; 3]> {
+        let size = self.region_m?;
+        let k = m_w.map(|v| (v / size).floor());
+        k.iter()
+            .all(|v| v.abs() < 1e12)
+            .then(|| [k.x as i64, k.y as i64, k.z as i64])
     }
 
-    /// How far apart the two distributions are: their total variation distance
-    /// `½ Σ |p_f − p_b|`, 0 for identical ones (an object that looks like its background), 1
-    /// for disjoint ones.
+    /// The statistics for the contour at model point `m_w`: its region's where it has been
+    /// learnt, else the whole contour's.
+    pub fn at(&self, m_w: &Vector3<f64>) -> &Histograms {
+        self.region(m_w)
+            .and_then(|k| self.local.get(&k))
+            .unwrap_or(&self.global)
+    }
+
+    /// Eq. K1 with the whole contour's statistics.
+    pub fn posterior(&self, grey: f32) -> f32 {
+        self.global.posterior(grey)
+    }
+
+    /// How far apart the whole contour's two distributions are: their total variation
+    /// distance `½ Σ |p_f − p_b|`, 0 for identical ones (an object that looks like its
+    /// background), 1 for disjoint ones.
     pub fn separation(&self) -> f32 {
         0.5 * self
+            .global
             .fg
             .iter()
-            .zip(&self.bg)
+            .zip(&self.global.bg)
             .map(|(f, b)| (f - b).abs())
             .sum::<f32>()
     }
@@ -83,9 +187,10 @@ impl ColourModel {
     /// Learns from `live` along the normals of `samples`, pixels 1 to `band` px inside the
     /// contour for the object and outside it for the background, where `mask` (the rendering
     /// the samples came from) agrees, if given: `p ← (1 − rate) p + rate p_frame`, or the
-    /// frame's distributions outright the first time. Without a mask the samples are contours
-    /// found in `live` (their sides are what the lines found). Returns whether both sides had
-    /// pixels.
+    /// frame's distributions outright the first time, for the whole contour and for each
+    /// region the samples fall in (a region's frame distribution mixed with the whole
+    /// contour's). Without a mask the samples are contours found in `live` (their sides are
+    /// what the lines found). Returns whether both sides had pixels.
     pub fn learn(
         &mut self,
         live: &GrayF32,
@@ -94,8 +199,6 @@ impl ColourModel {
         band: usize,
         rate: f32,
     ) -> bool {
-        let mut fg = [0.0f32; BINS];
-        let mut bg = [0.0f32; BINS];
         // Whether the rendering puts (x, y) on the object's side (`object`), or no mask says.
         let agrees = |x: f64, y: f64, object: bool| {
             let Some(mask) = mask else { return true };
@@ -107,7 +210,13 @@ impl ColourModel {
                 && mask.get_pixel(xi as u32, yi as u32).0[0] > 0;
             inside == object
         };
+        if self.region_m.is_none() {
+            self.region_m = region_size(samples);
+        }
+        let mut all = Counts::ZERO;
+        let mut regions: HashMap<[i64; 3], Counts> = HashMap::new();
         for s in samples {
+            let mut counts = Counts::ZERO;
             for t in 1..=band {
                 // Half a pixel back to the border pixel's centre, then t pixels in or out.
                 let t = t as f64 - 0.5;
@@ -117,29 +226,43 @@ impl ColourModel {
                     .sample(inner.x, inner.y)
                     .filter(|_| agrees(inner.x, inner.y, true))
                 {
-                    fg[bin(y)] += 1.0;
+                    counts.fg[bin(y)] += 1.0;
                 }
                 if let Some(y) = live
                     .sample(outer.x, outer.y)
                     .filter(|_| agrees(outer.x, outer.y, false))
                 {
-                    bg[bin(y)] += 1.0;
+                    counts.bg[bin(y)] += 1.0;
+                }
+            }
+            for k in 0..BINS {
+                all.fg[k] += counts.fg[k];
+                all.bg[k] += counts.bg[k];
+            }
+            if let Some(key) = self.region(&s.m_w) {
+                let r = regions.entry(key).or_insert(Counts::ZERO);
+                for k in 0..BINS {
+                    r.fg[k] += counts.fg[k];
+                    r.bg[k] += counts.bg[k];
                 }
             }
         }
-        let (Some(f), Some(b)) = (distribution(&fg), distribution(&bg)) else {
+        let Some(global) = all.histograms(None) else {
             return false;
         };
-        let rate = if self.learnt {
-            rate.clamp(0.0, 1.0)
-        } else {
-            1.0
-        };
-        for (old, new) in self.fg.iter_mut().zip(f) {
-            *old += rate * (new - *old);
-        }
-        for (old, new) in self.bg.iter_mut().zip(b) {
-            *old += rate * (new - *old);
+        let first = !self.learnt;
+        let rate = if first { 1.0 } else { rate.clamp(0.0, 1.0) };
+        self.global.blend(&global, rate);
+        for (key, counts) in regions {
+            let Some(h) = counts.histograms(Some((&self.global, REGION_PRIOR))) else {
+                continue;
+            };
+            match self.local.get_mut(&key) {
+                Some(old) => old.blend(&h, rate),
+                None => {
+                    self.local.insert(key, h);
+                }
+            }
         }
         self.learnt = true;
         true

@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix6, UnitQuaternion, Vector2, Vector3, Vector6};
 
-use camera::{Camera, CameraPose};
+use camera::{Camera, CameraPose, Pinhole};
 
 /// A registered pixel (undistorted image) and its model point.
 pub type Registration = (Vector2<f64>, Vector3<f64>);
@@ -58,7 +58,8 @@ pub fn robust_scale(magnitudes: &[f64]) -> f64 {
     (median(&mut m) / RAYLEIGH_MEDIAN).max(MIN_SCALE_PX)
 }
 
-fn median(values: &mut [f64]) -> f64 {
+/// The median of `values` (sorted in place); 0 for none.
+pub fn median(values: &mut [f64]) -> f64 {
     values.sort_by(f64::total_cmp);
     let n = values.len();
     match n {
@@ -81,6 +82,34 @@ fn residuals(
         .collect()
 }
 
+/// The rows `∂u/∂δ`, `∂v/∂δ` of the ideal pinhole `pin`'s pixel of the camera point `p` with
+/// respect to a pose perturbation `δ = (δθ, δt)` in the camera frame, `p' = exp(δθ) p + δt`
+/// (the Jacobian of eq. R1).
+pub fn pixel_rows(pin: &Pinhole, p: &Vector3<f64>) -> [Vector6<f64>; 2] {
+    let (z, x, y) = (p.z, p.x / p.z, p.y / p.z);
+    // ∂(x, y)/∂p_c, then the pixel through fx, fy and the skew.
+    let dx = Vector3::new(1.0 / z, 0.0, -x / z);
+    let dy = Vector3::new(0.0, 1.0 / z, -y / z);
+    let du = dx * pin.fx + dy * pin.skew;
+    let dv = dy * pin.fy;
+    // ∂p'/∂δθ = −[p]×, ∂p'/∂δt = I.
+    let row = |d: Vector3<f64>| {
+        let rot = p.cross(&d);
+        Vector6::new(rot.x, rot.y, rot.z, d.x, d.y, d.z)
+    };
+    [row(du), row(dv)]
+}
+
+/// `pose` perturbed by `δ = (δθ, δt)` in the camera frame (see [`pixel_rows`]).
+pub fn perturbed(pose: &CameraPose, delta: &Vector6<f64>) -> CameraPose {
+    let rot = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
+    let t = Vector3::new(delta[3], delta[4], delta[5]);
+    let q_cw = rot * pose.q_cw;
+    // R' (p_w − c') = exp(δθ) R (p_w − c) + δt  ⇒  c' = c − R'ᵀ δt.
+    let c_w = pose.c_w - q_cw.inverse() * t;
+    CameraPose { q_cw, c_w }
+}
+
 /// Eq. R1: the pose minimising `Σ ρ_H(|r_i|)` over `pairs` (registered pixel of the ideal
 /// `camera`, model point), from `start`, with the Huber scale re-estimated from the residuals
 /// at every step. Returns the pose and the residual magnitudes there [px], or `None` when a
@@ -101,19 +130,7 @@ pub fn robust_fit(
         let scale = robust_scale(&mags);
         let (mut a, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
         for ((_, p_w), r) in pairs.iter().zip(&r) {
-            let p = pose.world_to_camera(p_w);
-            let (z, x, y) = (p.z, p.x / p.z, p.y / p.z);
-            // ∂(x, y)/∂p_c, then the pixel through fx, fy and the skew.
-            let dx = Vector3::new(1.0 / z, 0.0, -x / z);
-            let dy = Vector3::new(0.0, 1.0 / z, -y / z);
-            let du = dx * pin.fx + dy * pin.skew;
-            let dv = dy * pin.fy;
-            // p_c' = exp(δθ) p_c + δt: ∂p_c'/∂δθ = −[p_c]×, ∂p_c'/∂δt = I.
-            let row = |d: Vector3<f64>| {
-                let rot = p.cross(&d);
-                Vector6::new(rot.x, rot.y, rot.z, d.x, d.y, d.z)
-            };
-            let (ju, jv) = (row(du), row(dv));
+            let [ju, jv] = pixel_rows(pin, &pose.world_to_camera(p_w));
             let e = r.norm();
             let w = if e <= HUBER * scale {
                 1.0
@@ -127,12 +144,7 @@ pub fn robust_fit(
         if !delta.iter().all(|v| v.is_finite()) {
             return None;
         }
-        let rot = UnitQuaternion::from_scaled_axis(Vector3::new(delta[0], delta[1], delta[2]));
-        let t = Vector3::new(delta[3], delta[4], delta[5]);
-        let q_cw = rot * pose.q_cw;
-        // R' (p_w − c') = exp(δθ) R (p_w − c) + δt  ⇒  c' = c − R'ᵀ δt.
-        let c_w = pose.c_w - q_cw.inverse() * t;
-        pose = CameraPose { q_cw, c_w };
+        pose = perturbed(&pose, &delta);
         if delta.norm() < 1e-10 {
             break;
         }

@@ -666,9 +666,13 @@ impl Vision {
                 width: 0,
                 height: 0,
             })?;
-            let c = self
-                .contour
-                .measure(&rendering, live_f, &self.ideal.pinhole);
+            let c = self.contour.measure(
+                &rendering,
+                live_f,
+                &self.ideal.pinhole,
+                &job.prediction,
+                self.options.outliers.as_ref(),
+            );
             times.contour = t.elapsed().as_secs_f64();
             c
         } else {

@@ -3,12 +3,15 @@
 //! the contour form of its judgement.
 
 use features::GrayF32;
-use protocol::ContourPoint;
+use nalgebra::Matrix6;
+use protocol::{ContourPoint, PosePrediction, sym_index};
 use serde::Serialize;
 
 use camera::{CameraPose, Pinhole};
 use contour::measure::{contour_rms, measure, silhouette_agreement};
+use contour::outliers::outliers;
 use contour::{ColourModel, ContourConfig, ContourMeasurement, ContourSample, Tally};
+use features::OutlierRule;
 use model::Model;
 
 /// Which measurements a frame makes.
@@ -90,14 +93,17 @@ impl ContourState {
         &self.colour
     }
 
-    /// Measures the contour of `rendering` (the model at the predicted pose) in `live`, and
-    /// learns the statistics: from the rendering itself the first time (the start pose is
-    /// taken as right), then along the contours found.
+    /// Measures the contour of `rendering` (the model at `prediction`) in `live`, drops
+    /// the lines no rigid pose explains with the others (eq. K7, by `rule`), and learns the
+    /// statistics: from the rendering itself the first time (the start pose is taken as
+    /// right), then along the contours found.
     pub fn measure(
         &mut self,
         rendering: &render::Frame,
         live: &GrayF32,
         pinhole: &Pinhole,
+        prediction: &PosePrediction,
+        rule: Option<&OutlierRule>,
     ) -> ContourFrame {
         let cfg = &self.config;
         if !self.colour.learnt() {
@@ -105,7 +111,16 @@ impl ContourState {
             self.colour
                 .learn(live, Some(&rendering.mask), &samples, cfg.band_px, 1.0);
         }
-        let c = measure(rendering, live, &self.colour, cfg);
+        // The lines reach as far as the prediction's covariance says (eq. K8).
+        let cov = Matrix6::from_fn(|r, c| f64::from(prediction.cov[sym_index(6, r, c)]));
+        let cov = cov.iter().all(|v| v.is_finite()).then_some(cov);
+        let mut c = measure(rendering, live, &self.colour, cfg, cov.as_ref());
+        if let Some(rule) = rule {
+            let flags = outliers(pinhole, &rendering.view.pose, &c.measurements, rule);
+            let mut flags = flags.into_iter();
+            c.measurements.retain(|_| !flags.next().unwrap_or(false));
+            c.tally.outliers = c.tally.found - c.measurements.len();
+        }
         if c.measurements.len() >= LEARN_MIN_FOUND && 2 * c.tally.found >= c.tally.sampled {
             let found: Vec<ContourSample> = c
                 .measurements

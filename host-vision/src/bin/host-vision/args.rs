@@ -253,6 +253,11 @@ pub struct TrackArgs {
     /// Features registered per frame (1 to 128, what one frame can send the core).
     #[arg(long, default_value_t = 40)]
     pub features: usize,
+    /// What frames measure: the model's texture (KLT features), its contour (the silhouette
+    /// along its normals, docs/VISION.md §9), both, or `auto`: the texture of a textured
+    /// model, the contour of one without texture.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub modality: ModalityArg,
     /// Track only the first S seconds of the dataset (longer than the core's 0.3 s
     /// initialisation).
     #[arg(long)]
@@ -335,6 +340,31 @@ pub struct TrackArgs {
     pub imu_on_core: bool,
 }
 
+/// What frames measure, on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ModalityArg {
+    /// The model's texture where it has one, else its contour.
+    Auto,
+    /// The texture (KLT features).
+    Texture,
+    /// The contour.
+    Contour,
+    /// Both.
+    Both,
+}
+
+impl ModalityArg {
+    /// The tracker's choice (`None`: from the model).
+    pub fn modality(self) -> Option<vision::Modality> {
+        match self {
+            ModalityArg::Auto => None,
+            ModalityArg::Texture => Some(vision::Modality::Texture),
+            ModalityArg::Contour => Some(vision::Modality::Contour),
+            ModalityArg::Both => Some(vision::Modality::Both),
+        }
+    }
+}
+
 /// Filter model on the command line.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum FilterArg {
@@ -400,6 +430,11 @@ pub struct SynthArgs {
     /// Image for the modelled surfaces instead of generated textures (repeatable).
     #[arg(long = "texture")]
     pub textures: Vec<PathBuf>,
+    /// The modelled surfaces in one solid colour, without texture (in the model and in the
+    /// frames): an object without texture, to track by its contour. The surroundings keep
+    /// their textures.
+    #[arg(long, conflicts_with = "textures")]
+    pub untextured: bool,
     /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
     #[arg(long)]
     pub ideal: bool,

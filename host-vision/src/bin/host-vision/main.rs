@@ -305,6 +305,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     o.pacing = a.pacing;
     o.latency = a.latency;
     o.vision.map.subset_size = a.features;
+    o.modality = a.modality.modality();
     o.duration = a.duration;
     o.overwrite = a.overwrite;
     o.start = Start {
@@ -425,6 +426,9 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
         textures: TextureOptions {
             scale: a.texture_scale,
             user_images: a.textures.clone(),
+            untextured: a
+                .untextured
+                .then_some(host_vision::synth::UNTEXTURED_COLOUR),
             ..TextureOptions::generated()
         },
         overwrite: a.overwrite,

@@ -1,0 +1,150 @@
+//! Contour findings that no rigid pose explains (docs/VISION.md §9.5, eq. K6-K7): the contour
+//! form of the registrations' outlier rule (`features::outliers`, eq. R1-R2). Each line is
+//! searched on its own; where the background holds the object's grey levels a line can lock
+//! onto a step that is not the contour, tens of pixels out, with a small variance. The
+//! frame's lines are judged together: a robust rigid pose fit through all of them along their
+//! normals, then the X84 rule on the residuals there.
+
+use nalgebra::{Matrix6, Vector2, Vector6};
+
+use camera::{CameraPose, Pinhole};
+use features::OutlierRule;
+use features::outliers::{median, perturbed, pixel_rows};
+
+use crate::measure::ContourMeasurement;
+
+/// Gauss-Newton iterations of the fit (it starts within a few pixels).
+const ITERATIONS: usize = 8;
+
+/// Huber's constant for 95 % efficiency at the normal, in units of the residual scale.
+const HUBER: f64 = 1.345;
+
+/// Median of `|e|` for a normal `e` over its σ (the half-normal's median).
+const HALF_NORMAL_MEDIAN: f64 = 0.674_489_750_196_081_7;
+
+/// A residual scale below this is numerical noise [px].
+const MIN_SCALE_PX: f64 = 0.05;
+
+/// Fewest lines for a judgement: each constrains one of the pose's six degrees of freedom.
+pub const MIN_LINES: usize = 12;
+
+/// Signed residuals [px] along the normals at `pose`: the model point's projection against
+/// the contour found. `None` if a point is behind the camera.
+fn residuals(pin: &Pinhole, pose: &CameraPose, lines: &[ContourMeasurement]) -> Option<Vec<f64>> {
+    lines.iter().map(|m| m.residual_px(pose, pin)).collect()
+}
+
+/// Eq. K6: the pose minimising `Σ ρ_H(r_i)` over the lines' residuals along their normals,
+/// `r_i = n_iᵀ(π(m_i) − p_i)`, from `start`, the Huber scale re-estimated at every step.
+/// Returns the pose and the residuals there [px]; `None` when a point falls behind the camera
+/// or the step is not finite. Directions the lines do not constrain are damped, not refused.
+pub fn robust_fit(
+    pin: &Pinhole,
+    start: &CameraPose,
+    lines: &[ContourMeasurement],
+) -> Option<(CameraPose, Vec<f64>)> {
+    let mut pose = *start;
+    for _ in 0..ITERATIONS {
+        let r = residuals(pin, &pose, lines)?;
+        let mut mags: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+        let scale = (median(&mut mags) / HALF_NORMAL_MEDIAN).max(MIN_SCALE_PX);
+        let (mut a, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
+        for (m, &r) in lines.iter().zip(&r) {
+            let [ju, jv] = pixel_rows(pin, &pose.world_to_camera(&m.sample.m_w));
+            let n: Vector2<f64> = m.sample.normal;
+            let j = ju * n.x + jv * n.y;
+            let w = if r.abs() <= HUBER * scale {
+                1.0
+            } else {
+                HUBER * scale / r.abs()
+            };
+            a += j * j.transpose() * w;
+            b += j * r * w;
+        }
+        // Directions the contour does not see (a disc's roll, rotation against translation
+        // for a flat silhouette) stay where they are: a little damping, relative to the
+        // information in the others.
+        let damping = 1e-6 * a.trace().max(f64::MIN_POSITIVE);
+        a += Matrix6::identity() * damping;
+        let delta = a.cholesky()?.solve(&(-b));
+        if !delta.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        pose = perturbed(&pose, &delta);
+        if delta.norm() < 1e-10 {
+            break;
+        }
+    }
+    Some((pose, residuals(pin, &pose, lines)?))
+}
+
+/// Eq. K7: which of `lines` are outliers by `rule`, judged at their robust fit from
+/// `predicted`: a residual beyond the median by more than `rule.mads` median absolute
+/// deviations, and above `rule.floor_px`. Fewer than [`MIN_LINES`] lines, or a fit that fails,
+/// judge none an outlier: the core's gate still applies.
+pub fn outliers(
+    pin: &Pinhole,
+    predicted: &CameraPose,
+    lines: &[ContourMeasurement],
+    rule: &OutlierRule,
+) -> Vec<bool> {
+    if lines.len() < MIN_LINES.max(rule.min_features) {
+        return vec![false; lines.len()];
+    }
+    let Some((_, r)) = robust_fit(pin, predicted, lines) else {
+        return vec![false; lines.len()];
+    };
+    let mut mags: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+    let med = median(&mut mags.clone());
+    let mut deviations: Vec<f64> = mags.iter().map(|e| (e - med).abs()).collect();
+    let mad = median(&mut deviations);
+    let limit = (med + rule.mads * mad).max(rule.floor_px);
+    mags.iter_mut().map(|e| *e > limit).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::line::LineResult;
+    use crate::silhouette::{SampleConfig, sample, tests::disc_frame};
+
+    /// The disc's contour found 3 px to the right (the object moved), with a few lines locked
+    /// 20 px out: the fit explains the shift, and only the locked lines are outliers.
+    #[test]
+    fn lines_locked_on_another_step_are_outliers_the_shifted_rest_are_not() {
+        let frame = disc_frame((320, 240), (160.0, 120.0), 50.0);
+        let samples = sample(&frame, &SampleConfig::default());
+        let wrong = [3usize, 11, 20, 31];
+        let lines: Vec<ContourMeasurement> = samples
+            .iter()
+            .enumerate()
+            .map(|(i, s)| ContourMeasurement {
+                sample: *s,
+                line: LineResult {
+                    offset_px: if wrong.contains(&i) {
+                        20.0
+                    } else {
+                        3.0 * s.normal.x
+                    },
+                    sigma_px: 1.0,
+                },
+            })
+            .collect();
+        let pin = frame.view.pinhole;
+        let flags = outliers(&pin, &frame.view.pose, &lines, &OutlierRule::default());
+        for (i, f) in flags.iter().enumerate() {
+            assert_eq!(*f, wrong.contains(&i), "line {i}");
+        }
+        // The fit moved the disc: the inliers' residuals vanish there.
+        let (_, r) = robust_fit(&pin, &frame.view.pose, &lines).unwrap();
+        for (i, r) in r.iter().enumerate().filter(|(i, _)| !wrong.contains(i)) {
+            assert!(r.abs() < 0.05, "line {i}: {r}");
+        }
+        // Too few lines: no judgement.
+        assert!(
+            outliers(&pin, &frame.view.pose, &lines[..8], &OutlierRule::default())
+                .iter()
+                .all(|f| !f)
+        );
+    }
+}
