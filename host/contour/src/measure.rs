@@ -339,7 +339,7 @@ mod tests {
             assert!(w.var_d > 0.0);
         }
         let rms = (sq / c.measurements.len() as f64).sqrt();
-        assert!(rms < 0.5, "rms {rms} px");
+        assert!(rms < 0.6, "rms {rms} px");
         // The pose the frame was rendered at is 4 px off: its rms along the normals says so.
         let applied = vec![true; c.measurements.len()];
         let (n, rms) = contour_rms(&c.measurements, &applied, &frame.view.pose, &pinhole);

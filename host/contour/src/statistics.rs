@@ -44,8 +44,9 @@ impl Histograms {
     /// Eq. K1: the posterior that a pixel of grey level `grey` belongs to the object,
     /// `p(y|f) / (p(y|f) + p(y|b))` (equal priors).
     pub fn posterior(&self, grey: f32) -> f32 {
-        let k = bin(grey);
-        let (f, b) = (self.fg[k], self.bg[k]);
+        let (lo, hi, w) = bins(grey);
+        let f = self.fg[lo] * (1.0 - w) + self.fg[hi] * w;
+        let b = self.bg[lo] * (1.0 - w) + self.bg[hi] * w;
         f / (f + b)
     }
 
@@ -108,8 +109,22 @@ impl Default for ColourModel {
     }
 }
 
-fn bin(grey: f32) -> usize {
-    ((grey.clamp(0.0, 255.0) as usize) * BINS / 256).min(BINS - 1)
+/// The two bins around grey level `grey` and the weight of the upper one: bins are centred at
+/// `(k + ½) · 256 / BINS`, and a grey level between two centres counts for both, linearly (a
+/// level on a bin's edge is not all in one bin and none in the other: the smoothed live image
+/// and the raw one put a flat object's 128 in different bins otherwise).
+fn bins(grey: f32) -> (usize, usize, f32) {
+    let b = (grey.clamp(0.0, 255.0) * BINS as f32 / 256.0 - 0.5).clamp(0.0, (BINS - 1) as f32);
+    let lo = b.floor() as usize;
+    let hi = (lo + 1).min(BINS - 1);
+    (lo, hi, b - lo as f32)
+}
+
+/// Adds one pixel of grey level `grey` to `counts`.
+fn count(counts: &mut [f32; BINS], grey: f32) {
+    let (lo, hi, w) = bins(grey);
+    counts[lo] += 1.0 - w;
+    counts[hi] += w;
 }
 
 /// Normalises counts into a distribution with every bin at least [`FLOOR`] (before the final
@@ -226,13 +241,13 @@ impl ColourModel {
                     .sample(inner.x, inner.y)
                     .filter(|_| agrees(inner.x, inner.y, true))
                 {
-                    counts.fg[bin(y)] += 1.0;
+                    count(&mut counts.fg, y);
                 }
                 if let Some(y) = live
                     .sample(outer.x, outer.y)
                     .filter(|_| agrees(outer.x, outer.y, false))
                 {
-                    counts.bg[bin(y)] += 1.0;
+                    count(&mut counts.bg, y);
                 }
             }
             for k in 0..BINS {
