@@ -23,11 +23,11 @@ fn job(index: usize, image: GrayImage, pose: &CameraPose) -> FrameJob {
             t_us: 0,
             c_w: [pose.c_w.x as f32, pose.c_w.y as f32, pose.c_w.z as f32],
             q_cw: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
-            // A few millimetres and a few milliradians: lines of a few pixels.
+            // 3 mm and 3 mrad: lines of a few pixels.
             cov: {
                 let mut c = [0.0f32; 21];
                 for i in 0..6 {
-                    c[protocol::sym_index(6, i, i)] = if i < 3 { 1e-5 } else { 1e-5 };
+                    c[protocol::sym_index(6, i, i)] = 1e-5;
                 }
                 c
             },
