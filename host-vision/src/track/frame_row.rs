@@ -29,6 +29,11 @@ pub struct FrameRow {
     pub accepted: usize,
     /// Gated out (or otherwise rejected) by the core.
     pub gated: usize,
+    /// Contour correspondences sent, beside `sent`'s 2D/3D ones (docs/VISION.md §9); `accepted`
+    /// and `gated` count both kinds.
+    pub contours: usize,
+    /// Mean distance along the normals between the predicted contour and the one found [px].
+    pub contour_error_px: Option<f64>,
     /// Mean prediction error [px] (predicted → registered).
     pub prediction_error_px: Option<f64>,
     /// Camera position error of the prediction [m], with ground truth.
@@ -46,6 +51,10 @@ pub struct FrameRow {
     pub rms_px: Option<f64>,
     /// Rendered-vs-live correlation over the model's mask at that pose (vision-only runs).
     pub ncc: Option<f64>,
+    /// The applied contour correspondences' rms along the normals at that pose [px].
+    pub contour_rms_px: Option<f64>,
+    /// The silhouette's agreement with the object's statistics at that pose (eq. K5).
+    pub silhouette: Option<f64>,
     /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
     pub tracked: Option<bool>,
     /// The frame's age [ms since its capture, or since it was read in a replay] when the

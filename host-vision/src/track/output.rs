@@ -552,13 +552,16 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours and silhouette agreement >= {}",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,
                 t.rule.max_rms_px,
                 t.rule.min_features,
-                t.rule.min_ncc
+                t.rule.min_ncc,
+                t.rule.max_contour_rms_px,
+                t.rule.min_contours,
+                t.rule.min_silhouette
             )?;
             if !t.untracked.is_empty() {
                 let mut longest = t.untracked.clone();
@@ -957,6 +960,10 @@ pub(super) fn write_all(
             dropped_before: latency.map_or(0, |l| l.dropped_before),
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
+            contour_rms_px: judged.and_then(|a| a.contour_rms_px),
+            silhouette: judged.and_then(|a| a.silhouette),
+            contours: r.contours.len(),
+            contour_error_px: r.contour_error_px,
             tracked,
             index: r.job.index,
             t: seconds(p.t_us),
@@ -983,7 +990,7 @@ pub(super) fn write_all(
         let e = io(&path);
         writeln!(
             w,
-            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before"
+            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before"
         )
         .map_err(&e)?;
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
@@ -991,7 +998,7 @@ pub(super) fn write_all(
         for r in &rows {
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1003,12 +1010,16 @@ pub(super) fn write_all(
                 r.sent,
                 r.accepted,
                 r.gated,
+                r.contours,
+                o(r.contour_error_px),
                 o(r.prediction_error_px),
                 o(r.position_error_m),
                 r.render_ms,
                 r.pyramids_ms,
                 r.klt_ms,
                 r.total_ms,
+                o(r.contour_rms_px),
+                o(r.silhouette),
                 o(r.rms_px),
                 o(r.ncc),
                 r.tracked
