@@ -9,12 +9,12 @@
 
 use nalgebra::{RowVector3, Vector2, Vector3};
 
-use crate::ekf::{Gains, Ldl, SparseRow, innovation_cov};
-use crate::models::correspondence::{MIN_DEPTH, Rejection, camera_point};
+use crate::ekf::SparseRow;
+use crate::models::correspondence::{PoseRows, Rejection, camera_point, pose_rows};
 use crate::params::Params;
 use crate::quat;
 use crate::scalar::Scalar;
-use crate::state::{HandEye, N, POS, QUAT, State};
+use crate::state::{HandEye, POS, State};
 use nalgebra::Matrix3;
 
 /// One contour correspondence in the filter's scalar.
@@ -100,13 +100,6 @@ fn blocks<T: Scalar>(
     )
 }
 
-fn row_of<T: Scalar>(d_s: &[T; 3], d_q: &[T; 4]) -> SparseRow<T> {
-    let mut row = SparseRow::default();
-    row.push_slice(POS, d_s);
-    row.push_slice(QUAT, d_q);
-    row
-}
-
 /// Linearisation: the row of `∂h/∂x`, the noise variance `r` and the depth.
 pub fn linearise<T: Scalar>(
     st: &State<T>,
@@ -114,7 +107,8 @@ pub fn linearise<T: Scalar>(
     obs: &ContourObservation<T>,
 ) -> (SparseRow<T>, T, T) {
     let (d_s, d_q, r, depth, _) = blocks(st, he, obs);
-    (row_of(&d_s, &d_q), r, depth)
+    let [row] = pose_rows(&[d_s], &[d_q]);
+    (row, r, depth)
 }
 
 /// Applies one contour correspondence unless it is behind the camera, singular, or gated out
@@ -130,44 +124,21 @@ pub fn update<T: ContourKernel>(
     T::contour_update(st, prm, obs)
 }
 
-/// [`update`], instantiated through [`ContourKernel`].
+/// [`update`], instantiated through [`ContourKernel`]: a one-row [`PoseRows`].
 fn update_generic<T: Scalar>(
     st: &mut State<T>,
     prm: &Params<T>,
     obs: &ContourObservation<T>,
 ) -> (T, Result<(), Rejection>) {
     let (d_s, d_q, r, depth, h) = blocks(st, &prm.hand_eye, obs);
-    let inf = T::c(f64::INFINITY);
-    // Written so that a NaN depth is rejected too.
-    if depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
-        return (inf, Err(Rejection::BehindCamera));
+    PoseRows {
+        d_s: [d_s],
+        d_q: [d_q],
+        r: [[r]],
+        h: [h],
+        depth,
     }
-    // U = P hᵀ from whole columns of the symmetric P, on the row's two blocks.
-    let n = prm.n.min(N);
-    let p = st.p.as_slice();
-    let mut u: Gains<T, 1> = core::array::from_fn(|i| {
-        let Some(col) = p.get(i * N..i * N + N).filter(|_| i < n) else {
-            return [T::zero()];
-        };
-        let mut a = T::zero();
-        for c in 0..3 {
-            a += d_s[c] * col[POS + c];
-        }
-        for c in 0..4 {
-            a += d_q[c] * col[QUAT + c];
-        }
-        [a]
-    });
-    let s = innovation_cov(&[row_of(&d_s, &d_q)], &u, &[[r]]);
-    let f = Ldl::new(&s, &[-h]);
-    if f.rank < 1 || !f.nis.is_finite() {
-        return (inf, Err(Rejection::Singular));
-    }
-    if f.nis > prm.gate {
-        return (f.nis, Err(Rejection::Gated));
-    }
-    f.apply(st, prm.n, &mut u);
-    (f.nis, Ok(()))
+    .update(st, prm)
 }
 
 /// [`update`], compiled in this crate for each scalar (why: [`crate::kernels`]).

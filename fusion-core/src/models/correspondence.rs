@@ -108,19 +108,6 @@ fn blocks<T: Scalar>(
     (-d_mw, d_q, cov, depth, h)
 }
 
-fn rows_of<T: Scalar>(d_s: &Matrix2x3<T>, d_q: &Matrix2x4<T>) -> [SparseRow<T>; 2] {
-    core::array::from_fn(|k| {
-        let mut row = SparseRow::default();
-        for c in 0..3 {
-            row.push(POS + c, d_s[(k, c)]);
-        }
-        for c in 0..4 {
-            row.push(QUAT + c, d_q[(k, c)]);
-        }
-        row
-    })
-}
-
 /// Linearisation: rows of `∂h/∂x`, and `P_c`.
 pub fn linearise<T: Scalar>(
     st: &State<T>,
@@ -128,7 +115,9 @@ pub fn linearise<T: Scalar>(
     obs: &Observation<T>,
 ) -> ([SparseRow<T>; 2], Matrix2<T>, T) {
     let (d_s, d_q, cov, depth, _) = blocks(st, he, obs);
-    (rows_of(&d_s, &d_q), cov, depth)
+    let d_s = core::array::from_fn(|k| core::array::from_fn(|c| d_s[(k, c)]));
+    let d_q = core::array::from_fn(|k| core::array::from_fn(|c| d_q[(k, c)]));
+    (pose_rows(&d_s, &d_q), cov, depth)
 }
 
 /// Applies one correspondence unless it is behind the camera, singular, or gated out.
@@ -152,43 +141,89 @@ pub(crate) fn update_generic<T: Scalar>(
     obs: &Observation<T>,
 ) -> (T, Result<(), Rejection>) {
     let (d_s, d_q, r, depth, h) = blocks(st, &prm.hand_eye, obs);
-    // Written so that a NaN depth is rejected too.
-    if depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
-        return (T::c(f64::INFINITY), Err(Rejection::BehindCamera));
-    }
-    let inf = T::c(f64::INFINITY);
-    // U = P Hᵀ from whole columns of the symmetric P, on the two blocks of H.
-    // Built in place rather than zeroed first (a memset call per update).
-    let n = prm.n.min(N);
-    let p = st.p.as_slice();
-    let mut u: Gains<T, 2> = core::array::from_fn(|i| {
-        let Some(col) = p.get(i * N..i * N + N).filter(|_| i < n) else {
-            return [T::zero(); 2];
-        };
-        core::array::from_fn(|k| {
-            let mut a = T::zero();
-            for c in 0..3 {
-                a += d_s[(k, c)] * col[POS + c];
-            }
-            for c in 0..4 {
-                a += d_q[(k, c)] * col[QUAT + c];
-            }
-            a
-        })
-    });
     let rs = (r[(0, 1)] + r[(1, 0)]) * T::c(0.5);
-    let r = [[r[(0, 0)], rs], [rs, r[(1, 1)]]];
-    let s = innovation_cov(&rows_of(&d_s, &d_q), &u, &r);
-    let f = Ldl::new(&s, &[-h[0], -h[1]]);
-    if f.rank < 2 || !f.nis.is_finite() {
-        return (inf, Err(Rejection::Singular));
+    let pose = PoseRows {
+        d_s: core::array::from_fn(|k| core::array::from_fn(|c| d_s[(k, c)])),
+        d_q: core::array::from_fn(|k| core::array::from_fn(|c| d_q[(k, c)])),
+        r: [[r[(0, 0)], rs], [rs, r[(1, 1)]]],
+        h: [h[0], h[1]],
+        depth,
+    };
+    pose.update(st, prm)
+}
+
+/// An implicit measurement `0 = h(x) + v` of dimension `M` on the pose alone: its rows on
+/// `s_w` and `q_sw`, its noise covariance, `h` at the prior and the depth of its model point.
+/// Eq. 10 (`M` = 2) and eq. 10c (`M` = 1, [`super::contour`]) are both applied by
+/// [`PoseRows::update`].
+pub(crate) struct PoseRows<T: Scalar, const M: usize> {
+    /// `∂h/∂s_w`, row by row.
+    pub d_s: [[T; 3]; M],
+    /// `∂h/∂q_sw`, row by row.
+    pub d_q: [[T; 4]; M],
+    /// The noise covariance (symmetric).
+    pub r: [[T; M]; M],
+    /// `h` at the prior.
+    pub h: [T; M],
+    /// Depth of the model point in front of the camera.
+    pub depth: T,
+}
+
+/// The sparse rows of `∂h/∂x` from their blocks on `s_w` and `q_sw`.
+pub(crate) fn pose_rows<T: Scalar, const M: usize>(
+    d_s: &[[T; 3]; M],
+    d_q: &[[T; 4]; M],
+) -> [SparseRow<T>; M] {
+    core::array::from_fn(|k| {
+        let mut row = SparseRow::default();
+        row.push_slice(POS, &d_s[k]);
+        row.push_slice(QUAT, &d_q[k]);
+        row
+    })
+}
+
+impl<T: Scalar, const M: usize> PoseRows<T, M> {
+    /// Applies the measurement unless its point is behind the camera, its innovation
+    /// covariance is singular, or it fails the gate (eq. 17). Returns the normalised residual
+    /// `s = hᵀ S⁻¹ h` (infinite when it cannot be computed) and whether it was applied.
+    #[inline(always)]
+    pub(crate) fn update(&self, st: &mut State<T>, prm: &Params<T>) -> (T, Result<(), Rejection>) {
+        let inf = T::c(f64::INFINITY);
+        // Written so that a NaN depth is rejected too.
+        if self.depth.partial_cmp(&T::c(MIN_DEPTH)) != Some(core::cmp::Ordering::Greater) {
+            return (inf, Err(Rejection::BehindCamera));
+        }
+        // U = P Hᵀ from whole columns of the symmetric P, on the two blocks of H.
+        // Built in place rather than zeroed first (a memset call per update).
+        let n = prm.n.min(N);
+        let p = st.p.as_slice();
+        let mut u: Gains<T, M> = core::array::from_fn(|i| {
+            let Some(col) = p.get(i * N..i * N + N).filter(|_| i < n) else {
+                return [T::zero(); M];
+            };
+            core::array::from_fn(|k| {
+                let mut a = T::zero();
+                for c in 0..3 {
+                    a += self.d_s[k][c] * col[POS + c];
+                }
+                for c in 0..4 {
+                    a += self.d_q[k][c] * col[QUAT + c];
+                }
+                a
+            })
+        });
+        let s = innovation_cov(&pose_rows(&self.d_s, &self.d_q), &u, &self.r);
+        let f = Ldl::new(&s, &self.h.map(|v| -v));
+        if f.rank < M || !f.nis.is_finite() {
+            return (inf, Err(Rejection::Singular));
+        }
+        // Outlier gate (eq. 17): s = hᵀ S⁻¹ h, from the factorisation.
+        if f.nis > prm.gate {
+            return (f.nis, Err(Rejection::Gated));
+        }
+        f.apply(st, prm.n, &mut u);
+        (f.nis, Ok(()))
     }
-    // Outlier gate (eq. 17): s_i = zᵀ S⁻¹ z, from the factorisation.
-    if f.nis > prm.gate {
-        return (f.nis, Err(Rejection::Gated));
-    }
-    f.apply(st, prm.n, &mut u);
-    (f.nis, Ok(()))
 }
 
 /// [`update`], compiled in this crate for each scalar (why: [`crate::kernels`]).

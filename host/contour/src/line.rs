@@ -9,7 +9,7 @@ use features::GrayF32;
 use image::GrayImage;
 use nalgebra::Vector2;
 
-use crate::silhouette::ContourSample;
+use crate::silhouette::{ContourSample, covers};
 use crate::statistics::{ColourModel, Histograms};
 
 /// How lines are searched.
@@ -222,15 +222,7 @@ impl Pass {
 /// stay in the mask (up to `limit`), and whether the background side leaves the mask for
 /// `limit` pixels.
 fn rendered_sides(mask: &GrayImage, sample: &ContourSample, limit: usize) -> (usize, bool) {
-    let at = |t: f64| {
-        let p = sample.pixel + sample.normal * t;
-        let (x, y) = (p.x.round(), p.y.round());
-        x >= 0.0
-            && y >= 0.0
-            && (x as u32) < mask.width()
-            && (y as u32) < mask.height()
-            && mask.get_pixel(x as u32, y as u32).0[0] > 0
-    };
+    let at = |t: f64| covers(mask, sample.pixel + sample.normal * t);
     let inside = (1..=limit).take_while(|&t| at(-(t as f64) + 0.5)).count();
     let clear = (1..=limit).all(|t| !at(t as f64 - 0.5));
     (inside, clear)

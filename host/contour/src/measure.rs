@@ -3,7 +3,6 @@
 //! correspondences sent to the fusion core (eq. K4), and a pose judged by its contour.
 
 use features::GrayF32;
-use image::GrayImage;
 use nalgebra::{Matrix6, Vector2, Vector3};
 use rayon::prelude::*;
 
@@ -12,7 +11,7 @@ use protocol::ContourPoint;
 use render::Frame;
 
 use crate::line::{LineConfig, LineRejection, LineResult, half_length, search};
-use crate::silhouette::{ContourSample, SampleConfig, sample};
+use crate::silhouette::{ContourSample, SampleConfig, covers, sample};
 use crate::statistics::ColourModel;
 
 /// The contour modality's parameters.
@@ -245,15 +244,7 @@ pub fn silhouette_agreement(
         return None;
     }
     let samples = sample(rendering, &cfg.sample);
-    let mask: &GrayImage = &rendering.mask;
-    let in_mask = |p: Vector2<f64>| {
-        let (x, y) = (p.x.round(), p.y.round());
-        x >= 0.0
-            && y >= 0.0
-            && (x as u32) < mask.width()
-            && (y as u32) < mask.height()
-            && mask.get_pixel(x as u32, y as u32).0[0] > 0
-    };
+    let in_mask = |p: Vector2<f64>| covers(&rendering.mask, p);
     let (mut sum, mut n) = (0.0f64, 0usize);
     for s in &samples {
         for t in 1..=cfg.band_px {

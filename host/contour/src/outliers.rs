@@ -9,7 +9,7 @@ use nalgebra::{Matrix6, Vector2, Vector6};
 
 use camera::{CameraPose, Pinhole};
 use features::OutlierRule;
-use features::outliers::{median, perturbed, pixel_rows};
+use features::outliers::{median, perturbed, pixel_rows, x84};
 
 use crate::measure::ContourMeasurement;
 
@@ -94,12 +94,8 @@ pub fn outliers(
     let Some((_, r)) = robust_fit(pin, predicted, lines) else {
         return vec![false; lines.len()];
     };
-    let mut mags: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-    let med = median(&mut mags.clone());
-    let mut deviations: Vec<f64> = mags.iter().map(|e| (e - med).abs()).collect();
-    let mad = median(&mut deviations);
-    let limit = (med + rule.mads * mad).max(rule.floor_px);
-    mags.iter_mut().map(|e| *e > limit).collect()
+    let mags: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+    x84(&mags, rule)
 }
 
 #[cfg(test)]

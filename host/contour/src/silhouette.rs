@@ -53,6 +53,11 @@ fn inside(mask: &GrayImage, x: i64, y: i64) -> bool {
     x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && mask.get_pixel(x as u32, y as u32).0[0] > 0
 }
 
+/// Whether the pixel nearest `p` is a pixel of `mask` that is set.
+pub(crate) fn covers(mask: &GrayImage, p: Vector2<f64>) -> bool {
+    p.x.is_finite() && p.y.is_finite() && inside(mask, p.x.round() as i64, p.y.round() as i64)
+}
+
 /// The outward normal of the mask at `(x, y)`: away from the centroid of the set pixels of the
 /// `(2r+1)²` window around it (a smoothed gradient of the mask); `None` where the window is
 /// symmetric (a one-pixel line, a corner's tip).

@@ -11,7 +11,7 @@ use features::GrayF32;
 use image::GrayImage;
 use nalgebra::Vector3;
 
-use crate::silhouette::ContourSample;
+use crate::silhouette::{ContourSample, covers};
 
 /// Histogram bins over the grey levels 0–255.
 pub const BINS: usize = 32;
@@ -214,17 +214,9 @@ impl ColourModel {
         band: usize,
         rate: f32,
     ) -> bool {
-        // Whether the rendering puts (x, y) on the object's side (`object`), or no mask says.
-        let agrees = |x: f64, y: f64, object: bool| {
-            let Some(mask) = mask else { return true };
-            let (xi, yi) = (x.round(), y.round());
-            let inside = xi >= 0.0
-                && yi >= 0.0
-                && (xi as u32) < mask.width()
-                && (yi as u32) < mask.height()
-                && mask.get_pixel(xi as u32, yi as u32).0[0] > 0;
-            inside == object
-        };
+        // Whether the rendering puts p on the object's side (`object`), or no mask says.
+        let agrees =
+            |p: nalgebra::Vector2<f64>, object: bool| mask.is_none_or(|m| covers(m, p) == object);
         if self.region_m.is_none() {
             self.region_m = region_size(samples);
         }
@@ -239,13 +231,13 @@ impl ColourModel {
                 let outer = s.pixel + s.normal * t;
                 if let Some(y) = live
                     .sample(inner.x, inner.y)
-                    .filter(|_| agrees(inner.x, inner.y, true))
+                    .filter(|_| agrees(inner, true))
                 {
                     count(&mut counts.fg, y);
                 }
                 if let Some(y) = live
                     .sample(outer.x, outer.y)
-                    .filter(|_| agrees(outer.x, outer.y, false))
+                    .filter(|_| agrees(outer, false))
                 {
                     count(&mut counts.bg, y);
                 }

@@ -171,8 +171,13 @@ pub fn outliers(
     let Some((_, mags)) = robust_fit(camera, predicted, pairs) else {
         return vec![false; pairs.len()];
     };
-    let mut sorted = mags.clone();
-    let med = median(&mut sorted);
+    x84(&mags, rule)
+}
+
+/// Eq. R2 on residual magnitudes `mags` [px]: which lie more than `rule.mads` median absolute
+/// deviations beyond their median, and above `rule.floor_px`.
+pub fn x84(mags: &[f64], rule: &OutlierRule) -> Vec<bool> {
+    let med = median(&mut mags.to_vec());
     let mut deviations: Vec<f64> = mags.iter().map(|e| (e - med).abs()).collect();
     let mad = median(&mut deviations);
     let limit = (med + rule.mads * mad).max(rule.floor_px);
