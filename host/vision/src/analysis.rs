@@ -172,6 +172,10 @@ pub struct FrameResult {
     pub outline: Vec<[u32; 2]>,
 }
 
+/// Fewest registrations whose fit judges the contour's lines in a frame measuring both (the
+/// registrations' own outlier rule judges from 8).
+const TEXTURE_FIT_MIN: usize = 8;
+
 /// Rounds of registration and re-fitting in [`Vision::verify`]: the first starts from a pose a
 /// few pixels off, the second from one the registrations fit.
 const VERIFY_ROUNDS: usize = 2;
@@ -666,12 +670,18 @@ impl Vision {
                 width: 0,
                 height: 0,
             })?;
+            // With the texture measured too, the pose its registrations fit judges the lines.
+            let texture_pose = (texture.registered.len() >= TEXTURE_FIT_MIN)
+                .then(|| robust_fit(&self.ideal, &pose, &texture.registered))
+                .flatten()
+                .map(|(p, _)| p);
             let c = self.contour.measure(
                 &rendering,
                 live_f,
                 &self.ideal.pinhole,
                 &job.prediction,
                 self.options.outliers.as_ref(),
+                texture_pose.as_ref(),
             );
             times.contour = t.elapsed().as_secs_f64();
             c

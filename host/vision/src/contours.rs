@@ -94,7 +94,8 @@ impl ContourState {
     }
 
     /// Measures the contour of `rendering` (the model at `prediction`) in `live`, drops
-    /// the lines no rigid pose explains with the others (eq. K7, by `rule`), and learns the
+    /// the lines no rigid pose explains with the others (eq. K7, by `rule`), or, beside the
+    /// texture, those the pose its registrations fit (`texture_pose`) does not, and learns the
     /// statistics: from the rendering itself the first time (the start pose is taken as
     /// right), then along the contours found.
     pub fn measure(
@@ -104,6 +105,7 @@ impl ContourState {
         pinhole: &Pinhole,
         prediction: &PosePrediction,
         rule: Option<&OutlierRule>,
+        texture_pose: Option<&CameraPose>,
     ) -> ContourFrame {
         let cfg = &self.config;
         if !self.colour.learnt() {
@@ -116,7 +118,19 @@ impl ContourState {
         let cov = cov.iter().all(|v| v.is_finite()).then_some(cov);
         let mut c = measure(rendering, live, &self.colour, cfg, cov.as_ref());
         if let Some(rule) = rule {
-            let flags = outliers(pinhole, &rendering.view.pose, &c.measurements, rule);
+            let flags = match texture_pose {
+                // Beside the texture, a contour must agree with the pose the frame's
+                // registrations fit: within three of its σ (at least the rule's floor).
+                Some(pose) => c
+                    .measurements
+                    .iter()
+                    .map(|m| {
+                        m.residual_px(pose, pinhole)
+                            .is_none_or(|r| r.abs() > (3.0 * m.line.sigma_px).max(rule.floor_px))
+                    })
+                    .collect(),
+                None => outliers(pinhole, &rendering.view.pose, &c.measurements, rule),
+            };
             let mut flags = flags.into_iter();
             c.measurements.retain(|_| !flags.next().unwrap_or(false));
             c.tally.outliers = c.tally.found - c.measurements.len();
