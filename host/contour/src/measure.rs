@@ -7,6 +7,7 @@ use nalgebra::{Matrix6, Vector2, Vector3};
 use rayon::prelude::*;
 
 use camera::{CameraPose, Pinhole};
+use features::outliers::pixel_rows;
 use protocol::ContourPoint;
 use render::Frame;
 
@@ -141,17 +142,14 @@ pub fn predicted_sigma_px(
         return f64::INFINITY;
     }
     let n = sample.normal;
-    // n_pᵀ ∂(u, v)/∂p_c.
-    let d_p = Vector3::new(
-        n.x * pin.fx / p.z,
-        (n.x * pin.skew + n.y * pin.fy) / p.z,
-        -(n.x * (pin.fx * p.x + pin.skew * p.y) + n.y * pin.fy * p.y) / (p.z * p.z),
-    );
-    let r_cw = pose.q_cw.to_rotation_matrix().into_inner();
-    let j_c: Vector3<f64> = -(r_cw.transpose() * d_p);
-    let v = sample.m_w - pose.c_w;
-    // d_pᵀ R [v]× δθ = (R ᵀ d_p)ᵀ (v × δθ) = ((R ᵀ d_p) × v)ᵀ δθ.
-    let j_t: Vector3<f64> = (r_cw.transpose() * d_p).cross(&v);
+    // n_pᵀ ∂(u, v)/∂p_c: the translation part of eq. R1's rows.
+    let [ju, jv] = pixel_rows(pin, &p);
+    let d_p: Vector3<f64> = (ju * n.x + jv * n.y).fixed_rows::<3>(3).into_owned();
+    // In the world frame: Rᵀ d_p.
+    let d_w = pose.q_cw.inverse() * d_p;
+    let j_c = -d_w;
+    // d_pᵀ R [v]× δθ = (Rᵀ d_p)ᵀ (v × δθ) = ((Rᵀ d_p) × v)ᵀ δθ.
+    let j_t: Vector3<f64> = d_w.cross(&(sample.m_w - pose.c_w));
     let cc = cov.fixed_view::<3, 3>(0, 0);
     let ct = cov.fixed_view::<3, 3>(0, 3);
     let tt = cov.fixed_view::<3, 3>(3, 3);
