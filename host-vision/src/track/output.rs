@@ -436,6 +436,11 @@ pub struct Summary {
     pub mean_prediction_error_px: Option<f64>,
     /// Median of the per-frame prediction errors [px].
     pub median_prediction_error_px: Option<f64>,
+    /// Mean contour prediction error [px] over frames with contour lines: the distance along
+    /// the normals from the contour rendered at the prediction to the one found.
+    pub mean_contour_error_px: Option<f64>,
+    /// Median of the per-frame contour prediction errors [px].
+    pub median_contour_error_px: Option<f64>,
     /// Accuracy of the IMU-rate output from the first accepted update on.
     pub accuracy: Option<Accuracy>,
     /// Time of the first accepted update [s].
@@ -533,6 +538,14 @@ impl fmt::Display for Summary {
             opt(self.mean_prediction_error_px, "px"),
             opt(self.median_prediction_error_px, "px")
         )?;
+        if self.mean_contour_error_px.is_some() {
+            writeln!(
+                f,
+                "             contour along its normals: mean {}, median {}",
+                opt(self.mean_contour_error_px, "px"),
+                opt(self.median_contour_error_px, "px")
+            )?;
+        }
         match &self.accuracy {
             Some(a) => writeln!(
                 f,
@@ -1112,6 +1125,7 @@ pub(super) fn write_all(
     });
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
+    let contour_px: Vec<f64> = rows.iter().filter_map(|r| r.contour_error_px).collect();
     let duration_s = record
         .clock
         .last()
@@ -1133,6 +1147,9 @@ pub(super) fn write_all(
         mean_prediction_error_px: (!errors_px.is_empty())
             .then(|| errors_px.iter().sum::<f64>() / errors_px.len() as f64),
         median_prediction_error_px: median(errors_px),
+        mean_contour_error_px: (!contour_px.is_empty())
+            .then(|| contour_px.iter().sum::<f64>() / contour_px.len() as f64),
+        median_contour_error_px: median(contour_px),
         accuracy,
         snapped_on_at,
         imu_used: !options.vision_only(),

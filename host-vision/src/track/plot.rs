@@ -135,12 +135,23 @@ pub fn write_track_plots(
             .filter_map(|r| Some((r.t, r.prediction_error_px?)))
             .collect(),
     };
+    let contour = Series {
+        name: format!("{model} model, contour along its normals"),
+        points: rows
+            .iter()
+            .filter_map(|r| Some((r.t, r.contour_error_px?)))
+            .collect(),
+    };
+    let series: Vec<Series> = [pred, contour]
+        .into_iter()
+        .filter(|s| !s.points.is_empty())
+        .collect();
     let path = dir.join("prediction_error.svg");
     line_plot(
         &path,
         "Prediction error per frame",
         "mean prediction error [px]",
-        &[pred],
+        &series,
         Some(30.0),
     )?;
     written.push(path);
