@@ -1318,6 +1318,46 @@ fn i33_p09_an_untextured_model_is_refused_up_front() {
     assert!(!out.exists(), "nothing written");
 }
 
+/// Issue 37: `synth --untextured-colour` takes a linear RGB colour in [0, 1], only with
+/// `--untextured`; anything else is a usage error naming the flag, and nothing is written.
+#[test]
+fn i37_an_untextured_colour_out_of_range_or_without_untextured_is_a_usage_error() {
+    let out = tmp("i37-colour");
+    for bad in ["2,0,0", "0.1,0.2", "NaN,0,0", "-0.1,0.5,0.5"] {
+        let (_, se) = expect(
+            &[
+                "synth",
+                "--scenario",
+                "desktop-fast",
+                "--untextured",
+                "--untextured-colour",
+                bad,
+                "--out",
+                s(&out),
+            ],
+            2,
+        );
+        assert!(
+            se.contains(&format!("invalid value '{bad}' for '--untextured-colour")),
+            "{se}"
+        );
+    }
+    let (_, se) = expect(
+        &[
+            "synth",
+            "--scenario",
+            "desktop-fast",
+            "--untextured-colour",
+            "0.1,0.1,0.3",
+            "--out",
+            s(&out),
+        ],
+        2,
+    );
+    assert!(se.contains("--untextured"), "{se}");
+    assert!(!out.exists(), "nothing written");
+}
+
 /// Issue 33, point 11: values out of range are usage errors (exit 2) with the flag named,
 /// before anything runs, whichever input they come with: `--fps 0`, `1e9` and `NaN` exited 1
 /// from the image folder; `--latency -1` was accepted by a vision-only run; `eval --duration

@@ -227,11 +227,17 @@ pub fn contour_rms(
     (n, (n > 0).then(|| (sum / n as f64).sqrt()))
 }
 
+/// Least expected agreement above chance (eq. K5') for the statistics to judge a silhouette:
+/// below it the object looks like its background, and no pose can be told from another.
+const MIN_EXPECTED_CONTRAST: f64 = 0.05;
+
 /// How well the silhouette of `rendering` (the model at an estimated pose) agrees with `live`
-/// by the statistics `stats`: the mean, over the pixels within `band` of its contour along the
-/// normals, of the posterior that each is on the side the rendering puts it on (eq. K5). ½ is
-/// what a silhouette anywhere scores where the object looks like its background, 1 a perfect
-/// fit. `None` without contour points or before anything was learnt.
+/// by the statistics `stats`, relative to what they expect (eq. K5'): over the pixels within
+/// `band` of its contour along the normals, the posterior that each is on the side the
+/// rendering puts it on (eq. K5), above chance (½), over the same expected where the
+/// statistics are right. 1 is a fit as good as the statistics can tell, 0 a silhouette
+/// anywhere. `None` without contour points, before anything was learnt, or where the
+/// statistics expect less than [`MIN_EXPECTED_CONTRAST`] above chance.
 pub fn silhouette_agreement(
     rendering: &Frame,
     live: &GrayF32,
@@ -243,8 +249,10 @@ pub fn silhouette_agreement(
     }
     let samples = sample(rendering, &cfg.sample);
     let in_mask = |p: Vector2<f64>| covers(&rendering.mask, p);
-    let (mut sum, mut n) = (0.0f64, 0usize);
+    let (mut sum, mut expected, mut n) = (0.0f64, 0.0f64, 0usize);
     for s in &samples {
+        let h = stats.at(&s.m_w);
+        let (e_in, e_out) = h.expected_agreement();
         for t in 1..=cfg.band_px {
             let t = t as f64 - 0.5;
             for (p, object) in [
@@ -255,14 +263,17 @@ pub fn silhouette_agreement(
                     continue;
                 }
                 if let Some(y) = live.sample(p.x, p.y) {
-                    let pf = f64::from(stats.at(&s.m_w).posterior(y));
+                    let pf = f64::from(h.posterior(y));
                     sum += if object { pf } else { 1.0 - pf };
+                    expected += f64::from(if object { e_in } else { e_out });
                     n += 1;
                 }
             }
         }
     }
-    (n > 0).then(|| sum / n as f64)
+    let contrast = expected - 0.5 * n as f64;
+    (n > 0 && contrast >= MIN_EXPECTED_CONTRAST * n as f64)
+        .then(|| (sum - 0.5 * n as f64) / contrast)
 }
 
 #[cfg(test)]
@@ -377,7 +388,14 @@ mod tests {
         );
         let fit = silhouette_agreement(&frame, &live((160.0, 120.0), 50.5), &stats, &cfg).unwrap();
         let off = silhouette_agreement(&frame, &live((200.0, 150.0), 50.5), &stats, &cfg).unwrap();
+        // Relative to what the statistics expect (eq. K5'): 1 where it fits, below the tracked
+        // rule's ½ where it does not.
         assert!(fit > 0.95, "{fit}");
-        assert!(off < 0.8, "{off}");
+        assert!(off < 0.5, "{off}");
+        // An object that looks like its background: the statistics cannot judge.
+        let flat = GrayF32::new(320, 240, vec![128.0; 320 * 240]).unwrap();
+        let mut alike = ColourModel::new();
+        alike.learn(&flat, Some(&frame.mask), &samples, cfg.band_px, 1.0);
+        assert_eq!(silhouette_agreement(&frame, &flat, &alike, &cfg), None);
     }
 }

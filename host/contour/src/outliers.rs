@@ -28,6 +28,13 @@ const MIN_SCALE_PX: f64 = 0.05;
 /// Fewest lines for a judgement: each constrains one of the pose's six degrees of freedom.
 pub const MIN_LINES: usize = 12;
 
+/// The scale of normally distributed residuals from their median magnitude (the half-normal's
+/// median is 0.674 σ): robust to the few lines that locked elsewhere.
+pub fn residual_scale(residuals: &[f64]) -> f64 {
+    let mut mags: Vec<f64> = residuals.iter().map(|v| v.abs()).collect();
+    median(&mut mags) / HALF_NORMAL_MEDIAN
+}
+
 /// Signed residuals [px] along the normals at `pose`: the model point's projection against
 /// the contour found. `None` if a point is behind the camera.
 fn residuals(pin: &Pinhole, pose: &CameraPose, lines: &[ContourMeasurement]) -> Option<Vec<f64>> {
@@ -46,8 +53,7 @@ pub fn robust_fit(
     let mut pose = *start;
     for _ in 0..ITERATIONS {
         let r = residuals(pin, &pose, lines)?;
-        let mut mags: Vec<f64> = r.iter().map(|v| v.abs()).collect();
-        let scale = (median(&mut mags) / HALF_NORMAL_MEDIAN).max(MIN_SCALE_PX);
+        let scale = residual_scale(&r).max(MIN_SCALE_PX);
         let (mut a, mut b) = (Matrix6::<f64>::zeros(), Vector6::<f64>::zeros());
         for (m, &r) in lines.iter().zip(&r) {
             let [ju, jv] = pixel_rows(pin, &pose.world_to_camera(&m.sample.m_w));

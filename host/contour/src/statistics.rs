@@ -50,6 +50,32 @@ impl Histograms {
         f / (f + b)
     }
 
+    /// How far apart the two distributions are: their total variation distance
+    /// `½ Σ |p_f − p_b|`, 0 for identical ones (an object that looks like its background), 1
+    /// for disjoint ones. A pixel classified by eq. K1 is wrong with probability at least
+    /// `(1 − separation) / 2`.
+    pub fn separation(&self) -> f32 {
+        0.5 * self
+            .fg
+            .iter()
+            .zip(&self.bg)
+            .map(|(f, b)| (f - b).abs())
+            .sum::<f32>()
+    }
+
+    /// The agreement (eq. K5) a pixel scores on average where the two distributions are
+    /// right: `(E_f[P_f], E_b[1 − P_f])`, for a pixel of the object and one of the background.
+    /// The most a silhouette at the right pose can expect of these statistics (eq. K5').
+    pub fn expected_agreement(&self) -> (f32, f32) {
+        let (mut inside, mut outside) = (0.0, 0.0);
+        for (f, b) in self.fg.iter().zip(&self.bg) {
+            let pf = f / (f + b);
+            inside += f * pf;
+            outside += b * (1.0 - pf);
+        }
+        (inside, outside)
+    }
+
     /// `self ← (1 − rate) self + rate new`.
     fn blend(&mut self, new: &Histograms, rate: f32) {
         for (old, new) in self.fg.iter_mut().zip(&new.fg) {
@@ -190,13 +216,7 @@ impl ColourModel {
     /// distance `½ Σ |p_f − p_b|`, 0 for identical ones (an object that looks like its
     /// background), 1 for disjoint ones.
     pub fn separation(&self) -> f32 {
-        0.5 * self
-            .global
-            .fg
-            .iter()
-            .zip(&self.global.bg)
-            .map(|(f, b)| (f - b).abs())
-            .sum::<f32>()
+        self.global.separation()
     }
 
     /// Learns from `live` along the normals of `samples`, pixels 1 to `band` px inside the

@@ -11,7 +11,7 @@
 //! A frame is **tracked** when both hold ([`TrackedRule`]). Where a frame has too few
 //! features (an object without texture), its contour judges it instead (docs/VISION.md §9.4):
 //! the rms along the normals of the contour correspondences the core applied, and the
-//! silhouette's agreement with the object's statistics (eq. K5) in place of the correlation.
+//! silhouette's agreement with the object's statistics (eq. K5') in place of the correlation.
 
 use image::GrayImage;
 use serde::Serialize;
@@ -36,8 +36,9 @@ pub struct Assessment {
     pub contours: usize,
     /// Their rms along the normals at the estimated pose [px].
     pub contour_rms_px: Option<f64>,
-    /// The silhouette's agreement with the object's statistics at the estimated pose (eq.
-    /// K5; ½ is chance, 1 a perfect fit).
+    /// The silhouette's agreement with the object's statistics at the estimated pose,
+    /// relative to what they expect (eq. K5'; 0 is a silhouette anywhere, 1 as good a fit as
+    /// the statistics can tell).
     pub silhouette: Option<f64>,
 }
 
@@ -176,7 +177,8 @@ pub struct TrackedRule {
     pub min_contours: usize,
     /// The contour form: largest rms along the normals [px].
     pub max_contour_rms_px: f64,
-    /// The contour form: smallest silhouette agreement (eq. K5).
+    /// The contour form: smallest silhouette agreement relative to what the statistics
+    /// expect (eq. K5').
     pub min_silhouette: f64,
 }
 
@@ -189,9 +191,11 @@ impl Default for TrackedRule {
     /// pose counts, a wrong pose does not.
     ///
     /// The contour form: at least 20 contour correspondences (an eighth of the lines sampled),
-    /// 2 px rms along the normals (a line's σ is about 1.3 px, docs/VISION.md §9.3), and an
-    /// agreement of 0.7: half-way from chance (½) to the 0.9 and more of a silhouette that
-    /// fits an object distinct from its background.
+    /// 2 px rms along the normals (a line's σ is about 1.3 px, docs/VISION.md §9.3), and a
+    /// relative agreement of ½: half-way from a silhouette anywhere (0) to one that fits as
+    /// well as the statistics expect (1). An absolute agreement cannot serve: the statistics
+    /// of a picture cube on a desk score a median of 0.72 at the poses its texture verifies,
+    /// and a tenth of them below 0.62.
     fn default() -> Self {
         TrackedRule {
             max_rms_px: 1.5,
@@ -199,7 +203,7 @@ impl Default for TrackedRule {
             min_ncc: 0.3,
             min_contours: 20,
             max_contour_rms_px: 2.0,
-            min_silhouette: 0.7,
+            min_silhouette: 0.5,
         }
     }
 }
@@ -350,7 +354,7 @@ mod tests {
         a.silhouette = Some(0.85);
         a.ncc = None;
         assert!(rule.holds(&a));
-        a.silhouette = Some(0.6);
+        a.silhouette = Some(0.3);
         assert!(!rule.holds(&a));
         a.silhouette = Some(0.85);
         a.contour_rms_px = Some(2.5);

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use camera::{CameraPose, Pinhole};
 use contour::measure::{contour_rms, measure, silhouette_agreement};
-use contour::outliers::outliers;
+use contour::outliers::{MIN_LINES, outliers, residual_scale};
 use contour::{ColourModel, ContourConfig, ContourMeasurement, ContourSample, Tally};
 use features::OutlierRule;
 use model::Model;
@@ -70,6 +70,29 @@ pub struct ContourFrame {
     /// Mean distance along the normals between the rendered contour and the one found [px]:
     /// the contour's prediction error.
     pub error_px: Option<f64>,
+}
+
+/// Beside the texture, each line's σ is at least the scatter of the kept lines about the pose
+/// the registrations fit (docs/VISION.md §9.5): where the silhouette and the texture disagree
+/// by more than the lines state (a model whose outline is not quite the object's, a shadow
+/// along an edge), the contour does not pull the pose off the texture by more than that
+/// disagreement says it knows.
+fn widen_to_agreement(
+    measurements: &mut [ContourMeasurement],
+    pose: &CameraPose,
+    pinhole: &Pinhole,
+) {
+    let residuals: Vec<f64> = measurements
+        .iter()
+        .filter_map(|m| m.residual_px(pose, pinhole))
+        .collect();
+    if residuals.len() < MIN_LINES {
+        return;
+    }
+    let scale = residual_scale(&residuals);
+    for m in measurements.iter_mut() {
+        m.line.sigma_px = m.line.sigma_px.max(scale);
+    }
 }
 
 /// The contour modality between frames: its parameters and the object's statistics.
@@ -134,6 +157,9 @@ impl ContourState {
             let mut flags = flags.into_iter();
             c.measurements.retain(|_| !flags.next().unwrap_or(false));
             c.tally.outliers = c.tally.found - c.measurements.len();
+            if let Some(pose) = texture_pose {
+                widen_to_agreement(&mut c.measurements, pose, pinhole);
+            }
         }
         if c.measurements.len() >= LEARN_MIN_FOUND && 2 * c.tally.found >= c.tally.sampled {
             let found: Vec<ContourSample> = c
@@ -164,7 +190,7 @@ impl ContourState {
     }
 
     /// The contour form of a frame's judgement at `pose`: the applied measurements' count and
-    /// rms along the normals [px], and the silhouette agreement (eq. K5) of `rendering` (the
+    /// rms along the normals [px], and the silhouette agreement (eq. K5') of `rendering` (the
     /// model at `pose`) with `live`.
     pub fn judge(
         &self,

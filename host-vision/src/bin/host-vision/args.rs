@@ -435,6 +435,11 @@ pub struct SynthArgs {
     /// their textures.
     #[arg(long, conflicts_with = "textures")]
     pub untextured: bool,
+    /// The colour of --untextured, linear RGB `r,g,b` in [0, 1] (default: an orange whose grey
+    /// lies between the generated textures' dark and bright levels: little contrast in a grey
+    /// camera).
+    #[arg(long, requires = "untextured", value_parser = parse_colour)]
+    pub untextured_colour: Option<[f32; 3]>,
     /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
     #[arg(long)]
     pub ideal: bool,
@@ -463,6 +468,17 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     match v[..] {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([x, y, z]),
         _ => Err(format!("expected three finite numbers x,y,z, got `{s}`")),
+    }
+}
+
+fn parse_colour(s: &str) -> Result<[f32; 3], String> {
+    let [r, g, b] = parse_vec3(s)?;
+    if [r, g, b].iter().all(|c| (0.0..=1.0).contains(c)) {
+        Ok([r as f32, g as f32, b as f32])
+    } else {
+        Err(format!(
+            "expected a linear RGB colour r,g,b with each in [0, 1], got `{s}`"
+        ))
     }
 }
 

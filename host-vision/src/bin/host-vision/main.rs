@@ -426,9 +426,10 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
         textures: TextureOptions {
             scale: a.texture_scale,
             user_images: a.textures.clone(),
-            untextured: a
-                .untextured
-                .then_some(host_vision::synth::UNTEXTURED_COLOUR),
+            untextured: a.untextured.then_some(
+                a.untextured_colour
+                    .unwrap_or(host_vision::synth::UNTEXTURED_COLOUR),
+            ),
             ..TextureOptions::generated()
         },
         overwrite: a.overwrite,
