@@ -255,6 +255,8 @@ pub struct Accuracy {
     pub mean_euler_deg: [f64; 3],
     /// Mean attitude error (angle of the error rotation) [°].
     pub mean_attitude_deg: f64,
+    /// Share of the states within 5 cm and 5° of the truth (RBOT's success criterion).
+    pub within_5cm_5deg: f64,
 }
 
 /// A divergence the core reported.
@@ -549,13 +551,14 @@ impl fmt::Display for Summary {
         match &self.accuracy {
             Some(a) => writeln!(
                 f,
-                "accuracy     position mean {:.2} mm (rms {:.2}, max {:.2}); Euler errors [{:.2}, {:.2}, {:.2}]° (from snap-on)",
+                "accuracy     position mean {:.2} mm (rms {:.2}, max {:.2}); Euler errors [{:.2}, {:.2}, {:.2}]°; {:.1} % within 5 cm and 5° (from snap-on)",
                 a.mean_position_m * 1e3,
                 a.rms_position_m * 1e3,
                 a.max_position_m * 1e3,
                 a.mean_euler_deg[0],
                 a.mean_euler_deg[1],
                 a.mean_euler_deg[2],
+                a.within_5cm_5deg * 100.0,
             )?,
             None if self.snapped_on_at.is_none() => {
                 writeln!(f, "accuracy     n/a (tracking never started)")?
@@ -1113,6 +1116,9 @@ pub(super) fn write_all(
                 *m += e;
             }
             acc.mean_attitude_deg += att;
+            if pe < 0.05 && att < 5.0 {
+                acc.within_5cm_5deg += 1.0;
+            }
         }
         (acc.samples > 0).then(|| {
             let n = acc.samples as f64;
@@ -1120,6 +1126,7 @@ pub(super) fn write_all(
             acc.rms_position_m = (sq / n).sqrt();
             acc.mean_euler_deg.iter_mut().for_each(|m| *m /= n);
             acc.mean_attitude_deg /= n;
+            acc.within_5cm_5deg /= n;
             acc
         })
     });

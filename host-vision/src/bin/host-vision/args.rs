@@ -438,7 +438,7 @@ pub struct SynthArgs {
     /// The colour of --untextured, linear RGB `r,g,b` in [0, 1] (default: an orange whose grey
     /// lies between the generated textures' dark and bright levels: little contrast in a grey
     /// camera).
-    #[arg(long, requires = "untextured", value_parser = parse_colour)]
+    #[arg(long, requires = "untextured", value_parser = parse_colour, allow_hyphen_values = true)]
     pub untextured_colour: Option<[f32; 3]>,
     /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
     #[arg(long)]
