@@ -4,8 +4,8 @@
 //! self-test ([`selftest`]); synthetic EuRoC datasets of the paper's test cases ([`synth`]); EuRoC
 //! datasets as the tracker reads them ([`dataset`]) and the tracking pipeline with its outputs
 //! ([`track`]), and the checks of a run's output folder ([`out_folder`]); frame sources without
-//! an IMU, a video through ffmpeg or an image folder ([`frames`]), and the full 6-DoF start
-//! pose file ([`start_pose`]).
+//! an IMU, a video through ffmpeg or an image folder ([`frames`]); the full 6-DoF start
+//! pose file ([`start_pose`]) is the camera crate's, re-exported.
 //!
 //! The camera model ([`camera`]), textured model loading ([`model`]), the offscreen renderer
 //! ([`render`], with back-projection of rendered depth, [`backproject`]) and natural features
@@ -24,6 +24,6 @@ pub use ::model;
 pub mod out_folder;
 pub use ::render;
 pub mod selftest;
-pub mod start_pose;
+pub use camera::start_pose;
 pub mod synth;
 pub mod track;

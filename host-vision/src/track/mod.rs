@@ -870,7 +870,7 @@ fn inertial_config(options: &TrackOptions, dataset: &Dataset) -> Result<TrackerC
             Pacing::RealTime => Answers::WhenReady,
         },
         keep_image_every: options.overlay_every,
-        session_id: new_session_id(),
+        session_id: tracker::settings::new_session_id(),
         search_floor: Duration::ZERO,
         imu_on_core: None,
     })
@@ -903,16 +903,6 @@ fn inertial_start(options: &TrackOptions, dataset: &Dataset) -> Result<tracker::
         }
     };
     Ok(tracker::Start::GravityAndYaw { position, yaw })
-}
-
-/// A session id for this run: non-zero, and different from run to run (the clock's
-/// nanoseconds and the process id), so that a host coming back to a core tells its own
-/// configuration from another's.
-fn new_session_id() -> u32 {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
-    (nanos ^ std::process::id().rotate_left(16)).max(1)
 }
 
 /// What the application adds to the tracker's [`Record`]: the faults it injected.

@@ -125,7 +125,7 @@ pub(super) fn track_frames(
             Answers::AtNextFrame
         },
         keep_image_every: options.overlay_every,
-        session_id: super::new_session_id(),
+        session_id: tracker::settings::new_session_id(),
         ..TrackerConfig::new(*camera, rate, options.cache.clone())
     };
     let mut run = FrameLoop {

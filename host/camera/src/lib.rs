@@ -1,7 +1,8 @@
 #![deny(missing_docs)]
 #![warn(clippy::too_many_lines)]
 //! Camera geometry: pinhole intrinsics with skew, lens distortion, undistortion maps,
-//! calibration files and the camera pose.
+//! calibration files, the camera pose and its files ([`start_pose`]: a `cMo` in JSON or a TUM
+//! line).
 //!
 //! Pixel convention (as OpenCV and EuRoC/Kalibr): integer pixel coordinates `(u, v)` are pixel
 //! **centres**; pixel `(0, 0)` covers `[-0.5, 0.5]²`, `u` grows to the right and `v` downwards.
@@ -12,6 +13,7 @@ mod distortion;
 mod intrinsics;
 mod pinhole;
 mod pose;
+pub mod start_pose;
 mod undistort_map;
 
 pub use calib::{CalibError, CameraCalib, read_euroc_sensor_yaml, read_kalibr_camchain};

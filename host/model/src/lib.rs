@@ -1,13 +1,15 @@
 #![deny(missing_docs)]
 #![warn(clippy::too_many_lines)]
 //! Textured triangle models in metres: Wavefront OBJ + MTL ([`load_obj`]), glTF 2.0
-//! ([`load_gltf`]) and procedural test scenes ([`procedural`]).
+//! ([`load_gltf`]) and procedural test scenes ([`procedural`]); the edges a person would draw
+//! ([`Model::crease_edges`]).
 //!
 //! Conventions: positions are in the world frame `w` in metres (OBJ files are taken as
 //! metres as they are; use [`Model::scale`] otherwise). Texture coordinates have their
 //! origin at the image's top-left corner (`u` right, `v` down: texel row = `v · height`), as
 //! glTF; OBJ's bottom-left `v` is flipped on load.
 
+mod edges;
 mod gltf;
 mod obj;
 pub mod procedural;

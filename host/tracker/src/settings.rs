@@ -169,6 +169,16 @@ impl TrackerConfig {
     }
 }
 
+/// A session id for a run ([`TrackerConfig::session_id`]): non-zero, and different from run
+/// to run (the clock's nanoseconds and the process id), so that a host coming back to a core
+/// tells its own configuration from another's.
+pub fn new_session_id() -> u32 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
+    (nanos ^ std::process::id().rotate_left(16)).max(1)
+}
+
 /// Checks what no run can work with.
 pub(crate) fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
     let bad = |m: String| Err(TrackerError::Config(m));

@@ -141,6 +141,9 @@ pub struct Finished<T> {
     pub adapter: String,
     /// Whether the run ended cleanly, or the error that stopped it.
     pub result: Result<(), TrackerError>,
+    /// What the tracker told that was not polled, the end's included (the last frames'
+    /// reports, the core's last poses).
+    pub events: Vec<Event>,
 }
 
 impl<T: CoreTransport> Tracker<T> {
@@ -747,6 +750,7 @@ impl<T: CoreTransport> Tracker<T> {
             core: self.core,
             adapter: self.adapter,
             result,
+            events: self.events.into(),
         }
     }
 

@@ -1,5 +1,5 @@
-//! `--start-pose FILE`: a full 6-DoF start, the camera's pose in the model's frame (which is
-//! the world frame of tracking).
+//! A start pose file (`--start-pose FILE` of the CLI): a full 6-DoF start, the camera's pose
+//! in the model's frame (which is the world frame of tracking).
 //!
 //! Two formats:
 //! - JSON with a 4×4 camera-from-model transform `cMo` (metres, `X_c = R X_o + t`), as
@@ -17,7 +17,7 @@ use std::path::Path;
 
 use nalgebra::{Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector3};
 
-use crate::camera::CameraPose;
+use crate::CameraPose;
 
 /// Largest deviation accepted of `RᵀR` from the identity (max entry), of `det R` from 1 and of
 /// the last row from `0 0 0 1`: a rigid transform written with 6 or more digits passes.
