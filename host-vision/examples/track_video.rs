@@ -1,20 +1,33 @@
 //! The tracker embedded in a program: the shared cube video (or `VIDEO CAMERA MODEL POSE`:
 //! a video, its `camera.json`, a textured OBJ/glTF and the start pose `cMo` as JSON) tracked
-//! with the in-process core, one pose printed per frame.
+//! with the in-process core, one line per frame, and the time the tracker took per frame.
+//! `--frames N` stops after N frames. The Python module's tests compare their poses with
+//! these lines, and its overhead bench its time (python/bench_overhead.py).
 //!
-//! `cargo run --release -p host-vision --example track_video [VIDEO CAMERA MODEL POSE]`
+//! `cargo run --release -p host-vision --example track_video [--frames N] [VIDEO CAMERA MODEL POSE]`
 
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use firmware_sim::board::Precision;
 use host_vision::frames::{FrameInput, VideoOptions};
 use tracker::{CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
 
 fn main() -> anyhow::Result<()> {
     let data = PathBuf::from("../shared/data/visp-cube");
-    let args: Vec<PathBuf> = std::env::args_os().skip(1).map(PathBuf::from).collect();
-    let [video, camera, model, pose] = match <[PathBuf; 4]>::try_from(args) {
-        Ok(given) => given,
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let limit = match args.iter().position(|a| a == "--frames") {
+        Some(i) => {
+            let n = args.get(i + 1).context("--frames needs a number")?;
+            let n: usize = n.parse().with_context(|| format!("--frames {n}"))?;
+            args.drain(i..i + 2);
+            n
+        }
+        None => usize::MAX,
+    };
+    let [video, camera, model, pose] = match <[String; 4]>::try_from(args) {
+        Ok(given) => given.map(PathBuf::from),
         Err(_) => [
             "cube_video.mp4",
             "camera.json",
@@ -29,26 +42,45 @@ fn main() -> anyhow::Result<()> {
         frames.nominal_rate_hz().unwrap_or(30.0),
         locate::database::default_cache_dir(),
     );
-    config.start = Start::Camera(host_vision::start_pose::read_start_pose(&pose)?);
+    config.start = Start::Camera(camera::start_pose::read_start_pose(&pose)?);
     let core = CoreLink::open(&LinkSpec::InProcess(Precision::F32))?;
     let mut tracker = Tracker::new(config, &model::load(&model)?, core)?;
-    println!("# frame t_s tracked c_w[m] q_cw[w x y z] (frames with a pose)");
-    for frame in frames {
-        tracker.push_frame(frame?.into())?;
-        for event in tracker.poll() {
-            let Event::Frame(f) = event else { continue };
-            let Some((c, q)) = f.pose.map(|p| (p.c_w, *p.q_cw.quaternion())) else {
-                continue;
-            };
-            let (t, tracked) = (f.t_us as f64 * 1e-6, u8::from(f.tracked == Some(true)));
-            let (c, q) = ([c.x, c.y, c.z], [q.w, q.i, q.j, q.k]);
-            println!("{} {t:.3} {tracked} {c:.4?} {q:.4?}", f.index);
-        }
+    println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
+    let mut busy = Duration::ZERO;
+    let mut pushed = 0usize;
+    for frame in frames.take(limit) {
+        let frame = frame?;
+        let started = Instant::now();
+        tracker.push_frame(frame.into())?;
+        let events: Vec<Event> = tracker.poll().collect();
+        busy += started.elapsed();
+        pushed += 1;
+        events.iter().for_each(print_frame);
     }
     let done = tracker.finish();
     done.result?;
+    // The last frames' reports come with the end.
+    done.events.iter().for_each(print_frame);
     let (tracked, judged) = done.record.tracked_count(&vision::TrackedRule::default());
     let share = 100.0 * tracked as f64 / judged.max(1) as f64;
     println!("# tracked {tracked} of {judged} frames judged: {share:.1} %");
+    println!(
+        "# tracker time per frame (push_frame + poll): {:.3} ms over {pushed} frames",
+        busy.as_secs_f64() * 1e3 / pushed.max(1) as f64
+    );
     Ok(())
+}
+
+/// A frame's line: index, time, tracked, and the pose where there is one.
+fn print_frame(event: &Event) {
+    let Event::Frame(f) = event else { return };
+    let tracked = f.tracked.map_or("-", |t| if t { "1" } else { "0" });
+    let pose = f.pose.map_or("- - - - - - -".into(), |p| {
+        let (c, q) = (p.c_w, p.q_cw.quaternion());
+        format!(
+            "{:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
+            c.x, c.y, c.z, q.w, q.i, q.j, q.k
+        )
+    });
+    println!("{} {:.6} {tracked} {pose}", f.index, f.t_us as f64 * 1e-6);
 }

@@ -110,6 +110,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "vitracker (Python)",
+        dir: "python/src",
+        module: &[],
+    },
+    Tree {
         name: "host-vision track",
         dir: "host-vision/src/track",
         module: &["track"],

@@ -3,8 +3,8 @@
 //! - `demo`: the main job: synthesise the default scenario (cached) and track it through the
 //!   simulated board over a pty serial link (`host-vision demo`);
 //! - `test`: every check CI runs: format, the references in comments ([`references`]), the
-//!   module layering ([`layers`]), lints, tests, and the no_std crates built for the Cortex-M4F
-//!   target;
+//!   module layering ([`layers`]), lints, tests, the Python module's wheel and its tests
+//!   ([`python`]), and the no_std crates built for the Cortex-M4F target;
 //! - `layers`: only the layering check, printing each tree's modules bottom up;
 //! - `setup`: only the machine set-up both of the above start with.
 //!
@@ -18,6 +18,7 @@ use std::process::{Command, ExitCode};
 use std::time::Instant;
 
 mod layers;
+mod python;
 mod references;
 mod steps;
 
@@ -333,12 +334,15 @@ fn test() -> Result<(), String> {
         "--no-run",
         "--message-format=json-render-diagnostics",
     ]);
-    let binaries = steps::test_binaries(&steps.output("build the tests", build)?)?;
+    let messages = steps.output("build the tests", build)?;
+    let binaries = steps::test_binaries(&messages)?;
     run_tests(&mut steps, &binaries, "vulkan")?;
     let mut doc = cargo();
     doc.args(["test", "--workspace", "--doc"])
         .env("WGPU_BACKEND", "vulkan");
     steps.run("doc tests", doc)?;
+    // After the Rust tests: the locate tests' cache holds the cube's database by then.
+    python::test(&mut steps, &messages)?;
     let gl: Vec<TestBinary> = binaries
         .into_iter()
         .filter(|b| {
