@@ -1,10 +1,12 @@
 //! The tracker embedded in a program: the shared cube video (or `VIDEO CAMERA MODEL POSE`:
 //! a video, its `camera.json`, a textured OBJ/glTF and the start pose `cMo` as JSON) tracked
 //! with the in-process core, one line per frame, and the time the tracker took per frame.
-//! `--frames N` stops after N frames. The Python module's tests compare their poses with
-//! these lines, and its overhead bench its time (python/bench_overhead.py).
+//! `--frames N` stops after N frames; `--decode-first` decodes them all before tracking, so
+//! that the time per frame is the tracker's alone (no ffmpeg beside it). The Python module's
+//! tests compare their poses with these lines, and its overhead bench its time
+//! (python/bench_overhead.py).
 //!
-//! `cargo run --release -p host-vision --example track_video [--frames N] [VIDEO CAMERA MODEL POSE]`
+//! `cargo run --release -p host-vision --example track_video [--frames N] [--decode-first] [VIDEO CAMERA MODEL POSE]`
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -25,6 +27,13 @@ fn main() -> anyhow::Result<()> {
             n
         }
         None => usize::MAX,
+    };
+    let decode_first = match args.iter().position(|a| a == "--decode-first") {
+        Some(i) => {
+            args.remove(i);
+            true
+        }
+        None => false,
     };
     let [video, camera, model, pose] = match <[String; 4]>::try_from(args) {
         Ok(given) => given.map(PathBuf::from),
@@ -48,7 +57,13 @@ fn main() -> anyhow::Result<()> {
     println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
     let mut busy = Duration::ZERO;
     let mut pushed = 0usize;
-    for frame in frames.take(limit) {
+    let frames: Box<dyn Iterator<Item = _>> = if decode_first {
+        let all: Vec<_> = frames.take(limit).collect();
+        Box::new(all.into_iter())
+    } else {
+        Box::new(frames.take(limit))
+    };
+    for frame in frames {
         let frame = frame?;
         let started = Instant::now();
         tracker.push_frame(frame.into())?;

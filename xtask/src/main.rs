@@ -277,8 +277,10 @@ const GL_PACKAGES: &[&str] = &["host-vision", "render", "features"];
 /// Test executables of those packages run on Vulkan only: the real-video cube tests cover no
 /// GL-specific code (the depth resolve is render_geometry's), cost 87 s of the budget on GL,
 /// and their GL run died once in CI with SIGSEGV inside the driver, not reproduced here in
-/// nine runs (issue 36's note).
-const GL_SKIPPED: &[&str] = &["host-vision test visp_cube"];
+/// nine runs (issue 36's note). The cold start's tests render through the same renderer calls
+/// as the tracking tests that do run on GL, and cost 166 s there: the Python module's wheel
+/// and tests (issue 38) take that time instead.
+const GL_SKIPPED: &[&str] = &["host-vision test visp_cube", "host-vision test locate"];
 
 fn test() -> Result<(), String> {
     let start = Instant::now();
