@@ -103,3 +103,15 @@ def test_a_finished_tracker_takes_nothing_more(board_model):
     tracker.finish()
     with pytest.raises(vt.TrackerError, match="finished"):
         tracker.push_frame(0.0, np.zeros((240, 320), np.uint8))
+
+
+def test_the_core_behind_a_byte_link(board_model):
+    """`link=` puts the core elsewhere: here the simulated board on a pty pair, as a serial
+    board would be reached; the frames go through as in-process."""
+    camera = vt.Camera(320, 240, 300.0, 300.0, 159.5, 119.5)
+    with vt.Tracker(vt.Model(board_model), camera, BOARD_START, rate_hz=30.0,
+                    link="sim") as tracker:
+        for i in range(3):
+            tracker.push_frame(i / 30.0, np.zeros((240, 320), np.uint8))
+        assert len(tracker.poll()) == 3
+        assert tracker.pose is not None
