@@ -77,6 +77,7 @@ pub struct Keypoint {
 }
 
 /// Number of differing bits.
+#[inline(always)]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
     a.iter().zip(b).map(|(x, y)| (x ^ y).count_ones()).sum()
 }
