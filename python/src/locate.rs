@@ -7,7 +7,7 @@ use ::locate::database::{Database, DatabaseConfig, Provenance};
 use ::locate::{LocateConfig, Locator};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use vision::{Vision, VisionOptions};
+use vision::Vision;
 
 use crate::camera::Camera;
 use crate::error::{TrackerError, value_error};
@@ -130,10 +130,8 @@ pub fn locate_once(
                 Provenance::Cached(path) => (path, None),
                 Provenance::Built { path, why } => (path, Some(why)),
             };
-            // Verified as vision-only tracking would go on from it (as `host-vision locate`).
-            let mut options = VisionOptions::default();
-            options.map.small_object_cells = true;
-            let mut vision = Vision::new(cam, &m, options).map_err(|e| e.to_string())?;
+            let mut vision =
+                Vision::new(cam, &m, ::locate::vision_options()).map_err(|e| e.to_string())?;
             let locator = Locator::new(&db, LocateConfig::default());
             let (attempt, _) = locator
                 .attempt(&mut vision, &raw, false)

@@ -96,15 +96,20 @@ fn cargo() -> Command {
     cmd
 }
 
+/// Cargo's build folder: `CARGO_TARGET_DIR`, else the workspace's `target`.
+fn target_dir() -> PathBuf {
+    env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| workspace_root().join("target"))
+}
+
 /// Free space a cold `cargo xtask test` needs for its build products (measured: 3.3 GB).
 const TEST_DISK_NEED_GB: u64 = 6;
 
 /// Warns up front when the disk holding `target/` is nearly full, rather than letting a build
 /// fail an hour later with `No space left on device`.
 fn check_disk(need_gb: u64) {
-    let dir = env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace_root().join("target"));
+    let dir = target_dir();
     let probe = if dir.exists() { dir } else { workspace_root() };
     let Some(out) = output("df", &["-Pk", &probe.to_string_lossy()]) else {
         return;

@@ -8,17 +8,11 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use crate::steps::Steps;
-use crate::{is_debian, is_root, succeeds, workspace_root};
+use crate::{is_debian, is_root, succeeds, target_dir, workspace_root};
 
 /// The virtual environment's folder.
 fn venv_dir() -> PathBuf {
     target_dir().join("python-venv")
-}
-
-fn target_dir() -> PathBuf {
-    std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| workspace_root().join("target"))
 }
 
 /// The interpreter to make the environment with: `PYTHON`, else `python3`.

@@ -14,7 +14,7 @@ use crate::frames::{FrameError, FrameInput, VideoOptions};
 use crate::model::{self, ModelError};
 use crate::out_folder::{OutFolder, OutFolderError};
 use crate::start_pose::start_pose_json;
-use crate::track::vision::{Vision, VisionOptions};
+use crate::track::vision::Vision;
 use crate::track::{TrackError, overlay};
 
 /// The image to locate the model in.
@@ -224,11 +224,7 @@ pub fn run(
         built_because,
         path,
     };
-    // An object found from nothing is verified as vision-only tracking would go on with it:
-    // the small-object cells give a small object enough features.
-    let mut options = VisionOptions::default();
-    options.map.small_object_cells = true;
-    let mut vision = Vision::new(o.camera, &model, options)?;
+    let mut vision = Vision::new(o.camera, &model, super::vision_options())?;
     let locator = Locator::new(&db, o.locate);
     let (attempt, result) = locator.attempt(&mut vision, &raw, true)?;
 

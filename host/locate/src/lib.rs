@@ -40,7 +40,7 @@ use orb::{Descriptor, Orb, OrbConfig};
 use ransac::{RansacConfig, RansacPose, ransac_search};
 use vision::VisionError;
 use vision::{Assessment, TrackedRule};
-use vision::{FrameResult, Verified, Vision};
+use vision::{FrameResult, Verified, Vision, VisionOptions};
 
 /// Two candidate poses closer than this in rotation are one [rad].
 const SAME_POSE_RAD: f64 = 0.5 * std::f64::consts::PI / 180.0;
@@ -77,6 +77,15 @@ impl Default for LocateConfig {
             },
         }
     }
+}
+
+/// The image analysis an attempt's [`Vision`] runs with: an object found from nothing is
+/// verified as vision-only tracking would go on with it, the small-object cells giving a small
+/// object enough features.
+pub fn vision_options() -> VisionOptions {
+    let mut options = VisionOptions::default();
+    options.map.small_object_cells = true;
+    options
 }
 
 /// Time per stage of an attempt [s].
