@@ -35,6 +35,7 @@ fn default_renderer() -> Renderer {
         width: W,
         height: H,
         force_depth_resolve: false,
+        whole_image: false,
     })
 }
 
@@ -217,6 +218,7 @@ fn depth_resolve_pass_matches_direct_copy() {
         width: W,
         height: H,
         force_depth_resolve: true,
+        whole_image: false,
     });
     assert_eq!(resolved.depth_readback(), DepthReadback::ShaderResolve);
     let a = render(&mut resolved, &model, &v);
@@ -270,4 +272,65 @@ fn renderer_is_reused_across_frames_and_rejects_bad_input() {
         Renderer::new(1 << 20, 10),
         Err(RenderError::BadSize { .. })
     ));
+}
+
+/// The focused read-back (only the rectangle the model can cover, `render::region`) gives the
+/// whole-image read-back's frame to the bit, in one frame reused across views as a tracker
+/// reuses it: a small cube near and far, partly and wholly outside the image, with a corner
+/// behind the near plane, and the large test scene; with the depth copied and resolved.
+#[test]
+fn focused_read_back_equals_the_whole_image() {
+    let texture = std::sync::Arc::new(procedural::checker_texture(8, 8));
+    let cube = procedural::cube([0.0, 0.0, 0.0], 0.05, texture);
+    let views = [
+        view([0.3, -0.25, 0.2], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        view([1.0, -0.8, 0.7], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        view([0.3, -0.25, 0.2], [0.25, 0.1, 0.0], [0.0, 0.0, 1.0]),
+        view([0.3, -0.25, 0.2], [0.0, -0.6, 0.5], [0.0, 0.0, 1.0]),
+        view([0.06, -0.06, 0.05], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+        view([0.2, 0.15, -0.1], [0.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+    ];
+    for force_depth_resolve in [false, true] {
+        let options = |whole_image| RendererOptions {
+            width: W,
+            height: H,
+            force_depth_resolve,
+            whole_image,
+        };
+        let (mut whole, mut focused) = (renderer(options(true)), renderer(options(false)));
+        for (model, views) in [
+            (&cube, &views[..]),
+            (&procedural::test_scene(), &views[1..2]),
+        ] {
+            whole.set_model(model).unwrap();
+            focused.set_model(model).unwrap();
+            let mut full_frame = Frame::empty(views[0]);
+            let mut tracker_frame = Frame::empty_for_tracker(views[0]);
+            let mut model_pixels = 0;
+            for v in views.iter().chain(views.iter().rev()) {
+                let want = whole.render(v).unwrap();
+                focused.render_into(v, &mut full_frame).unwrap();
+                focused.render_into(v, &mut tracker_frame).unwrap();
+                assert_eq!(full_frame.rgba, want.rgba, "{v:?}");
+                assert_eq!(full_frame.mask, want.mask, "{v:?}");
+                assert_eq!(tracker_frame.gray, want.gray, "{v:?}");
+                assert_eq!(tracker_frame.mask, want.mask, "{v:?}");
+                let bits = |f: &Frame| f.depth.iter().map(|z| z.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&full_frame), bits(&want), "{v:?}");
+                for (u, row, _) in want.mask.enumerate_pixels() {
+                    assert_eq!(tracker_frame.depth_at(u, row), want.depth_at(u, row));
+                }
+                model_pixels += want.mask.iter().filter(|&&m| m > 0).count();
+                assert!(
+                    full_frame.region().pixels() <= (W * H) as usize,
+                    "{:?}",
+                    full_frame.region()
+                );
+            }
+            assert!(
+                model_pixels > 1000,
+                "the views show the model: {model_pixels} px"
+            );
+        }
+    }
 }

@@ -6,6 +6,7 @@ use wide::f64x4;
 
 use super::RenderError;
 use super::projection::depth_to_z;
+use super::region::Region;
 use camera::Gray32FImage;
 use camera::{CameraPose, Pinhole};
 
@@ -156,6 +157,10 @@ pub struct Frame {
     buffer: Vec<f32>,
     /// Whether the read-back fills `rgba` and `depth` (see [`Frame::empty_for_tracker`]).
     full: bool,
+    /// The rectangle the last read-back filled (outside it every image is zero), and the
+    /// size of the images it filled.
+    filled: Region,
+    filled_size: (u32, u32),
 }
 
 impl Frame {
@@ -170,6 +175,8 @@ impl Frame {
             mask: GrayImage::new(0, 0),
             buffer: Vec::new(),
             full: true,
+            filled: Region::default(),
+            filled_size: (0, 0),
         }
     }
 
@@ -192,6 +199,7 @@ impl Frame {
                 "rgba, gray, depth, mask: {sizes:?}"
             )));
         }
+        let (width, height) = sizes[0];
         Ok(Self {
             view,
             rgba,
@@ -200,6 +208,9 @@ impl Frame {
             mask,
             buffer: Vec::new(),
             full: true,
+            // Images made elsewhere: no pixel is known to be background.
+            filled: Region::full(width, height),
+            filled_size: (width, height),
         })
     }
 
@@ -214,42 +225,43 @@ impl Frame {
         }
     }
 
-    /// Fills the images from the mapped read-back buffers (`stride` bytes per row, rows padded
-    /// to wgpu's copy alignment), reusing their allocations: a fresh 640×480 frame is 4.6 MB
-    /// of new pages, and faulting them in every frame cost more than the conversion itself.
-    /// Bands of rows are converted in parallel on rayon's pool.
+    /// Fills the images from the mapped read-back buffers of the rectangle `region` of a
+    /// `width × height` rendering (`stride` bytes per row, rows padded to wgpu's copy
+    /// alignment), reusing their allocations: a fresh 640×480 frame is 4.6 MB of new pages, and
+    /// faulting them in every frame cost more than the conversion itself. Outside `region` the
+    /// images are background (zero), as a whole-image read-back gives: only what the last
+    /// read-back filled is cleared ([`crate::region`]). Bands of rows are converted in
+    /// parallel on rayon's pool.
     pub(crate) fn fill_from_mapped(
         &mut self,
         view: RenderView,
         (width, height): (u32, u32),
+        region: Region,
         colour: &[u8],
         depth_bits: &[u8],
         stride: usize,
     ) -> Result<(), RenderError> {
         let size_err = || RenderError::Readback("readback size mismatch".into());
         let (w, h) = (width as usize, height as usize);
-        let n = w * h;
-        if stride < 4 * w || colour.len() < stride * h || depth_bits.len() < stride * h {
+        let (rw, rh) = (region.width as usize, region.height as usize);
+        if region.x as usize + rw > w
+            || region.y as usize + rh > h
+            || stride < 4 * rw
+            || colour.len() < stride * rh
+            || depth_bits.len() < stride * rh
+        {
             return Err(size_err());
         }
-        let mut gray = std::mem::replace(&mut self.gray, GrayImage::new(0, 0)).into_raw();
-        // A full frame's `z`, or a tracker's copy of the depth buffer.
-        let mut z = if self.full {
-            std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw()
-        } else {
-            std::mem::take(&mut self.buffer)
-        };
-        let mut mask = std::mem::replace(&mut self.mask, GrayImage::new(0, 0)).into_raw();
-        // Same length as last frame: no-ops, every value is overwritten below.
-        gray.resize(n, 0);
-        z.resize(n, 0.0);
-        mask.resize(n, 0);
+        let (mut gray, mut z, mut mask, mut rgba) = self.take_background(width, height);
         let (near, far) = (view.near, view.far);
         let full = self.full;
         let bits_decide = positive_depth_is_foreground(near, far);
-        gray.par_chunks_mut(w * BAND_ROWS)
-            .zip(z.par_chunks_mut(w * BAND_ROWS))
-            .zip(mask.par_chunks_mut(w * BAND_ROWS))
+        let rows = region.rows();
+        let (x0, x1) = (region.x as usize, (region.x + region.width) as usize);
+        gray[rows.start * w..rows.end * w]
+            .par_chunks_mut(w * BAND_ROWS)
+            .zip(z[rows.start * w..rows.end * w].par_chunks_mut(w * BAND_ROWS))
+            .zip(mask[rows.start * w..rows.end * w].par_chunks_mut(w * BAND_ROWS))
             .enumerate()
             .for_each(|(band, ((gray, z), mask))| {
                 let first = band * BAND_ROWS;
@@ -260,7 +272,8 @@ impl Frame {
                     .enumerate()
                 {
                     let at = (first + k) * stride;
-                    let colour = &colour[at..at + 4 * w];
+                    let colour = &colour[at..at + 4 * rw];
+                    let (gray, z, mask) = (&mut gray[x0..x1], &mut z[x0..x1], &mut mask[x0..x1]);
                     // Each pixel as one little-endian word: over a slice of words (the
                     // mapped rows are aligned) the compiler vectorises the loop.
                     match bytemuck::try_cast_slice::<u8, u32>(colour) {
@@ -275,7 +288,7 @@ impl Frame {
                             }
                         }
                     }
-                    let bits = &depth_bits[at..at + 4 * w];
+                    let bits = &depth_bits[at..at + 4 * rw];
                     if full {
                         depth_row(bits, near, far, z, mask);
                     } else {
@@ -284,14 +297,15 @@ impl Frame {
                 }
             });
         if self.full {
-            let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
-            rgba.resize(4 * n, 0);
-            rgba.par_chunks_mut(4 * w)
+            rgba[4 * rows.start * w..4 * rows.end * w]
+                .par_chunks_mut(4 * w)
                 .zip(colour.par_chunks(stride))
-                .for_each(|(row, src)| row.copy_from_slice(&src[..4 * w]));
+                .for_each(|(row, src)| row[4 * x0..4 * x1].copy_from_slice(&src[..4 * rw]));
             self.rgba = RgbaImage::from_raw(width, height, rgba).ok_or_else(size_err)?;
         }
         self.view = view;
+        self.filled = region;
+        self.filled_size = (width, height);
         self.gray = GrayImage::from_raw(width, height, gray).ok_or_else(size_err)?;
         if self.full {
             self.depth = Gray32FImage::from_raw(width, height, z).ok_or_else(size_err)?;
@@ -300,6 +314,61 @@ impl Frame {
         }
         self.mask = GrayImage::from_raw(width, height, mask).ok_or_else(size_err)?;
         Ok(())
+    }
+
+    /// The images' buffers taken out of the frame for `width × height`, all background:
+    /// the last read-back's rectangle cleared where they are of that size already (outside it
+    /// they are still zero), zeroed whole otherwise. `z` is a full frame's depth or a tracker's
+    /// depth buffer; `rgba` is empty in a tracker's frame.
+    #[allow(clippy::type_complexity)]
+    fn take_background(
+        &mut self,
+        width: u32,
+        height: u32,
+    ) -> (Vec<u8>, Vec<f32>, Vec<u8>, Vec<u8>) {
+        let (w, n) = (width as usize, width as usize * height as usize);
+        let mut gray = std::mem::replace(&mut self.gray, GrayImage::new(0, 0)).into_raw();
+        let mut z = if self.full {
+            std::mem::replace(&mut self.depth, Gray32FImage::new(0, 0)).into_raw()
+        } else {
+            std::mem::take(&mut self.buffer)
+        };
+        let mut mask = std::mem::replace(&mut self.mask, GrayImage::new(0, 0)).into_raw();
+        let mut rgba = std::mem::replace(&mut self.rgba, RgbaImage::new(0, 0)).into_raw();
+        let rgba_len = if self.full { 4 * n } else { 0 };
+        let same_size = self.filled_size == (width, height)
+            && gray.len() == n
+            && z.len() == n
+            && mask.len() == n
+            && rgba.len() == rgba_len;
+        if same_size {
+            let last = self.filled;
+            for y in last.rows() {
+                let row = y * w;
+                let cols = row + last.x as usize..row + (last.x + last.width) as usize;
+                gray[cols.clone()].fill(0);
+                z[cols.clone()].fill(0.0);
+                mask[cols.clone()].fill(0);
+                if self.full {
+                    rgba[4 * cols.start..4 * cols.end].fill(0);
+                }
+            }
+        } else {
+            for v in [&mut gray, &mut mask] {
+                v.clear();
+                v.resize(n, 0);
+            }
+            z.clear();
+            z.resize(n, 0.0);
+            rgba.clear();
+            rgba.resize(rgba_len, 0);
+        }
+        (gray, z, mask, rgba)
+    }
+
+    /// The rectangle the last read-back filled: outside it the frame is background.
+    pub fn region(&self) -> Region {
+        self.filled
     }
 
     /// Image size `(width, height)`.
@@ -421,7 +490,7 @@ mod tests {
             let mut full = Frame::empty(view);
             let mut tracker = Frame::empty_for_tracker(view);
             for f in [&mut full, &mut tracker] {
-                f.fill_from_mapped(view, (w, h), &colour, &depth, stride)
+                f.fill_from_mapped(view, (w, h), Region::full(w, h), &colour, &depth, stride)
                     .unwrap();
             }
             assert_eq!(tracker.gray, full.gray);
@@ -435,6 +504,106 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The read-back of `r` out of a whole image: the whole image's pixels inside `r`
+    /// with background (zero) outside, and `r`'s rows alone at a padded stride.
+    #[allow(clippy::type_complexity)]
+    fn cut(
+        colour: &[u8],
+        depth: &[u8],
+        stride: usize,
+        r: Region,
+    ) -> (Vec<u8>, Vec<u8>, Vec<u8>, Vec<u8>, usize) {
+        let (mut whole_c, mut whole_d) = (vec![0u8; colour.len()], vec![0u8; depth.len()]);
+        let rstride = 4 * r.width as usize + 8;
+        let mut part_c = vec![0u8; rstride * r.height as usize];
+        let mut part_d = vec![0u8; rstride * r.height as usize];
+        for (k, y) in r.rows().enumerate() {
+            let cols = y * stride + 4 * r.x as usize..y * stride + 4 * (r.x + r.width) as usize;
+            whole_c[cols.clone()].copy_from_slice(&colour[cols.clone()]);
+            whole_d[cols.clone()].copy_from_slice(&depth[cols.clone()]);
+            let n = 4 * r.width as usize;
+            part_c[k * rstride..k * rstride + n].copy_from_slice(&colour[cols.clone()]);
+            part_d[k * rstride..k * rstride + n].copy_from_slice(&depth[cols]);
+        }
+        (whole_c, whole_d, part_c, part_d, rstride)
+    }
+
+    /// A read-back of a rectangle gives the frame a whole-image read-back gives where the
+    /// rendering is background outside it, in full frames and trackers' alike, whatever
+    /// rectangle the frame's last read-back filled.
+    #[test]
+    fn a_region_reads_as_the_whole_image_with_background_outside() {
+        let (w, h) = (45u32, 37u32);
+        let stride = 4 * w as usize + 20;
+        let mut state = 0x853c_49e6_748f_ea9bu64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1);
+            (state >> 32) as u32
+        };
+        // A whole image of random pixels, and the read-back of `r` out of it with the
+        // whole image's background outside `r` (colour and depth zero).
+        let mut colour = vec![0u8; stride * h as usize];
+        let mut depth = vec![0u8; stride * h as usize];
+        for (c, d) in colour.chunks_exact_mut(4).zip(depth.chunks_exact_mut(4)) {
+            c.copy_from_slice(&next().to_le_bytes());
+            let v = (next() >> 8) as f32 / (1u32 << 24) as f32;
+            d.copy_from_slice(&v.to_ne_bytes());
+        }
+        let view = RenderView {
+            pinhole: Pinhole::new(40.0, 40.0, 22.0, 18.0),
+            pose: CameraPose::from_wxyz([1.0, 0.0, 0.0, 0.0], nalgebra::Vector3::zeros()).unwrap(),
+            near: 0.05,
+            far: 50.0,
+        };
+        let rect = |x, y, width, height| Region {
+            x,
+            y,
+            width,
+            height,
+        };
+        let regions = [
+            rect(3, 4, 20, 30),
+            rect(10, 0, 35, 9),
+            rect(0, 0, 1, 1),
+            Region::full(w, h),
+            rect(44, 36, 1, 1),
+        ];
+        for make in [Frame::empty, Frame::empty_for_tracker] {
+            let mut focused = make(view);
+            for r in regions {
+                let (whole_c, whole_d, part_c, part_d, rstride) = cut(&colour, &depth, stride, r);
+                let mut whole = make(view);
+                whole
+                    .fill_from_mapped(view, (w, h), Region::full(w, h), &whole_c, &whole_d, stride)
+                    .unwrap();
+                focused
+                    .fill_from_mapped(view, (w, h), r, &part_c, &part_d, rstride)
+                    .unwrap();
+                assert_eq!(focused.region(), r);
+                assert_eq!(focused.gray, whole.gray, "{r:?}");
+                assert_eq!(focused.mask, whole.mask, "{r:?}");
+                assert_eq!(focused.rgba, whole.rgba, "{r:?}");
+                for (a, b) in focused.depth.iter().zip(whole.depth.iter()) {
+                    assert_eq!(a.to_bits(), b.to_bits());
+                }
+                for v in 0..h {
+                    for u in 0..w {
+                        assert_eq!(focused.depth_at(u, v), whole.depth_at(u, v));
+                    }
+                }
+            }
+        }
+        // A rectangle outside the image, or rows shorter than it, is refused.
+        let mut f = Frame::empty(view);
+        let outside = rect(40, 0, 10, 2);
+        assert!(
+            f.fill_from_mapped(view, (w, h), outside, &colour, &depth, stride)
+                .is_err()
+        );
     }
 
     /// A frame of images that disagree in size is refused with the sizes named.

@@ -14,10 +14,12 @@ pub mod backproject;
 mod frame;
 mod gpu;
 pub mod projection;
+pub mod region;
 mod scene;
 mod targets;
 
 pub use frame::{Frame, RenderView};
+pub use region::Region;
 
 use gpu::Gpu;
 use scene::{GpuScene, Vertex};
@@ -115,6 +117,9 @@ pub struct RendererOptions {
     pub height: u32,
     /// Use the shader resolve even where a depth copy works (to test that path).
     pub force_depth_resolve: bool,
+    /// Rasterise and read back the whole image, not only the rectangle the model can cover
+    /// ([`region`]): the same frame, slower (to compare the two).
+    pub whole_image: bool,
 }
 
 /// The offscreen renderer. Create once, [`Renderer::set_model`], then
@@ -123,8 +128,9 @@ pub struct Renderer {
     gpu: Gpu,
     targets: Targets,
     scene: Option<GpuScene>,
-    /// The view of the rendering submitted and not yet read back.
-    pending: Option<RenderView>,
+    /// The view of the rendering submitted and not yet read back, and the rectangle rendered.
+    pending: Option<(RenderView, Region)>,
+    whole_image: bool,
 }
 
 impl Renderer {
@@ -134,6 +140,7 @@ impl Renderer {
             width,
             height,
             force_depth_resolve: false,
+            whole_image: false,
         })
     }
 
@@ -162,6 +169,7 @@ impl Renderer {
             targets,
             scene: None,
             pending: None,
+            whole_image: options.whole_image,
         })
     }
 
@@ -231,20 +239,26 @@ impl Renderer {
         view.validate()?;
         let scene = self.scene.as_ref().ok_or(RenderError::EmptyModel)?;
         let (gpu, targets) = (&self.gpu, &self.targets);
+        let (width, height) = (targets.width, targets.height);
+        let region = if self.whole_image {
+            Region::full(width, height)
+        } else {
+            region::covered_region(&scene.bounds, view, width, height)
+        };
         gpu.scoped("rendering", || {
-            targets.encode_and_submit(&gpu.device, &gpu.queue, scene, view);
+            targets.encode_and_submit(&gpu.device, &gpu.queue, scene, view, region);
             Ok(())
         })?;
-        self.pending = Some(*view);
+        self.pending = Some((*view, region));
         Ok(())
     }
 
     /// Waits for the rendering [`Renderer::submit`] started and reads it back into `frame`,
     /// reusing its buffers.
     pub fn finish_into(&mut self, frame: &mut Frame) -> Result<(), RenderError> {
-        let view = self.pending.take().ok_or(RenderError::NothingSubmitted)?;
+        let (view, region) = self.pending.take().ok_or(RenderError::NothingSubmitted)?;
         let (gpu, targets) = (&self.gpu, &self.targets);
-        targets.read_into(&gpu.device, view, frame)?;
+        targets.read_into(&gpu.device, view, region, frame)?;
         gpu.take_uncaptured("reading back")
     }
 }

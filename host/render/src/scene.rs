@@ -41,6 +41,8 @@ pub(crate) struct GpuScene {
     pub materials: Vec<wgpu::BindGroup>,
     pub draws: Vec<Draw>,
     pub triangles: usize,
+    /// The least and greatest corner of the box around every vertex (model frame, m).
+    pub bounds: ([f32; 3], [f32; 3]),
 }
 
 impl GpuScene {
@@ -85,6 +87,7 @@ impl GpuScene {
         }
         // Draw in material order: fewer bind-group switches.
         draws.sort_by_key(|d| d.material);
+        let bounds = bounds(&vertices);
 
         let vertices = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("model vertices"),
@@ -149,8 +152,21 @@ impl GpuScene {
             materials,
             draws,
             triangles: model.triangle_count(),
+            bounds,
         })
     }
+}
+
+/// The least and greatest corner of the box around `vertices`.
+fn bounds(vertices: &[Vertex]) -> ([f32; 3], [f32; 3]) {
+    let mut bounds = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for v in vertices {
+        for axis in 0..3 {
+            bounds.0[axis] = bounds.0[axis].min(v.position[axis]);
+            bounds.1[axis] = bounds.1[axis].max(v.position[axis]);
+        }
+    }
+    bounds
 }
 
 /// Uploads an RGBA8 texture with a full mip chain (box-filtered on the CPU), so minified

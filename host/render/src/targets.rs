@@ -3,6 +3,7 @@
 use std::sync::mpsc;
 
 use super::projection::projection_matrix;
+use super::region::Region;
 use super::scene::{GpuScene, Vertex};
 use super::{DepthReadback, Frame, RenderError, RenderView};
 
@@ -29,8 +30,10 @@ pub(crate) struct Targets {
     colour_view: wgpu::TextureView,
     depth: wgpu::Texture,
     depth_view: wgpu::TextureView,
-    /// GL path: resolve pipeline, its bind group and the `R32Uint` target.
-    resolve: Option<(wgpu::RenderPipeline, wgpu::BindGroup, wgpu::Texture)>,
+    /// The depth resolve: its pipeline, its bind group and the `R32Uint` target. GL reads all
+    /// depth through it; elsewhere it serves the focused read-back, as WebGPU copies only
+    /// whole depth textures.
+    resolve: (wgpu::RenderPipeline, wgpu::BindGroup, wgpu::Texture),
     colour_readback: wgpu::Buffer,
     depth_readback_buffer: wgpu::Buffer,
 }
@@ -206,8 +209,8 @@ impl Targets {
         );
         let depth_usage = match depth_readback {
             DepthReadback::Copy => wgpu::TextureUsages::COPY_SRC,
-            DepthReadback::ShaderResolve => wgpu::TextureUsages::TEXTURE_BINDING,
-        };
+            DepthReadback::ShaderResolve => wgpu::TextureUsages::empty(),
+        } | wgpu::TextureUsages::TEXTURE_BINDING;
         let depth = texture(
             device,
             "depth",
@@ -218,8 +221,7 @@ impl Targets {
         );
         let colour_view = colour.create_view(&Default::default());
         let depth_view = depth.create_view(&Default::default());
-        let resolve = (depth_readback == DepthReadback::ShaderResolve)
-            .then(|| Self::resolve_pass(device, width, height, &depth_view));
+        let resolve = Self::resolve_pass(device, width, height, &depth_view);
 
         Self {
             width,
@@ -309,13 +311,16 @@ impl Targets {
         (pipeline, group, target)
     }
 
-    /// Records the frame (model pass, optional depth resolve, copies) and submits it.
+    /// Records the frame (model pass, optional depth resolve, copies of `region`) and submits
+    /// it. Only `region` is rasterised (a scissor) and copied: outside it the model has no
+    /// pixel ([`crate::region`]).
     pub fn encode_and_submit(
         &self,
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         scene: &GpuScene,
         view: &RenderView,
+        region: Region,
     ) {
         let mvp = projection_matrix(&view.pinhole, self.width, self.height, view.near, view.far)
             * view.pose.view_matrix();
@@ -346,6 +351,7 @@ impl Targets {
                 }),
                 ..Default::default()
             });
+            pass.set_scissor_rect(region.x, region.y, region.width, region.height);
             pass.set_pipeline(&self.model_pipeline);
             pass.set_bind_group(0, &self.camera_group, &[]);
             pass.set_vertex_buffer(0, scene.vertices.slice(..));
@@ -355,49 +361,48 @@ impl Targets {
                 pass.draw_indexed(d.indices.clone(), d.base_vertex, 0..1);
             }
         }
-        if let Some((pipeline, group, target)) = &self.resolve {
-            let target_view = target.create_view(&Default::default());
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("depth resolve"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &target_view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                ..Default::default()
-            });
-            pass.set_pipeline(pipeline);
-            pass.set_bind_group(0, group, &[]);
-            pass.draw(0..3, 0..1);
+        // A part of the image, or GL: the depth through the resolve pass.
+        let resolve = (self.depth_readback == DepthReadback::ShaderResolve
+            || region != Region::full(self.width, self.height))
+        .then_some(&self.resolve);
+        if let Some(resolve) = resolve {
+            encode_resolve(&mut encoder, resolve, region);
         }
         let layout = wgpu::TexelCopyBufferLayout {
             offset: 0,
-            bytes_per_row: Some(padded_row(self.width)),
-            rows_per_image: Some(self.height),
+            bytes_per_row: Some(padded_row(region.width)),
+            rows_per_image: Some(region.height),
         };
         let extent = wgpu::Extent3d {
-            width: self.width,
-            height: self.height,
+            width: region.width,
+            height: region.height,
             depth_or_array_layers: 1,
         };
+        let origin = wgpu::Origin3d {
+            x: region.x,
+            y: region.y,
+            z: 0,
+        };
         encoder.copy_texture_to_buffer(
-            self.colour.as_image_copy(),
+            wgpu::TexelCopyTextureInfo {
+                origin,
+                ..self.colour.as_image_copy()
+            },
             wgpu::TexelCopyBufferInfo {
                 buffer: &self.colour_readback,
                 layout,
             },
             extent,
         );
-        let depth_source = match &self.resolve {
-            Some((_, _, target)) => target.as_image_copy(),
+        let depth_source = match resolve {
+            Some((_, _, target)) => wgpu::TexelCopyTextureInfo {
+                origin,
+                ..target.as_image_copy()
+            },
             None => wgpu::TexelCopyTextureInfo {
                 texture: &self.depth,
                 mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
+                origin,
                 aspect: wgpu::TextureAspect::DepthOnly,
             },
         };
@@ -413,20 +418,22 @@ impl Targets {
     }
 
     /// Waits for the frame and converts it into `frame` (see [`Frame::fill_from_mapped`]),
-    /// straight from the mapped buffers.
+    /// straight from the mapped buffers, which hold `region`.
     pub fn read_into(
         &self,
         device: &wgpu::Device,
         view: RenderView,
+        region: Region,
         frame: &mut Frame,
     ) -> Result<(), RenderError> {
+        let used = u64::from(padded_row(region.width)) * u64::from(region.height);
         let (tx, rx) = mpsc::channel();
         for (i, buffer) in [&self.colour_readback, &self.depth_readback_buffer]
             .into_iter()
             .enumerate()
         {
             let tx = tx.clone();
-            buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+            buffer.map_async(wgpu::MapMode::Read, ..used, move |r| {
                 // The receiver lives until both answers arrived or we failed.
                 let _ = tx.send((i, r));
             });
@@ -448,7 +455,7 @@ impl Targets {
         }
         let result = match failure {
             Some(f) => Err(RenderError::Readback(f)),
-            None => self.convert(view, frame),
+            None => self.convert(view, region, used, frame),
         };
         for (i, buffer) in [&self.colour_readback, &self.depth_readback_buffer]
             .into_iter()
@@ -461,19 +468,56 @@ impl Targets {
         result
     }
 
-    fn convert(&self, view: RenderView, frame: &mut Frame) -> Result<(), RenderError> {
+    fn convert(
+        &self,
+        view: RenderView,
+        region: Region,
+        used: u64,
+        frame: &mut Frame,
+    ) -> Result<(), RenderError> {
         let map_err = |e: wgpu::MapRangeError| RenderError::Readback(e.to_string());
-        let colour = self.colour_readback.get_mapped_range(..).map_err(map_err)?;
+        let colour = self
+            .colour_readback
+            .get_mapped_range(..used)
+            .map_err(map_err)?;
         let depth = self
             .depth_readback_buffer
-            .get_mapped_range(..)
+            .get_mapped_range(..used)
             .map_err(map_err)?;
         frame.fill_from_mapped(
             view,
             (self.width, self.height),
+            region,
             &colour,
             &depth,
-            padded_row(self.width) as usize,
+            padded_row(region.width) as usize,
         )
     }
+}
+
+/// The depth resolve pass over `region`: the depth buffer's bits into the `R32Uint` target.
+fn encode_resolve(
+    encoder: &mut wgpu::CommandEncoder,
+    (pipeline, group, target): &(wgpu::RenderPipeline, wgpu::BindGroup, wgpu::Texture),
+    region: Region,
+) {
+    let target_view = target.create_view(&Default::default());
+    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("depth resolve"),
+        color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+            view: &target_view,
+            depth_slice: None,
+            resolve_target: None,
+            // Every pixel of the rectangle is written and no other is read: no clear.
+            ops: wgpu::Operations {
+                load: wgpu::LoadOp::Load,
+                store: wgpu::StoreOp::Store,
+            },
+        })],
+        ..Default::default()
+    });
+    pass.set_scissor_rect(region.x, region.y, region.width, region.height);
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, group, &[]);
+    pass.draw(0..3, 0..1);
 }

@@ -4,6 +4,7 @@
 //! correspondences. The renderer and its GPU resources are created once.
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::Instant;
 
 use image::GrayImage;
@@ -217,6 +218,17 @@ pub struct Vision {
     /// The last rendering (of a frame, an assessment or a contrast), whose buffers the next
     /// one fills.
     rendering: Option<render::Frame>,
+    /// The live image a verification or a comparison last prepared: they look at one image
+    /// again and again (each round of each verification of each candidate pose), and its
+    /// undistortion and pyramid are the same every time.
+    prepared: Option<PreparedLive>,
+}
+
+/// A raw live image, undistorted, and its pyramid for the KLT.
+struct PreparedLive {
+    raw: GrayImage,
+    live: GrayImage,
+    target: Arc<Pyramid>,
 }
 
 impl std::fmt::Debug for Vision {
@@ -278,6 +290,7 @@ impl Vision {
             options,
             last: None,
             rendering: None,
+            prepared: None,
         })
     }
 
@@ -347,7 +360,7 @@ impl Vision {
         a: &CameraPose,
         b: &CameraPose,
     ) -> Result<Contrast, VisionError> {
-        let live = self.undistort(raw)?;
+        let live = self.prepared_live(raw)?.live.clone();
         let clip = self.options.clip;
         let reuse = self.rendering.take();
         let ra = render_at(&mut self.renderer, &self.ideal, clip, a, reuse)?;
@@ -402,7 +415,7 @@ impl Vision {
                 keep_image: keep_image && round + 1 == VERIFY_ROUNDS,
                 omega_c: None,
             };
-            match self.process(job) {
+            match self.process_with(job, true) {
                 Ok(r) => result = Some(r),
                 Err(e) => {
                     self.map.set_config(tracking);
@@ -616,21 +629,29 @@ impl Vision {
     /// rasterises on its threads while this one undistorts the live image `raw` and builds its
     /// pyramid (which needs no rendering); then the rendering read back into the previous
     /// frame's buffers (no fresh pages to fault in). Fills the load, pyramid and render times.
+    /// With `reuse_live`, the live image and its pyramid are [`Self::prepared_live`]'s.
     fn render_beside_live(
         &mut self,
         raw: &GrayImage,
         view: RenderView,
+        reuse_live: bool,
         t0: Instant,
         times: &mut StageTimes,
-    ) -> Result<(GrayImage, Pyramid, render::Frame), VisionError> {
+    ) -> Result<(GrayImage, Arc<Pyramid>, render::Frame), VisionError> {
         let t = Instant::now();
         self.renderer.submit(&view)?;
         let submitted = t.elapsed();
-        let live = self.undistort.remap_gray(raw)?;
-        times.load = (t0.elapsed() - submitted).as_secs_f64();
-        let t = Instant::now();
-        let target = self.options.klt.target_pyramid(GrayF32::from_gray8(&live)?);
-        times.pyramids = t.elapsed().as_secs_f64();
+        let (live, target) = if reuse_live {
+            let prepared = self.prepared_live(raw)?;
+            (prepared.live.clone(), prepared.target.clone())
+        } else {
+            let live = self.undistort.remap_gray(raw)?;
+            times.load = (t0.elapsed() - submitted).as_secs_f64();
+            let t = Instant::now();
+            let target = self.options.klt.target_pyramid(GrayF32::from_gray8(&live)?);
+            times.pyramids = t.elapsed().as_secs_f64();
+            (live, Arc::new(target))
+        };
         let t = Instant::now();
         let mut rendering = self
             .rendering
@@ -641,9 +662,38 @@ impl Vision {
         Ok((live, target, rendering))
     }
 
+    /// The live image `raw` undistorted, with its pyramid: the ones kept from the last call
+    /// where `raw` is the same image (a verification's rounds, the poses of one attempt),
+    /// made and kept otherwise.
+    fn prepared_live(&mut self, raw: &GrayImage) -> Result<&PreparedLive, VisionError> {
+        let prepared = match self.prepared.take() {
+            Some(p) if p.raw == *raw => p,
+            _ => {
+                let live = self.undistort.remap_gray(raw)?;
+                let target = self.options.klt.target_pyramid(GrayF32::from_gray8(&live)?);
+                PreparedLive {
+                    raw: raw.clone(),
+                    live,
+                    target: Arc::new(target),
+                }
+            }
+        };
+        Ok(self.prepared.insert(prepared))
+    }
+
     /// Analyses one frame: the texture's registrations and the contour's lines, as the
     /// options' modality says.
-    pub fn process(&mut self, mut job: FrameJob) -> Result<FrameResult, VisionError> {
+    pub fn process(&mut self, job: FrameJob) -> Result<FrameResult, VisionError> {
+        self.process_with(job, false)
+    }
+
+    /// [`Self::process`], the live image and its pyramid [`Self::prepared_live`]'s with
+    /// `reuse_live`.
+    fn process_with(
+        &mut self,
+        mut job: FrameJob,
+        reuse_live: bool,
+    ) -> Result<FrameResult, VisionError> {
         let t0 = Instant::now();
         let mut times = StageTimes::default();
         self.last = None;
@@ -655,7 +705,8 @@ impl Vision {
             near: self.options.clip.0,
             far: self.options.clip.1,
         };
-        let (live, target, rendering) = self.render_beside_live(&raw, view, t0, &mut times)?;
+        let (live, target, rendering) =
+            self.render_beside_live(&raw, view, reuse_live, t0, &mut times)?;
         let (w, h) = (self.camera.width, self.camera.height);
         let model_coverage = rendering.mask.as_raw().iter().filter(|&&v| v > 0).count() as f64
             / (w as f64 * h as f64);
