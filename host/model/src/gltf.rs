@@ -35,6 +35,21 @@ pub fn parse_gltf(bytes: &[u8], path: &Path, read: ReadFile) -> Result<Model, Mo
         path: path.to_owned(),
         source,
     };
+    // gltf's GLB reader subtracts the 12-byte header from the length field unchecked (a
+    // panic for a length under 12; found by the `gltf` fuzz target).
+    if let Some(length) = bytes
+        .strip_prefix(b"glTF")
+        .and_then(|rest| rest.get(4..8))
+        .map(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]))
+        && length < 12
+    {
+        return Err(gltf_err(::gltf::Error::Binary(
+            ::gltf::binary::Error::Length {
+                length,
+                length_read: bytes.len(),
+            },
+        )));
+    }
     let ::gltf::Gltf { document, blob } =
         ::gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_err)?;
     // gltf-json's validation indexes the accessors by POSITION's index before checking it

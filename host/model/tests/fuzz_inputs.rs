@@ -305,3 +305,12 @@ fn a_gltf_position_accessor_past_the_accessors_is_a_bad_index() {
     let e = load_gltf_bytes(json.as_bytes()).unwrap_err();
     assert!(matches!(e, ModelError::BadIndex { .. }), "{e:?}");
 }
+
+/// Found by the `gltf` fuzz target (crash-f589177e…): a GLB header whose length field is under
+/// its own 12 bytes (gltf's reader subtracts unchecked).
+#[test]
+fn a_glb_length_under_its_header_is_a_gltf_error() {
+    let bytes = b"glTF\x02\x02\0\0\0\0\0\0\0y\x82";
+    let e = load_gltf_bytes(bytes).unwrap_err();
+    assert!(matches!(e, ModelError::Gltf { .. }), "{e:?}");
+}
