@@ -31,44 +31,7 @@ pub fn load_gltf(path: &Path) -> Result<Model, ModelError> {
 /// Limits: [`MAX_VERTICES`] and [`MAX_TRIANGLES`] over all mesh instances, checked from the
 /// accessors' counts before reading them; textures as [`crate::decode_texture`].
 pub fn parse_gltf(bytes: &[u8], path: &Path, read: ReadFile) -> Result<Model, ModelError> {
-    let gltf_err = |source| ModelError::Gltf {
-        path: path.to_owned(),
-        source,
-    };
-    // gltf's GLB reader subtracts the 12-byte header from the length field unchecked (a
-    // panic for a length under 12; found by the `gltf` fuzz target).
-    if let Some(length) = bytes
-        .strip_prefix(b"glTF")
-        .and_then(|rest| rest.get(4..8))
-        .map(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]))
-        && length < 12
-    {
-        return Err(gltf_err(::gltf::Error::Binary(
-            ::gltf::binary::Error::Length {
-                length,
-                length_read: bytes.len(),
-            },
-        )));
-    }
-    let ::gltf::Gltf { document, blob } =
-        ::gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_err)?;
-    // gltf-json's validation indexes the accessors by POSITION's index before checking it
-    // (a panic for an index past them): checked here first.
-    let accessors = document.as_json().accessors.len();
-    for (m, mesh) in document.as_json().meshes.iter().enumerate() {
-        for prim in &mesh.primitives {
-            let position = ::gltf::json::validation::Checked::Valid(::gltf::Semantic::Positions);
-            if let Some(i) = prim.attributes.get(&position)
-                && i.value() >= accessors
-            {
-                return Err(ModelError::BadIndex {
-                    mesh: format!("mesh {m}"),
-                    detail: format!("POSITION accessor {} of {accessors}", i.value()),
-                });
-            }
-        }
-    }
-    let document = ::gltf::Document::from_json(document.into_json()).map_err(gltf_err)?;
+    let (document, blob) = validated(bytes, path)?;
     check_accessors(&document)?;
     let files = Files { path, read };
     let buffers = files.buffers(&document, blob)?;
@@ -145,6 +108,49 @@ pub fn parse_gltf(bytes: &[u8], path: &Path, read: ReadFile) -> Result<Model, Mo
         stack.extend(node.children().map(|c| (c, global)));
     }
     model.validate(&path.display().to_string())
+}
+
+/// The document and GLB blob of `bytes`, validated, with the checks gltf lacks first.
+fn validated(bytes: &[u8], path: &Path) -> Result<(::gltf::Document, Option<Vec<u8>>), ModelError> {
+    let gltf_err = |source| ModelError::Gltf {
+        path: path.to_owned(),
+        source,
+    };
+    // gltf's GLB reader subtracts the 12-byte header from the length field unchecked (a
+    // panic for a length under 12; found by the `gltf` fuzz target).
+    if let Some(length) = bytes
+        .strip_prefix(b"glTF")
+        .and_then(|rest| rest.get(4..8))
+        .map(|l| u32::from_le_bytes([l[0], l[1], l[2], l[3]]))
+        && length < 12
+    {
+        return Err(gltf_err(::gltf::Error::Binary(
+            ::gltf::binary::Error::Length {
+                length,
+                length_read: bytes.len(),
+            },
+        )));
+    }
+    let ::gltf::Gltf { document, blob } =
+        ::gltf::Gltf::from_slice_without_validation(bytes).map_err(gltf_err)?;
+    // gltf-json's validation indexes the accessors by POSITION's index before checking it
+    // (a panic for an index past them): checked here first.
+    let accessors = document.as_json().accessors.len();
+    for (m, mesh) in document.as_json().meshes.iter().enumerate() {
+        for prim in &mesh.primitives {
+            let position = ::gltf::json::validation::Checked::Valid(::gltf::Semantic::Positions);
+            if let Some(i) = prim.attributes.get(&position)
+                && i.value() >= accessors
+            {
+                return Err(ModelError::BadIndex {
+                    mesh: format!("mesh {m}"),
+                    detail: format!("POSITION accessor {} of {accessors}", i.value()),
+                });
+            }
+        }
+    }
+    let document = ::gltf::Document::from_json(document.into_json()).map_err(gltf_err)?;
+    Ok((document, blob))
 }
 
 /// A triangle primitive's vertices (transformed by `global`), texture coordinates and indices;
@@ -459,6 +465,24 @@ fn materials(
             None => None,
             Some(info) => {
                 let image = info.texture().source();
+                // gltf's `Image::source` unwraps a URI when there is no buffer view, and a MIME
+                // type when there is one (panics; found by the `gltf` fuzz target).
+                let json = document.as_json().images.get(image.index());
+                if json.is_none_or(|j| {
+                    if j.buffer_view.is_some() {
+                        j.mime_type.is_none()
+                    } else {
+                        j.uri.is_none()
+                    }
+                }) {
+                    return Err(ModelError::BadIndex {
+                        mesh: name,
+                        detail: format!(
+                            "image {}: neither a URI nor a buffer view with a MIME type",
+                            image.index()
+                        ),
+                    });
+                }
                 let slot = decoded
                     .get_mut(image.index())
                     .ok_or_else(|| ModelError::BadIndex {

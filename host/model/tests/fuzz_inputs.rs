@@ -314,3 +314,26 @@ fn a_glb_length_under_its_header_is_a_gltf_error() {
     let e = load_gltf_bytes(bytes).unwrap_err();
     assert!(matches!(e, ModelError::Gltf { .. }), "{e:?}");
 }
+
+/// Found by the `gltf` fuzz target (crash-5822e911…, a GLB whose image lost its `bufferView`
+/// key): gltf's `Image::source` unwraps the URI it then expects.
+#[test]
+fn a_gltf_image_without_uri_or_view_is_a_bad_index() {
+    let json = gltf_json();
+    let start = json.find(r#""images""#).unwrap();
+    let end = start + json[start..].find(']').unwrap() + 1;
+    let no_source = format!(
+        "{}\"images\": [{{\"name\": \"x\"}}]{}",
+        &json[..start],
+        &json[end..]
+    );
+    let e = load_gltf_bytes(no_source.as_bytes()).unwrap_err();
+    assert!(matches!(e, ModelError::BadIndex { .. }), "{e:?}");
+    let view_no_mime = format!(
+        "{}\"images\": [{{\"bufferView\": 0}}]{}",
+        &json[..start],
+        &json[end..]
+    );
+    let e = load_gltf_bytes(view_no_mime.as_bytes()).unwrap_err();
+    assert!(matches!(e, ModelError::BadIndex { .. }), "{e:?}");
+}
