@@ -96,22 +96,49 @@ struct KalibrCam {
 }
 
 fn read(path: &Path) -> Result<String, CalibError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CalibError::Io {
+    crate::read_text_file(path).map_err(|source| CalibError::Io {
         path: path.to_owned(),
         source,
-    })?;
-    // EuRoC files start with OpenCV's `%YAML:1.0`, which is not a valid YAML directive.
-    Ok(text
-        .lines()
+    })
+}
+
+/// EuRoC files start with OpenCV's `%YAML:1.0`, which is not a valid YAML directive.
+fn without_opencv_directive(text: &str) -> String {
+    text.lines()
         .filter(|l| !l.starts_with("%YAML"))
         .collect::<Vec<_>>()
-        .join("\n"))
+        .join("\n")
+}
+
+/// A matrix of finite numbers, or what is wrong with it.
+fn finite_matrix(name: &str, data: &[f64]) -> Result<Matrix4<f64>, String> {
+    if let Some(v) = data.iter().find(|v| !v.is_finite()) {
+        return Err(format!("{name} holds a non-finite value ({v})"));
+    }
+    Ok(Matrix4::from_row_slice(data))
+}
+
+/// An optional number that must be finite, and positive when `positive`.
+fn finite(name: &str, v: Option<f64>, positive: bool) -> Result<Option<f64>, String> {
+    match v {
+        Some(x) if !x.is_finite() || (positive && x <= 0.0) => Err(format!(
+            "{name} must be a finite{} number, got {x}",
+            if positive { " positive" } else { "" }
+        )),
+        v => Ok(v),
+    }
 }
 
 /// Reads an EuRoC/ASL camera `sensor.yaml` (`pinhole` with `radial-tangential` or
 /// `equidistant` distortion).
 pub fn read_euroc_sensor_yaml(path: &Path) -> Result<CameraCalib, CalibError> {
-    let text = read(path)?;
+    parse_euroc_sensor_yaml(&read(path)?, path)
+}
+
+/// Parses the text of an EuRoC/ASL camera `sensor.yaml` ([`read_euroc_sensor_yaml`]); `path`
+/// names it in errors and in the camera's name when the file has no `comment`.
+pub fn parse_euroc_sensor_yaml(text: &str, path: &Path) -> Result<CameraCalib, CalibError> {
+    let text = without_opencv_directive(text);
     let s: EurocSensor = serde_yaml_ng::from_str(&text).map_err(|source| CalibError::Yaml {
         path: path.to_owned(),
         source,
@@ -123,7 +150,7 @@ pub fn read_euroc_sensor_yaml(path: &Path) -> Result<CameraCalib, CalibError> {
     let extrinsics = match s.T_BS {
         None => None,
         Some(m) if m.rows == 4 && m.cols == 4 && m.data.len() == 16 => {
-            Some(Matrix4::from_row_slice(&m.data))
+            Some(finite_matrix("T_BS", &m.data).map_err(invalid)?)
         }
         Some(m) => {
             return Err(invalid(format!(
@@ -142,19 +169,26 @@ pub fn read_euroc_sensor_yaml(path: &Path) -> Result<CameraCalib, CalibError> {
         &s.distortion_coefficients,
         &s.resolution,
     )?;
+    let rate_hz = finite("rate_hz", s.rate_hz, true).map_err(invalid)?;
     let name = s.comment.unwrap_or_else(|| path.display().to_string());
     Ok(CameraCalib {
         name,
         camera,
         extrinsics,
-        rate_hz: s.rate_hz,
+        rate_hz,
         timeshift_cam_imu: None,
     })
 }
 
 /// Reads a Kalibr camchain YAML (`cam0`, `cam1`, …), in camera-name order.
 pub fn read_kalibr_camchain(path: &Path) -> Result<Vec<CameraCalib>, CalibError> {
-    let text = read(path)?;
+    parse_kalibr_camchain(&read(path)?, path)
+}
+
+/// Parses the text of a Kalibr camchain YAML ([`read_kalibr_camchain`]); `path` names it in
+/// errors.
+pub fn parse_kalibr_camchain(text: &str, path: &Path) -> Result<Vec<CameraCalib>, CalibError> {
+    let text = without_opencv_directive(text);
     let cams: BTreeMap<String, KalibrCam> =
         serde_yaml_ng::from_str(&text).map_err(|source| CalibError::Yaml {
             path: path.to_owned(),
@@ -168,11 +202,15 @@ pub fn read_kalibr_camchain(path: &Path) -> Result<Vec<CameraCalib>, CalibError>
     }
     cams.into_iter()
         .map(|(name, c)| {
+            let invalid = |what: String| CalibError::Invalid {
+                path: path.to_owned(),
+                what: format!("{name}: {what}"),
+            };
             let extrinsics = match c.T_cam_imu {
                 None => None,
                 Some(rows) if rows.len() == 4 && rows.iter().all(|r| r.len() == 4) => {
                     let flat: Vec<f64> = rows.concat();
-                    Some(Matrix4::from_row_slice(&flat))
+                    Some(finite_matrix("T_cam_imu", &flat).map_err(invalid)?)
                 }
                 Some(_) => {
                     return Err(CalibError::Invalid {
@@ -189,12 +227,14 @@ pub fn read_kalibr_camchain(path: &Path) -> Result<Vec<CameraCalib>, CalibError>
                 &c.distortion_coeffs,
                 &c.resolution,
             )?;
+            let timeshift_cam_imu =
+                finite("timeshift_cam_imu", c.timeshift_cam_imu, false).map_err(invalid)?;
             Ok(CameraCalib {
                 name,
                 camera,
                 extrinsics,
                 rate_hz: None,
-                timeshift_cam_imu: c.timeshift_cam_imu,
+                timeshift_cam_imu,
             })
         })
         .collect()

@@ -55,16 +55,21 @@ struct CameraJson {
 
 /// Reads a `camera.json` (pinhole, no distortion).
 pub fn read_camera_json(path: &Path) -> Result<Camera, CalibError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CalibError::Io {
+    let text = crate::read_text_file(path).map_err(|source| CalibError::Io {
         path: path.to_owned(),
         source,
     })?;
+    parse_camera_json(&text, path)
+}
+
+/// Parses the text of a `camera.json` ([`read_camera_json`]); `path` names it in errors.
+pub fn parse_camera_json(text: &str, path: &Path) -> Result<Camera, CalibError> {
     let invalid = |what: String| CalibError::Invalid {
         path: path.to_owned(),
         what,
     };
     let c: CameraJson =
-        serde_json::from_str(&text).map_err(|e| invalid(format!("not a camera.json: {e}")))?;
+        serde_json::from_str(text).map_err(|e| invalid(format!("not a camera.json: {e}")))?;
     if c.model != "pinhole" {
         return Err(invalid(format!(
             "model `{}` unsupported: only `pinhole`",

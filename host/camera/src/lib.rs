@@ -16,9 +16,12 @@ mod pose;
 pub mod start_pose;
 mod undistort_map;
 
-pub use calib::{CalibError, CameraCalib, read_euroc_sensor_yaml, read_kalibr_camchain};
+pub use calib::{
+    CalibError, CameraCalib, parse_euroc_sensor_yaml, parse_kalibr_camchain,
+    read_euroc_sensor_yaml, read_kalibr_camchain,
+};
 pub use distortion::Distortion;
-pub use intrinsics::{parse_intrinsics, pinhole_camera, read_camera_json};
+pub use intrinsics::{parse_camera_json, parse_intrinsics, pinhole_camera, read_camera_json};
 pub use pinhole::Pinhole;
 pub use pose::CameraPose;
 pub use undistort_map::{Gray32FImage, UndistortMap};
@@ -49,6 +52,26 @@ pub enum CameraError {
 
 /// Largest image side accepted (guards allocations driven by file contents).
 pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// Largest calibration or start pose file read (`sensor.yaml`, camchain, `camera.json`, a
+/// start pose), checked from its size before reading: such files are a few kilobytes, so
+/// 1 MiB is far past any real one while bounding what a wrong file makes the YAML/JSON
+/// readers hold.
+pub const MAX_TEXT_FILE_BYTES: u64 = 1 << 20;
+
+/// Reads a small text file, refusing one over [`MAX_TEXT_FILE_BYTES`] before reading it.
+pub fn read_text_file(path: &std::path::Path) -> std::io::Result<String> {
+    let len = std::fs::metadata(path)?.len();
+    if len > MAX_TEXT_FILE_BYTES {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "{len} bytes: too large for a calibration or pose file (at most {MAX_TEXT_FILE_BYTES})"
+            ),
+        ));
+    }
+    std::fs::read_to_string(path)
+}
 
 /// A calibrated camera: image size, intrinsics and distortion.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -153,11 +153,15 @@ fn parse_tum(text: &str) -> Result<CameraPose, StartPoseError> {
 
 /// Reads a start pose file: JSON when it starts with `{`, else a TUM line.
 pub fn read_start_pose(path: &Path) -> Result<CameraPose, StartPoseError> {
-    let text = std::fs::read_to_string(path)?;
+    parse_start_pose(&crate::read_text_file(path)?)
+}
+
+/// Parses the text of a start pose file ([`read_start_pose`]).
+pub fn parse_start_pose(text: &str) -> Result<CameraPose, StartPoseError> {
     if text.trim_start().starts_with('{') {
-        parse_json(&text)
+        parse_json(text)
     } else {
-        parse_tum(&text)
+        parse_tum(text)
     }
 }
 

@@ -5,6 +5,21 @@
 //!
 //! The database is cached in a folder (`--cache`), keyed by a CRC-64 of the model's geometry,
 //! texture pixels and the settings; a cache of another model or other settings is rebuilt.
+//!
+//! The cache file `locate-KEY.db` ([`Database::to_bytes`]): a 28-byte header, then the
+//! postcard body (the views and the entries).
+//!
+//! | bytes | what |
+//! |---|---|
+//! | 0..7 | `HVLOCDB`: the format's marker (another file is *foreign*) |
+//! | 7 | the format version, an ASCII digit ([`FORMAT_VERSION`]) |
+//! | 8..16 | the key, u64 little-endian |
+//! | 16..24 | the body's length [bytes], u64 little-endian |
+//! | 24..28 | CRC-32 (ISO-HDLC) of the body, little-endian |
+//!
+//! A file that is short, foreign, of another version, another key, of a wrong length or
+//! checksum, or whose body does not decode is not trusted: [`Database::load_or_build`] rebuilds
+//! it and says why ([`CacheError`]).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -72,10 +87,8 @@ pub struct View {
 }
 
 /// The database.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Database {
-    /// Format marker and version.
-    magic: [u8; 8],
     /// CRC-64 of the model and the settings it was built from.
     pub key: u64,
     /// The renderings.
@@ -84,8 +97,89 @@ pub struct Database {
     pub entries: Vec<Entry>,
 }
 
-/// Marker of the cache file's format (bump the digit when it changes).
-const MAGIC: [u8; 8] = *b"HVLOCDB1";
+/// Marker of the cache file's format, before the version digit.
+const MAGIC: [u8; 7] = *b"HVLOCDB";
+
+/// Version of the cache file's format (an ASCII digit after [`MAGIC`]; bump it when the format
+/// changes). Version 1 was the postcard body alone, with no length or checksum.
+pub const FORMAT_VERSION: u8 = b'2';
+
+/// Bytes of the cache file's header.
+pub const HEADER_LEN: usize = 28;
+
+/// Largest cache file read, checked from its size before reading: the default settings make
+/// about 2 MB (160 renderings of up to 300 keypoints of 46 bytes), so 1 GiB holds settings
+/// hundreds of times denser.
+pub const MAX_CACHE_BYTES: u64 = 1 << 30;
+
+/// The body of the cache file.
+#[derive(Serialize)]
+struct BodyRef<'a> {
+    views: &'a [View],
+    entries: &'a [Entry],
+}
+
+/// The body of the cache file, read.
+#[derive(Deserialize)]
+struct Body {
+    views: Vec<View>,
+    entries: Vec<Entry>,
+}
+
+/// Why a cache file is not used (it is rebuilt).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CacheError {
+    /// Shorter than its header, or than the body its header announces.
+    #[error("truncated: {found} bytes, expected {expected}")]
+    Truncated {
+        /// Bytes expected.
+        expected: u64,
+        /// Bytes found.
+        found: u64,
+    },
+    /// Not a database of this program.
+    #[error("not a locate database (foreign file)")]
+    Foreign,
+    /// Another version of the format.
+    #[error("format version {found}, this build reads version {expected}")]
+    Version {
+        /// The file's version.
+        found: char,
+        /// This build's.
+        expected: char,
+    },
+    /// A database of another model or other settings.
+    #[error("of another model or other settings (key {found:016x})")]
+    OtherKey {
+        /// The file's key.
+        found: u64,
+    },
+    /// Longer than its header says.
+    #[error("{extra} bytes after the body")]
+    TrailingBytes {
+        /// Bytes past the body.
+        extra: u64,
+    },
+    /// Over [`MAX_CACHE_BYTES`].
+    #[error("too large: {bytes} bytes (at most {MAX_CACHE_BYTES})")]
+    TooLarge {
+        /// The file's size.
+        bytes: u64,
+    },
+    /// The body's checksum differs from the header's.
+    #[error("checksum mismatch: body CRC-32 {found:08x}, header {expected:08x}")]
+    Checksum {
+        /// In the header.
+        expected: u32,
+        /// Of the body.
+        found: u32,
+    },
+    /// The body does not decode, or holds what a database cannot.
+    #[error("corrupt body: {0}")]
+    Corrupt(String),
+}
+
+const BODY_CRC: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// Why the database could not be built or read.
 #[derive(Debug, thiserror::Error)]
@@ -288,7 +382,6 @@ impl Database {
             return Err(DatabaseError::NoKeypoints { views: views.len() });
         }
         Ok(Self {
-            magic: MAGIC,
             key: database_key(model, config),
             views: kept_views,
             entries,
@@ -310,18 +403,18 @@ impl Database {
     ) -> Result<(Self, Provenance), DatabaseError> {
         let key = database_key(model, config);
         let path = Self::cache_path(dir, key);
-        let why = match std::fs::read(&path) {
-            Ok(bytes) => match postcard::from_bytes::<Database>(&bytes) {
-                Ok(db) if db.magic == MAGIC && db.key == key && !db.entries.is_empty() => {
-                    return Ok((db, Provenance::Cached(path)));
-                }
-                Ok(_) => format!(
-                    "{} is of another model, other settings or another format",
-                    path.display()
-                ),
-                Err(e) => format!("{} is unreadable ({e})", path.display()),
-            },
-            Err(_) => {
+        let why = match Self::read_cache(&path, key) {
+            Ok(Some(db)) => return Ok((db, Provenance::Cached(path))),
+            Ok(None) => None,
+            Err(CacheError::OtherKey { .. }) => Some(format!(
+                "{} is of another model or other settings",
+                path.display()
+            )),
+            Err(e) => Some(format!("{} is unreadable ({e})", path.display())),
+        };
+        let why = match why {
+            Some(why) => why,
+            None => {
                 let others = std::fs::read_dir(dir).map_or(0, |entries| {
                     entries
                         .filter_map(Result::ok)
@@ -357,8 +450,9 @@ impl Database {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(io)?;
         }
-        let bytes =
-            postcard::to_stdvec(self).map_err(|e| io(std::io::Error::other(e.to_string())))?;
+        let bytes = self
+            .to_bytes()
+            .map_err(|e| io(std::io::Error::other(e.to_string())))?;
         // A name of its own per writer: two processes building the same database at once
         // each rename a whole file into place.
         let nanos = std::time::SystemTime::now()
@@ -370,6 +464,132 @@ impl Database {
         f.sync_all().map_err(io)?;
         std::fs::rename(&tmp, path).map_err(io)?;
         Ok(())
+    }
+
+    /// The cache file of `key` at `path`: `Ok(None)` when there is none, an error when it is
+    /// not to be trusted.
+    fn read_cache(path: &Path, key: u64) -> Result<Option<Self>, CacheError> {
+        let Ok(meta) = std::fs::metadata(path) else {
+            return Ok(None);
+        };
+        if meta.len() > MAX_CACHE_BYTES {
+            return Err(CacheError::TooLarge { bytes: meta.len() });
+        }
+        match std::fs::read(path) {
+            Ok(bytes) => Self::from_bytes(&bytes, key).map(Some),
+            Err(e) => Err(CacheError::Corrupt(format!("cannot read: {e}"))),
+        }
+    }
+
+    /// The cache file's bytes: header and body (see the module's text).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, postcard::Error> {
+        let body = postcard::to_stdvec(&BodyRef {
+            views: &self.views,
+            entries: &self.entries,
+        })?;
+        let mut out = Vec::with_capacity(HEADER_LEN + body.len());
+        out.extend_from_slice(&MAGIC);
+        out.push(FORMAT_VERSION);
+        out.extend_from_slice(&self.key.to_le_bytes());
+        out.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        out.extend_from_slice(&BODY_CRC.checksum(&body).to_le_bytes());
+        out.extend_from_slice(&body);
+        Ok(out)
+    }
+
+    /// Reads a cache file's bytes, checking the header (marker, version, `key`, length,
+    /// checksum) before decoding the body, and the body's entries after: any doubt is an error.
+    pub fn from_bytes(bytes: &[u8], key: u64) -> Result<Self, CacheError> {
+        let found = bytes.len() as u64;
+        if found > MAX_CACHE_BYTES {
+            return Err(CacheError::TooLarge { bytes: found });
+        }
+        let u64_at = |i: usize| {
+            let mut b = [0u8; 8];
+            b.copy_from_slice(&bytes[i..i + 8]);
+            u64::from_le_bytes(b)
+        };
+        if bytes.len() < MAGIC.len() + 1 || bytes[..MAGIC.len()] != MAGIC {
+            return Err(if MAGIC.starts_with(bytes) {
+                CacheError::Truncated {
+                    expected: HEADER_LEN as u64,
+                    found,
+                }
+            } else {
+                CacheError::Foreign
+            });
+        }
+        if bytes[MAGIC.len()] != FORMAT_VERSION {
+            return Err(CacheError::Version {
+                found: char::from(bytes[MAGIC.len()]),
+                expected: char::from(FORMAT_VERSION),
+            });
+        }
+        if bytes.len() < HEADER_LEN {
+            return Err(CacheError::Truncated {
+                expected: HEADER_LEN as u64,
+                found,
+            });
+        }
+        let file_key = u64_at(8);
+        if file_key != key {
+            return Err(CacheError::OtherKey { found: file_key });
+        }
+        let body = &bytes[HEADER_LEN..];
+        let announced = u64_at(16);
+        let have = body.len() as u64;
+        if have < announced {
+            return Err(CacheError::Truncated {
+                expected: (HEADER_LEN as u64).saturating_add(announced),
+                found,
+            });
+        }
+        if have > announced {
+            return Err(CacheError::TrailingBytes {
+                extra: have - announced,
+            });
+        }
+        let mut crc = [0u8; 4];
+        crc.copy_from_slice(&bytes[24..28]);
+        let expected = u32::from_le_bytes(crc);
+        let actual = BODY_CRC.checksum(body);
+        if actual != expected {
+            return Err(CacheError::Checksum {
+                expected,
+                found: actual,
+            });
+        }
+        let body: Body = match postcard::take_from_bytes(body) {
+            Ok((b, [])) => b,
+            Ok((_, rest)) => {
+                return Err(CacheError::Corrupt(format!(
+                    "{} bytes left after the entries",
+                    rest.len()
+                )));
+            }
+            Err(e) => return Err(CacheError::Corrupt(e.to_string())),
+        };
+        if body.entries.is_empty() {
+            return Err(CacheError::Corrupt("no entries".into()));
+        }
+        if let Some((i, e)) = body.entries.iter().enumerate().find(|(_, e)| {
+            usize::from(e.view) >= body.views.len() || !e.point.iter().all(|c| c.is_finite())
+        }) {
+            return Err(CacheError::Corrupt(format!(
+                "entry {i}: view {} of {} or a non-finite point",
+                e.view,
+                body.views.len()
+            )));
+        }
+        let finite_view = |v: &View| v.q_cw.iter().chain(&v.c_w).all(|c| c.is_finite());
+        if let Some(i) = body.views.iter().position(|v| !finite_view(v)) {
+            return Err(CacheError::Corrupt(format!("view {i} is not finite")));
+        }
+        Ok(Self {
+            key,
+            views: body.views,
+            entries: body.entries,
+        })
     }
 
     /// Descriptors of all entries, in order.

@@ -14,13 +14,35 @@ mod gltf;
 mod obj;
 pub mod procedural;
 
-pub use gltf::load_gltf;
-pub use obj::load_obj;
+pub use gltf::{load_gltf, parse_gltf};
+pub use obj::{load_obj, parse_obj};
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use image::RgbaImage;
+
+/// Largest file a model reads (the OBJ, MTL, glTF, its buffers and textures), checked from the
+/// file's size before reading it: 1 GiB holds an OBJ of about 20 million triangles, twice
+/// [`MAX_TRIANGLES`].
+pub const MAX_FILE_BYTES: u64 = 1 << 30;
+
+/// Most vertices of a model: `v`, `vt` and `vn` lines of an OBJ each, glTF vertices over all
+/// mesh instances. Ten million is a detailed 3D scan; its positions and texture coordinates
+/// take 200 MB, and the renderer uploads them whole.
+pub const MAX_VERTICES: usize = 10_000_000;
+
+/// Most triangles of a model (after triangulating OBJ polygons; glTF over all mesh instances):
+/// ten million, 120 MB of indices.
+pub const MAX_TRIANGLES: usize = 10_000_000;
+
+/// Largest texture side [px]: 16384 is the largest 2D texture most GPUs take (and Vulkan's
+/// common limit); decoded RGBA8 it is 1 GiB, the most a texture may take while decoding
+/// ([`MAX_TEXTURE_BYTES`]).
+pub const MAX_TEXTURE_SIDE: u32 = 16384;
+
+/// Most bytes a texture's decoding may allocate: a 16384² RGBA8 image.
+pub const MAX_TEXTURE_BYTES: u64 = 16384 * 16384 * 4;
 
 /// Loads an OBJ (`.obj`) or glTF (`.gltf`, `.glb`) model, by the file's extension.
 pub fn load(path: &Path) -> Result<Model, ModelError> {
@@ -116,6 +138,36 @@ pub enum ModelError {
     UnknownFormat {
         /// File.
         path: PathBuf,
+    },
+    /// The input is past one of the documented limits ([`MAX_FILE_BYTES`], [`MAX_VERTICES`],
+    /// [`MAX_TRIANGLES`], [`MAX_TEXTURE_SIDE`], [`MAX_TEXTURE_BYTES`]); checked before
+    /// allocating for it.
+    #[error("{what}: too large: {limit}")]
+    TooLarge {
+        /// File, mesh or texture.
+        what: String,
+        /// The count found and the limit passed.
+        limit: String,
+    },
+    /// A line of a text file that is not what its format says.
+    #[error("{path}:{line}: {detail}")]
+    Syntax {
+        /// File.
+        path: PathBuf,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong.
+        detail: String,
+    },
+    /// A glTF URI that cannot be resolved (bad percent-encoding or base64, unsupported scheme).
+    #[error("{path}: glTF: bad URI `{uri}`: {detail}")]
+    BadUri {
+        /// The glTF file.
+        path: PathBuf,
+        /// The URI, at most 100 characters of it.
+        uri: String,
+        /// What is wrong.
+        detail: String,
     },
     /// No triangle at all.
     #[error("{what}: the model has no triangles")]
@@ -217,6 +269,16 @@ impl Model {
                     m.positions.len()
                 )));
             }
+            if m.positions.len() > MAX_VERTICES || m.triangle_count() > MAX_TRIANGLES {
+                return Err(ModelError::TooLarge {
+                    what: format!("mesh `{}`", m.name),
+                    limit: format!(
+                        "{} vertices and {} triangles (at most {MAX_VERTICES} and {MAX_TRIANGLES})",
+                        m.positions.len(),
+                        m.triangle_count()
+                    ),
+                });
+            }
             if m.material >= self.materials.len() {
                 return Err(bad(format!(
                     "material {} but only {} materials",
@@ -231,6 +293,15 @@ impl Model {
                 });
             }
         }
+        if let Some(m) = self
+            .materials
+            .iter()
+            .find(|m| !m.base_colour.iter().all(|c| c.is_finite()))
+        {
+            return Err(ModelError::NonFinite {
+                mesh: format!("material `{}`", m.name),
+            });
+        }
         if self.triangle_count() == 0 {
             return Err(ModelError::Empty { what: what.into() });
         }
@@ -238,18 +309,73 @@ impl Model {
     }
 }
 
-/// Loads a texture file as RGBA8, with typed errors for a missing or broken file.
-fn load_texture(material: &str, path: &Path) -> Result<RgbaImage, ModelError> {
+/// Reads a file the model names, refusing one over [`MAX_FILE_BYTES`] before reading it.
+pub fn read_file(path: &Path) -> Result<Vec<u8>, ModelError> {
+    let missing = || ModelError::MissingFile {
+        path: path.to_owned(),
+    };
+    let len = std::fs::metadata(path).map_err(|_| missing())?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(ModelError::TooLarge {
+            what: path.display().to_string(),
+            limit: format!("{len} bytes (at most {MAX_FILE_BYTES})"),
+        });
+    }
+    std::fs::read(path).map_err(|_| missing())
+}
+
+/// The files beside a model, as the loaders read them: `Ok(None)` when `path` does not exist.
+/// Tests and fuzzers give their own (files in memory).
+pub type ReadFile<'a> = &'a dyn Fn(&Path) -> Result<Option<Vec<u8>>, ModelError>;
+
+/// [`ReadFile`] on the file system, with [`read_file`]'s size limit.
+pub fn read_from_disk(path: &Path) -> Result<Option<Vec<u8>>, ModelError> {
     if !path.is_file() {
+        return Ok(None);
+    }
+    read_file(path).map(Some)
+}
+
+/// The decoder limits of a texture: [`MAX_TEXTURE_SIDE`] and [`MAX_TEXTURE_BYTES`].
+pub fn texture_limits() -> image::Limits {
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+    limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+    limits.max_alloc = Some(MAX_TEXTURE_BYTES);
+    limits
+}
+
+/// Decodes a PNG or JPEG texture (`path` names it in errors) to RGBA8, within
+/// [`texture_limits`]: the size is checked from the header, before the pixels are allocated.
+pub fn decode_texture(path: &Path, bytes: &[u8]) -> Result<RgbaImage, ModelError> {
+    let texture_err = |source| ModelError::Texture {
+        path: path.to_owned(),
+        source,
+    };
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .map_err(|e| texture_err(image::ImageError::IoError(e)))?;
+    reader.limits(texture_limits());
+    let image = reader.decode().map_err(|e| match e {
+        image::ImageError::Limits(l) => ModelError::TooLarge {
+            what: format!("texture {}", path.display()),
+            limit: format!(
+                "{l} (at most {MAX_TEXTURE_SIDE}x{MAX_TEXTURE_SIDE} px, {MAX_TEXTURE_BYTES} bytes decoded)"
+            ),
+        },
+        e => texture_err(e),
+    })?;
+    // The RGBA8 copy is at most MAX_TEXTURE_BYTES: the sides were checked.
+    Ok(image.into_rgba8())
+}
+
+/// Loads a texture file as RGBA8, with typed errors for a missing or broken file.
+fn load_texture(material: &str, path: &Path, read: ReadFile) -> Result<RgbaImage, ModelError> {
+    let Some(bytes) = read(path)? else {
         return Err(ModelError::MissingTexture {
             material: material.into(),
             path: path.to_owned(),
         });
-    }
-    image::open(path)
-        .map(|i| i.to_rgba8())
-        .map_err(|source| ModelError::Texture {
-            path: path.to_owned(),
-            source,
-        })
+    };
+    decode_texture(path, &bytes)
 }

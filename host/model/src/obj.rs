@@ -4,53 +4,63 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::{Material, Mesh, Model, ModelError, load_texture};
+use super::{
+    MAX_TRIANGLES, MAX_VERTICES, Material, Mesh, Model, ModelError, ReadFile, load_texture,
+    read_from_disk,
+};
 
 /// Loads an OBJ file with its MTL libraries and diffuse (`map_Kd`) textures, resolved
 /// relative to the OBJ's folder. Polygons are triangulated. A textured material's base colour
 /// is white (the texture alone gives the colour); an untextured one uses `Kd`.
 pub fn load_obj(path: &Path) -> Result<Model, ModelError> {
-    if !path.is_file() {
+    let Some(bytes) = read_from_disk(path)? else {
         return Err(ModelError::MissingFile {
             path: path.to_owned(),
         });
-    }
-    let options = tobj::LoadOptions {
-        triangulate: true,
-        single_index: true,
-        ..Default::default()
     };
-    let (models, materials) = tobj::load_obj(path, &options).map_err(|e| match e {
-        tobj::LoadError::FaceVertexOutOfBounds
-        | tobj::LoadError::FaceTexCoordOutOfBounds
-        | tobj::LoadError::FaceNormalOutOfBounds
-        | tobj::LoadError::FaceColorOutOfBounds => ModelError::BadIndex {
-            mesh: path.display().to_string(),
-            detail: e.to_string(),
-        },
-        _ => ModelError::Obj {
-            path: path.to_owned(),
-            source: e,
-        },
-    })?;
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mtl = match materials {
-        Ok(m) => m,
-        Err(tobj::LoadError::OpenFileFailed) => {
-            return Err(ModelError::MissingFile {
-                path: mtllib(path).unwrap_or_else(|| path.with_extension("mtl")),
-            });
-        }
-        Err(source) => {
-            return Err(ModelError::Obj {
-                path: path.to_owned(),
-                source,
-            });
-        }
-    };
+    parse_obj(&bytes, path, &read_from_disk)
+}
 
+/// Counts of an OBJ's text, for the limits before `tobj` allocates: `v`, `vt` and `vn` lines
+/// and the triangles of its faces.
+fn census(obj: &[u8]) -> (usize, usize, usize, usize) {
+    let (mut v, mut vt, mut vn, mut triangles) = (0usize, 0usize, 0usize, 0usize);
+    for line in obj.split(|&b| b == b'\n') {
+        let line = line.trim_ascii_start();
+        let mut words = line
+            .split(|b| b.is_ascii_whitespace())
+            .filter(|w| !w.is_empty());
+        match words.next() {
+            Some(b"v") => v += 1,
+            Some(b"vt") => vt += 1,
+            Some(b"vn") => vn += 1,
+            // A polygon of k corners is k - 2 triangles.
+            Some(b"f") => triangles += words.count().saturating_sub(2),
+            _ => {}
+        }
+    }
+    (v, vt, vn, triangles)
+}
+
+/// Parses an OBJ held in memory: `path` is its name in errors, and its folder the one MTL
+/// libraries and textures are resolved in, read through `read`
+/// ([`read_from_disk`](crate::read_from_disk) for [`load_obj`]). Limits: [`MAX_VERTICES`]
+/// `v`/`vt`/`vn` lines each, [`MAX_TRIANGLES`] triangles, checked before parsing.
+pub fn parse_obj(obj: &[u8], path: &Path, read: ReadFile) -> Result<Model, ModelError> {
+    let (v, vt, vn, triangles) = census(obj);
+    if v.max(vt).max(vn) > MAX_VERTICES || triangles > MAX_TRIANGLES {
+        return Err(ModelError::TooLarge {
+            what: path.display().to_string(),
+            limit: format!(
+                "{v} vertices, {vt} texture coordinates, {vn} normals, {triangles} triangles \
+                 (at most {MAX_VERTICES} of each kind of vertex and {MAX_TRIANGLES} triangles)"
+            ),
+        });
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let (models, mtl) = tobj_load(obj, path, read)?;
     let mut out = Model {
-        materials: load_materials(&mtl, dir)?,
+        materials: load_materials(&mtl, dir, read)?,
         ..Model::default()
     };
     // Meshes without a material get a plain white one.
@@ -99,8 +109,97 @@ pub fn load_obj(path: &Path) -> Result<Model, ModelError> {
     out.validate(&path.display().to_string())
 }
 
+/// The colour lines `tobj` reads as three numbers (it panics on fewer): each must have three
+/// words after its keyword, split as `tobj` splits them.
+fn check_mtl(mtl: &[u8], path: &Path) -> Result<(), ModelError> {
+    for (i, line) in mtl.split(|&b| b == b'\n').enumerate() {
+        let line = String::from_utf8_lossy(line);
+        let mut words = line.split_whitespace();
+        if let Some(key @ ("Ka" | "Kd" | "Ks" | "Ke")) = words.next()
+            && words.take(3).count() < 3
+        {
+            return Err(ModelError::Syntax {
+                path: path.to_owned(),
+                line: i + 1,
+                detail: format!("`{key}` needs three numbers (r g b)"),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// `tobj`'s meshes and materials, with the MTL libraries read through `read`.
+fn tobj_load(
+    obj: &[u8],
+    path: &Path,
+    read: ReadFile,
+) -> Result<(Vec<tobj::Model>, Vec<tobj::Material>), ModelError> {
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        single_index: true,
+        ..Default::default()
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    // tobj's loader can only say "failed to open": the reason is kept for the error.
+    let mtl_error = std::cell::RefCell::new(None);
+    let loaded = tobj::load_obj_buf(&mut std::io::Cursor::new(obj), &options, |name| {
+        let file = dir.join(name);
+        match read(&file) {
+            Ok(Some(bytes)) => match check_mtl(&bytes, &file) {
+                Ok(()) => tobj::load_mtl_buf(&mut std::io::Cursor::new(bytes)),
+                Err(e) => {
+                    *mtl_error.borrow_mut() = Some(e);
+                    Err(tobj::LoadError::MaterialParseError)
+                }
+            },
+            Ok(None) => {
+                *mtl_error.borrow_mut() = Some(ModelError::MissingFile { path: file });
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+            Err(e) => {
+                *mtl_error.borrow_mut() = Some(e);
+                Err(tobj::LoadError::OpenFileFailed)
+            }
+        }
+    });
+    let (models, materials) = loaded.map_err(|e| match e {
+        tobj::LoadError::FaceVertexOutOfBounds
+        | tobj::LoadError::FaceTexCoordOutOfBounds
+        | tobj::LoadError::FaceNormalOutOfBounds
+        | tobj::LoadError::FaceColorOutOfBounds => ModelError::BadIndex {
+            mesh: path.display().to_string(),
+            detail: e.to_string(),
+        },
+        _ => ModelError::Obj {
+            path: path.to_owned(),
+            source: e,
+        },
+    })?;
+    let mtl = match materials {
+        Ok(m) => m,
+        Err(tobj::LoadError::OpenFileFailed | tobj::LoadError::MaterialParseError)
+            if mtl_error.borrow().is_some() =>
+        {
+            return Err(mtl_error.into_inner().unwrap_or(ModelError::MissingFile {
+                path: path.with_extension("mtl"),
+            }));
+        }
+        Err(source) => {
+            return Err(ModelError::Obj {
+                path: path.to_owned(),
+                source,
+            });
+        }
+    };
+    Ok((models, mtl))
+}
+
 /// The MTL's materials, with their diffuse textures loaded from `dir` (each file once).
-fn load_materials(mtl: &[tobj::Material], dir: &Path) -> Result<Vec<Material>, ModelError> {
+fn load_materials(
+    mtl: &[tobj::Material],
+    dir: &Path,
+    read: ReadFile,
+) -> Result<Vec<Material>, ModelError> {
     let mut textures: HashMap<PathBuf, Arc<image::RgbaImage>> = HashMap::new();
     let mut materials = Vec::with_capacity(mtl.len());
     for m in mtl {
@@ -111,7 +210,7 @@ fn load_materials(mtl: &[tobj::Material], dir: &Path) -> Result<Vec<Material>, M
                 if let Some(t) = textures.get(&tex_path) {
                     Some(t.clone())
                 } else {
-                    let t = Arc::new(load_texture(&m.name, &tex_path)?);
+                    let t = Arc::new(load_texture(&m.name, &tex_path, read)?);
                     textures.insert(tex_path, t.clone());
                     Some(t)
                 }
@@ -128,14 +227,4 @@ fn load_materials(mtl: &[tobj::Material], dir: &Path) -> Result<Vec<Material>, M
         });
     }
     Ok(materials)
-}
-
-/// The first `mtllib` the OBJ names (for the error message when it is missing).
-fn mtllib(obj: &Path) -> Option<PathBuf> {
-    let text = std::fs::read_to_string(obj).ok()?;
-    let name = text
-        .lines()
-        .find_map(|l| l.trim().strip_prefix("mtllib "))?
-        .trim();
-    Some(obj.parent().unwrap_or(Path::new(".")).join(name))
 }

@@ -248,19 +248,64 @@ pub fn write_json(path: &Path, value: &serde_json::Value) -> Result<(), DatasetE
     write_text(path, &(text + "\n"))
 }
 
-/// Reads a CSV file of numbers (first column an integer time stamp), skipping `#` lines;
+/// Largest EuRoC CSV file read (`imu0`, ground truth, `cam0/data.csv`), checked from its size
+/// before reading: a ground-truth line is about 300 bytes, so 2 GiB holds [`MAX_ROWS`] of them
+/// with room to spare.
+pub const MAX_CSV_BYTES: u64 = 2 << 30;
+
+/// Most data rows of a EuRoC CSV file, counted before the rows are allocated: 5 million is
+/// 7 hours of a 200 Hz IMU (280 MB of IMU rows, 1 GB of ground-truth rows in memory).
+pub const MAX_ROWS: usize = 5_000_000;
+
+/// Reads a CSV file's text, refusing one over [`MAX_CSV_BYTES`] before reading it.
+pub fn read_csv_text(path: &Path) -> Result<String, DatasetError> {
+    let len = fs::metadata(path).map_err(io_err(path))?.len();
+    if len > MAX_CSV_BYTES {
+        return Err(DatasetError::Parse {
+            path: path.to_owned(),
+            line: 0,
+            what: format!("{len} bytes: too large (at most {MAX_CSV_BYTES})"),
+        });
+    }
+    fs::read_to_string(path).map_err(io_err(path))
+}
+
+/// The data lines of a CSV text (not empty, not `#`), with their 1-based numbers, after
+/// checking there are at most [`MAX_ROWS`].
+pub fn data_lines<'a>(
+    text: &'a str,
+    path: &Path,
+) -> Result<impl Iterator<Item = (usize, &'a str)>, DatasetError> {
+    let lines = || {
+        text.lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+    };
+    let rows = lines().count();
+    if rows > MAX_ROWS {
+        return Err(DatasetError::Parse {
+            path: path.to_owned(),
+            line: 0,
+            what: format!("{rows} rows: too many (at most {MAX_ROWS})"),
+        });
+    }
+    Ok(lines())
+}
+
+/// Parses a CSV text of numbers (first column an integer time stamp), skipping `#` lines;
 /// every data row must have exactly `columns` fields.
-fn read_rows(path: &Path, columns: usize) -> Result<Vec<(u64, Vec<f64>)>, DatasetError> {
-    let text = fs::read_to_string(path).map_err(io_err(path))?;
+fn read_rows(
+    text: &str,
+    path: &Path,
+    columns: usize,
+) -> Result<Vec<(u64, Vec<f64>)>, DatasetError> {
+    let lines = data_lines(text, path)?;
     let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
+    for (number, line) in lines {
         let bad = |what: String| DatasetError::Parse {
             path: path.to_owned(),
-            line: i + 1,
+            line: number,
             what,
         };
         let fields: Vec<&str> = line.split(',').map(str::trim).collect();
@@ -302,7 +347,12 @@ pub struct ImuRow {
 
 /// Reads an EuRoC `imu0/data.csv`.
 pub fn read_imu_csv(path: &Path) -> Result<Vec<ImuRow>, DatasetError> {
-    Ok(read_rows(path, 7)?
+    parse_imu_csv(&read_csv_text(path)?, path)
+}
+
+/// Parses the text of an EuRoC `imu0/data.csv` ([`read_imu_csv`]); `path` names it in errors.
+pub fn parse_imu_csv(text: &str, path: &Path) -> Result<Vec<ImuRow>, DatasetError> {
+    Ok(read_rows(text, path, 7)?
         .into_iter()
         .map(|(stamp, v)| ImuRow {
             stamp,
@@ -333,22 +383,30 @@ pub struct GroundTruthRow {
 
 /// Reads a ground-truth file: EuRoC's 17 columns, or the simulator's 23.
 pub fn read_groundtruth_csv(path: &Path) -> Result<Vec<GroundTruthRow>, DatasetError> {
-    let text = fs::read_to_string(path).map_err(io_err(path))?;
+    parse_groundtruth_csv(&read_csv_text(path)?, path)
+}
+
+/// Parses the text of a ground-truth file ([`read_groundtruth_csv`]); `path` names it in
+/// errors.
+pub fn parse_groundtruth_csv(text: &str, path: &Path) -> Result<Vec<GroundTruthRow>, DatasetError> {
     let first = text
         .lines()
         .find(|l| !l.trim().is_empty() && !l.starts_with('#'))
         .map_or(17, |l| l.split(',').count());
     let columns = if first == 23 { 23 } else { 17 };
     let v3 = |v: &[f64], i: usize| Vector3::new(v[i], v[i + 1], v[i + 2]);
-    read_rows(path, columns)?
+    let numbers: Vec<usize> = data_lines(text, path)?.map(|(n, _)| n).collect();
+    read_rows(text, path, columns)?
         .into_iter()
-        .enumerate()
-        .map(|(i, (stamp, v))| {
+        .zip(numbers)
+        .map(|((stamp, v), line)| {
             let q = Quaternion::new(v[3], v[4], v[5], v[6]);
-            if q.norm() <= 0.5 {
+            // A norm far from 1 is a wrong column, not round-off; an infinite one (finite
+            // components whose squares overflow) cannot be normalised.
+            if q.norm() <= 0.5 || !q.norm().is_finite() {
                 return Err(DatasetError::Parse {
                     path: path.to_owned(),
-                    line: i + 2,
+                    line,
                     what: "quaternion far from unit norm".into(),
                 });
             }
