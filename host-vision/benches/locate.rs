@@ -38,7 +38,7 @@ fn locate(c: &mut Criterion) {
     let camera = read_camera_json(&dir.join("camera.json")).expect("camera.json");
     let config = DatabaseConfig::default();
     let db = Database::build(&model, &config, &mut |_, _| {}).expect("database");
-    let bytes = postcard::to_stdvec(&db).map_or(0, |b| b.len());
+    let bytes = db.to_bytes().map_or(0, |b| b.len());
     eprintln!(
         "database: {} renderings, {} keypoints, {:.2} MB on disk",
         db.views.len(),
