@@ -1,4 +1,4 @@
-//! What one rendering returns, and the view it was rendered from.
+//! What one rendering returns.
 
 use image::{GrayImage, RgbaImage};
 use rayon::prelude::*;
@@ -7,42 +7,8 @@ use wide::f64x4;
 use super::RenderError;
 use super::projection::depth_to_z;
 use super::region::Region;
+use super::view::RenderView;
 use camera::Gray32FImage;
-use camera::{CameraPose, Pinhole};
-
-/// The view to render: ideal pinhole intrinsics (the live image is undistorted to match),
-/// camera pose and clip distances in metres.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RenderView {
-    /// Intrinsics for the renderer's image size.
-    pub pinhole: Pinhole,
-    /// Camera pose (`q_cw`, `c_w`).
-    pub pose: CameraPose,
-    /// Near clip distance along the optical axis, m (> 0).
-    pub near: f64,
-    /// Far clip distance, m (> near).
-    pub far: f64,
-}
-
-impl RenderView {
-    /// Checks intrinsics and clip distances.
-    pub fn validate(&self) -> Result<(), RenderError> {
-        self.pinhole
-            .validate()
-            .map_err(|e| RenderError::BadView(e.to_string()))?;
-        if !(self.near.is_finite()
-            && self.far.is_finite()
-            && self.near > 0.0
-            && self.far > self.near)
-        {
-            return Err(RenderError::BadView(format!(
-                "need 0 < near < far, got near {} far {}",
-                self.near, self.far
-            )));
-        }
-        Ok(())
-    }
-}
 
 /// Rows per band of the parallel conversion: a few bands per thread at 240 rows and more.
 const BAND_ROWS: usize = 32;
@@ -164,6 +130,13 @@ pub struct Frame {
 }
 
 impl Frame {
+    /// Whether the frame holds the images of `view`: filled at exactly that view (the
+    /// rendering is deterministic, so rendering it again would give the same images). An
+    /// empty frame shows no view.
+    pub fn shows(&self, view: &RenderView) -> bool {
+        self.filled_size != (0, 0) && self.view == *view
+    }
+
     /// A frame with no pixels, whose buffers [`super::Renderer::render_into`] fills (and
     /// reuses from then on).
     pub fn empty(view: RenderView) -> Self {
@@ -396,6 +369,7 @@ impl Frame {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use camera::{CameraPose, Pinhole};
 
     /// The lanes of `depth_row` give `depth_to_z`'s values bit for bit, the tail included.
     #[test]

@@ -17,9 +17,11 @@ pub mod projection;
 pub mod region;
 mod scene;
 mod targets;
+mod view;
 
-pub use frame::{Frame, RenderView};
+pub use frame::Frame;
 pub use region::Region;
+pub use view::RenderView;
 
 use gpu::Gpu;
 use scene::{GpuScene, Vertex};

@@ -240,6 +240,16 @@ impl std::fmt::Debug for Vision {
     }
 }
 
+/// The view of the ideal camera `ideal` at `pose` between the clip planes `clip`.
+fn render_view(ideal: &Camera, clip: (f64, f64), pose: &CameraPose) -> RenderView {
+    RenderView {
+        pinhole: ideal.pinhole,
+        pose: *pose,
+        near: clip.0,
+        far: clip.1,
+    }
+}
+
 /// The model rendered in the ideal camera `ideal` at `pose`, between the clip planes `clip`,
 /// into `reuse`'s buffers when given (the tracker keeps its last rendering's).
 fn render_at(
@@ -249,12 +259,7 @@ fn render_at(
     pose: &CameraPose,
     reuse: Option<render::Frame>,
 ) -> Result<render::Frame, VisionError> {
-    let view = RenderView {
-        pinhole: ideal.pinhole,
-        pose: *pose,
-        near: clip.0,
-        far: clip.1,
-    };
+    let view = render_view(ideal, clip, pose);
     let mut frame = reuse.unwrap_or_else(|| render::Frame::empty_for_tracker(view));
     renderer.render_into(&view, &mut frame)?;
     Ok(frame)
@@ -305,6 +310,10 @@ impl Vision {
         pose: &CameraPose,
         applied: &[bool],
     ) -> Result<Assessment, VisionError> {
+        if self.last.is_none() {
+            return Ok(Assessment::default());
+        }
+        let rendering = self.rendering_at(pose)?;
         let Some(last) = &self.last else {
             return Ok(Assessment::default());
         };
@@ -318,14 +327,6 @@ impl Vision {
             .map(|(r, _)| *r)
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
-        let reuse = self.rendering.take();
-        let rendering = render_at(
-            &mut self.renderer,
-            &self.ideal,
-            self.options.clip,
-            pose,
-            reuse,
-        )?;
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
         let (contours, contour_rms_px, silhouette) = if self.options.modality.contour() {
             let live = GrayF32::from_gray8(&last.live)?;
@@ -361,10 +362,8 @@ impl Vision {
         b: &CameraPose,
     ) -> Result<Contrast, VisionError> {
         let live = self.prepared_live(raw)?.live.clone();
-        let clip = self.options.clip;
-        let reuse = self.rendering.take();
-        let ra = render_at(&mut self.renderer, &self.ideal, clip, a, reuse)?;
-        let rb = render_at(&mut self.renderer, &self.ideal, clip, b, None)?;
+        let ra = self.rendering_at(a)?;
+        let rb = render_at(&mut self.renderer, &self.ideal, self.options.clip, b, None)?;
         let c = contrast((&ra.gray, &ra.mask), (&rb.gray, &rb.mask), &live);
         self.rendering = Some(ra);
         Ok(c)
@@ -625,6 +624,16 @@ impl Vision {
         Ok((added, extracting, template?))
     }
 
+    /// The model rendered at `pose`: the last rendering itself where it shows that view,
+    /// rendered into its buffers otherwise.
+    fn rendering_at(&mut self, pose: &CameraPose) -> Result<render::Frame, VisionError> {
+        let (ideal, clip) = (&self.ideal, self.options.clip);
+        match self.rendering.take() {
+            Some(f) if f.shows(&render_view(ideal, clip, pose)) => Ok(f),
+            reuse => render_at(&mut self.renderer, ideal, clip, pose, reuse),
+        }
+    }
+
     /// Step of [`Self::process`]: the rendering at `view` submitted first, so that the driver
     /// rasterises on its threads while this one undistorts the live image `raw` and builds its
     /// pyramid (which needs no rendering); then the rendering read back into the previous
@@ -638,8 +647,16 @@ impl Vision {
         t0: Instant,
         times: &mut StageTimes,
     ) -> Result<(GrayImage, Arc<Pyramid>, render::Frame), VisionError> {
+        // The last rendering is this view's when a verification repeats from the pose it
+        // judged, or a judgement renders where the analysis did: kept, not rendered again.
+        let (kept, current) = match self.rendering.take() {
+            Some(f) if f.shows(&view) => (Some(f), true),
+            other => (other, false),
+        };
         let t = Instant::now();
-        self.renderer.submit(&view)?;
+        if !current {
+            self.renderer.submit(&view)?;
+        }
         let submitted = t.elapsed();
         let (live, target) = if reuse_live {
             let prepared = self.prepared_live(raw)?;
@@ -653,11 +670,14 @@ impl Vision {
             (live, Arc::new(target))
         };
         let t = Instant::now();
-        let mut rendering = self
-            .rendering
-            .take()
-            .unwrap_or_else(|| render::Frame::empty_for_tracker(view));
-        self.renderer.finish_into(&mut rendering)?;
+        let rendering = match kept {
+            Some(f) if current => f,
+            other => {
+                let mut r = other.unwrap_or_else(|| render::Frame::empty_for_tracker(view));
+                self.renderer.finish_into(&mut r)?;
+                r
+            }
+        };
         times.render = (submitted + t.elapsed()).as_secs_f64();
         Ok((live, target, rendering))
     }
@@ -699,12 +719,7 @@ impl Vision {
         self.last = None;
         let raw = self.read_live(&mut job)?;
         let pose = prediction_pose(&job.prediction)?;
-        let view = RenderView {
-            pinhole: self.ideal.pinhole,
-            pose,
-            near: self.options.clip.0,
-            far: self.options.clip.1,
-        };
+        let view = render_view(&self.ideal, self.options.clip, &pose);
         let (live, target, rendering) =
             self.render_beside_live(&raw, view, reuse_live, t0, &mut times)?;
         let (w, h) = (self.camera.width, self.camera.height);
