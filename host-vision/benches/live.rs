@@ -186,7 +186,7 @@ fn main() {
         ("desktop-fast acc, lock-step", Pacing::LockStep),
         ("desktop-fast acc, real time", Pacing::RealTime),
     ] {
-        let mut o = options_for(&ds, scratch("imu"));
+        let mut o = options_for(&ds, scratch("imu")).expect("the synthetic dataset's manifest");
         o.filter = ModelKind::Acc;
         o.overlay_every = 0;
         o.overwrite = true;

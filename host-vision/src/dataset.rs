@@ -306,28 +306,29 @@ impl Dataset {
 }
 
 /// The frames of a EuRoC `cam0/data.csv` (`timestamp,filename`, increasing stamps), as paths
-/// under `data`.
+/// under `data`; the file within the CSV limits ([`euroc::read_csv_text`]).
 pub(crate) fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
-    let text = std::fs::read_to_string(csv).map_err(|source| {
-        DatasetError::Csv(CsvError::Io {
-            path: csv.to_owned(),
-            source,
-        })
-    })?;
+    parse_frame_list(&euroc::read_csv_text(csv)?, csv, data)
+}
+
+/// [`read_frame_list`] on the file's text (`csv` names it in errors). A file name must be a
+/// plain name in `data` (no folder, no `..`): EuRoC's are, and any other would read a file
+/// outside the dataset.
+pub(crate) fn parse_frame_list(
+    text: &str,
+    csv: &Path,
+    data: &Path,
+) -> Result<Vec<FrameRecord>, DatasetError> {
     let mut out = Vec::new();
-    for (i, line) in text.lines().enumerate() {
-        let line = line.trim();
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
+    for (line, row) in euroc::data_lines(text, csv)? {
         let bad = |what: String| {
             DatasetError::Csv(CsvError::Parse {
                 path: csv.to_owned(),
-                line: i + 1,
+                line,
                 what,
             })
         };
-        let (stamp, name) = line
+        let (stamp, name) = row
             .split_once(',')
             .ok_or_else(|| bad("expected `timestamp,filename`".into()))?;
         let stamp: u64 = stamp
@@ -337,9 +338,17 @@ pub(crate) fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord
         if out.last().is_some_and(|f: &FrameRecord| f.stamp >= stamp) {
             return Err(bad(format!("time stamp {stamp} not increasing")));
         }
+        let name = name.trim();
+        let plain = Path::new(name).file_name().is_some_and(|f| f == name);
+        if !plain {
+            return Err(bad(format!(
+                "file name `{name}`: not a plain file name in {}",
+                data.display()
+            )));
+        }
         out.push(FrameRecord {
             stamp,
-            path: data.join(name.trim()),
+            path: data.join(name),
         });
     }
     if out.is_empty() {
@@ -399,5 +408,45 @@ mod tests {
             ),
             "{err}"
         );
+    }
+
+    #[test]
+    fn frame_lists_refuse_names_outside_the_folder_and_bad_rows() {
+        let (csv, data) = (Path::new("cam0/data.csv"), Path::new("cam0/data"));
+        let list = parse_frame_list("#timestamp [ns],filename\n10,a.png\n20, b.png \n", csv, data)
+            .unwrap();
+        assert_eq!(list.len(), 2);
+        assert_eq!(list[1].path, data.join("b.png"));
+        for (text, says) in [
+            ("10,../secret.png\n", "not a plain file name"),
+            ("10,/etc/passwd\n", "not a plain file name"),
+            ("10,sub/a.png\n", "not a plain file name"),
+            ("10,\n", "not a plain file name"),
+            ("10,a.png\n10,b.png\n", "not increasing"),
+            ("-5,a.png\n", "time stamp"),
+            ("a.png\n", "expected `timestamp,filename`"),
+            ("# only a header\n", "no frames"),
+        ] {
+            let e = parse_frame_list(text, csv, data).unwrap_err().to_string();
+            assert!(e.contains(says), "{text:?}: {e}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Arbitrary text: a list of plain names under `data` with increasing stamps, or a
+        /// typed error; never a panic.
+        #[test]
+        fn any_frame_list_is_read_or_refused(text in "[0-9a-z,./# \n-]{0,200}") {
+            let data = Path::new("cam0/data");
+            if let Ok(list) = parse_frame_list(&text, Path::new("data.csv"), data) {
+                proptest::prop_assert!(!list.is_empty());
+                for w in list.windows(2) {
+                    proptest::prop_assert!(w[0].stamp < w[1].stamp);
+                }
+                for f in &list {
+                    proptest::prop_assert_eq!(f.path.parent(), Some(data));
+                }
+            }
+        }
     }
 }

@@ -44,6 +44,14 @@ pub enum EvalError {
         #[source]
         source: Box<TrackError>,
     },
+    /// A dataset's `manifest.json` is there but cannot be used.
+    #[error("{path}: {what}")]
+    Manifest {
+        /// The manifest.
+        path: PathBuf,
+        /// What is wrong.
+        what: String,
+    },
     /// The output folder cannot be used.
     #[error(transparent)]
     OutFolder(#[from] crate::out_folder::OutFolderError),
@@ -68,28 +76,56 @@ pub struct DatasetHints {
     pub exposure: Option<f64>,
 }
 
-/// Reads the hints of `dataset/manifest.json` (all `None` when absent or unreadable).
-pub fn dataset_hints(dataset: &Path) -> DatasetHints {
-    let v: Option<serde_json::Value> = std::fs::read_to_string(dataset.join("manifest.json"))
-        .ok()
-        .and_then(|t| serde_json::from_str(&t).ok());
-    let get = |path: &[&str]| {
-        let mut x = v.as_ref()?;
-        for k in path {
-            x = x.get(k)?;
-        }
-        x.as_f64().filter(|f| f.is_finite() && *f > 0.0)
-    };
-    DatasetHints {
-        peak_accel: get(&["peaks", "free_acceleration_m_s2"]),
-        exposure: get(&["camera", "exposure_s"]),
+/// Reads the hints of `dataset/manifest.json`: all `None` without the file (a dataset not
+/// made by `synth`), a hint `None` where the manifest has no such field. A manifest that is
+/// there but unreadable, over [`camera::MAX_TEXT_FILE_BYTES`], not JSON, or whose hint is not
+/// a positive finite number is an error that names it: a hint silently dropped would track
+/// with other noise settings than the dataset says.
+pub fn dataset_hints(dataset: &Path) -> Result<DatasetHints, EvalError> {
+    let path = dataset.join("manifest.json");
+    if !path.is_file() {
+        return Ok(DatasetHints {
+            peak_accel: None,
+            exposure: None,
+        });
     }
+    let manifest = |what: String| EvalError::Manifest {
+        path: path.clone(),
+        what,
+    };
+    let text = camera::read_text_file(&path).map_err(|e| manifest(e.to_string()))?;
+    parse_dataset_hints(&text).map_err(manifest)
+}
+
+/// [`dataset_hints`] on the manifest's text.
+pub fn parse_dataset_hints(text: &str) -> Result<DatasetHints, String> {
+    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    let get = |path: &[&str]| -> Result<Option<f64>, String> {
+        let mut x = &v;
+        for k in path {
+            match x.get(k) {
+                Some(next) => x = next,
+                None => return Ok(None),
+            }
+        }
+        match x.as_f64().filter(|f| f.is_finite() && *f > 0.0) {
+            Some(f) => Ok(Some(f)),
+            None => Err(format!(
+                "{}: expected a positive number, got {x}",
+                path.join(".")
+            )),
+        }
+    };
+    Ok(DatasetHints {
+        peak_accel: get(&["peaks", "free_acceleration_m_s2"])?,
+        exposure: get(&["camera", "exposure_s"])?,
+    })
 }
 
 /// Tracking options for a dataset, with its hints applied.
-pub fn options_for(dataset: &Path, out: PathBuf) -> TrackOptions {
+pub fn options_for(dataset: &Path, out: PathBuf) -> Result<TrackOptions, EvalError> {
     let mut o = TrackOptions::new(dataset.to_owned(), out);
-    let hints = dataset_hints(dataset);
+    let hints = dataset_hints(dataset)?;
     o.tuning = CoreTuning {
         expected_accel: hints.peak_accel.unwrap_or(10.0),
         ..CoreTuning::default()
@@ -97,7 +133,7 @@ pub fn options_for(dataset: &Path, out: PathBuf) -> TrackOptions {
     if let Some(e) = hints.exposure {
         o.vision.exposure = e;
     }
-    o
+    Ok(o)
 }
 
 /// Synthesises `scenario` into `cache` unless a dataset of the same parameters is there.
@@ -271,7 +307,7 @@ pub fn run_one(
     } else {
         format!("{}-{features}features", model_name(model))
     };
-    let mut o = options_for(dataset, options.out.join(scenario).join(&tag));
+    let mut o = options_for(dataset, options.out.join(scenario).join(&tag))?;
     o.filter = model;
     o.link = options.link.clone();
     o.overlay_every = options.overlay_every;
@@ -541,5 +577,45 @@ impl EvalReport {
             path: json.clone(),
             source,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn manifest_hints_are_read_or_refused_by_name() {
+        let h = parse_dataset_hints(
+            r#"{"peaks": {"free_acceleration_m_s2": 7.5}, "camera": {"exposure_s": 0.004}}"#,
+        )
+        .unwrap();
+        assert_eq!(h.peak_accel, Some(7.5));
+        assert_eq!(h.exposure, Some(0.004));
+        let none = parse_dataset_hints(r#"{"generator": "x"}"#).unwrap();
+        assert_eq!((none.peak_accel, none.exposure), (None, None));
+        let deep = "[".repeat(200);
+        for (text, says) in [
+            (r#"{"camera": {"exposure_s": -1}}"#, "camera.exposure_s"),
+            (r#"{"peaks": {"free_acceleration_m_s2": "fast"}}"#, "peaks.free_acceleration_m_s2"),
+            (r#"{"camera": {"exposure_s": 0}}"#, "positive number"),
+            (r#"{"camera": "#, "EOF"),
+            (deep.as_str(), "recursion limit"),
+        ] {
+            let e = parse_dataset_hints(text).unwrap_err();
+            assert!(e.contains(says), "{text}: {e}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Arbitrary text: hints that are positive finite numbers, or an error; never a panic.
+        #[test]
+        fn any_manifest_gives_usable_hints_or_an_error(text in "\\PC{0,120}") {
+            if let Ok(h) = parse_dataset_hints(&text) {
+                for v in [h.peak_accel, h.exposure].into_iter().flatten() {
+                    proptest::prop_assert!(v.is_finite() && v > 0.0);
+                }
+            }
+        }
     }
 }

@@ -44,7 +44,7 @@ fn options(dataset: &std::path::Path, name: &str, model: ModelKind) -> TrackOpti
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
         .join("tracking-runs")
         .join(name);
-    let mut o = options_for(dataset, out);
+    let mut o = options_for(dataset, out).expect("the synthetic dataset's manifest");
     o.filter = model;
     o.overlay_every = 0;
     // Each test process replaces the runs of the one before.

@@ -146,7 +146,7 @@ impl Iterator for ImageFolder {
         let index = self.next;
         let (path, t_ns) = self.files.get(index)?.clone();
         self.next += 1;
-        let result = image::open(&path)
+        let result = camera::read_frame(&path)
             .map_err(|e| FrameError::BadFrame {
                 path: path.clone(),
                 index,

@@ -130,6 +130,7 @@ pub fn parse(line: &str) -> Line {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
 
     // Lines as ffmpeg 5.1 prints them.
     const FRAME: &str = "[Parsed_showinfo_1 @ 0x55f1579ef940] [info] n:   0 pts:      0 pts_time:0       pos:       48 fmt:gray sar:1/1 s:64x48 i:P iskey:1 type:I checksum:78F3DDE1 plane_checksum:[78F3DDE1] mean:[125] stdev:[81.0]";
@@ -200,5 +201,35 @@ mod tests {
             parse("[info] n:   0 pts: 0 s:64x48 (not from showinfo)"),
             Line::Other
         );
+    }
+
+    proptest! {
+        /// Arbitrary text, and showinfo's frame line with characters replaced at random: a
+        /// line read or not, never a panic (ffmpeg's stderr carries what the file makes it
+        /// print, file names and tags included).
+        #[test]
+        fn any_line_reads_without_panicking(line in any::<String>()) {
+            let _ = parse(&line);
+        }
+
+        #[test]
+        fn mutated_frame_lines_read_without_panicking(
+            edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<char>()), 1..8),
+        ) {
+            let mut chars: Vec<char> = FRAME.chars().collect();
+            for (at, c) in edits {
+                let i = at.index(chars.len());
+                chars[i] = c;
+            }
+            let line: String = chars.into_iter().collect();
+            let _ = parse(&line);
+        }
+
+        /// Every frame number, time stamp and size comes back as printed.
+        #[test]
+        fn frame_fields_round_trip(n in any::<usize>(), pts in any::<i64>(), w in any::<u32>(), h in any::<u32>()) {
+            let line = format!("[Parsed_showinfo_1 @ 0x1] [info] n:{n:4} pts:{pts:7} pts_time:0 s:{w}x{h} i:P");
+            prop_assert_eq!(parse(&line), Line::Frame { n, pts: Some(pts), size: (w, h) });
+        }
     }
 }

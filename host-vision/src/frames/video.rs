@@ -337,8 +337,7 @@ impl Iterator for VideoFrames {
                 what: "the container gives it no time stamp".into(),
             });
         };
-        let t_ns = i128::from(pts) * i128::from(num) * 1_000_000_000 / i128::from(den);
-        let Ok(t_ns) = i64::try_from(t_ns) else {
+        let Some(t_ns) = frame_time_ns(pts, (num, den)) else {
             return self.fail(FrameError::BadFrame {
                 path,
                 index,
@@ -377,10 +376,53 @@ impl Iterator for VideoFrames {
     }
 }
 
+/// A frame's time [ns]: `pts × num / den` s, `None` where it does not fit an `i64` (or `den`
+/// is 0). `pts × num` alone always fits in an `i128`; times 10⁹ it need not (a stream's absurd
+/// time base).
+pub(crate) fn frame_time_ns(pts: i64, (num, den): (i64, i64)) -> Option<i64> {
+    if den == 0 {
+        return None;
+    }
+    let t = (i128::from(pts) * i128::from(num)).checked_mul(1_000_000_000)? / i128::from(den);
+    i64::try_from(t).ok()
+}
+
 impl Drop for VideoFrames {
     fn drop(&mut self) {
         if !self.done {
             self.finish(true);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn frame_times_are_exact_or_refused() {
+        assert_eq!(frame_time_ns(505_856, (1, 15_360)), Some(32_933_333_333));
+        assert_eq!(frame_time_ns(-3, (1, 1)), Some(-3_000_000_000));
+        assert_eq!(frame_time_ns(1, (1, 0)), None);
+        // Past what 10⁹ times fits: refused, not wrapped.
+        assert_eq!(frame_time_ns(i64::MAX, (i64::MAX, 1)), None);
+        assert_eq!(frame_time_ns(i64::MIN, (i64::MAX, 1)), None);
+    }
+
+    proptest! {
+        /// Any time stamp and time base: a time that is `pts × num / den` s to the
+        /// nanosecond, or none; never a panic or a wrapped value.
+        #[test]
+        fn any_time_base_gives_the_exact_time_or_none(
+            pts in any::<i64>(),
+            num in any::<i64>(),
+            den in any::<i64>(),
+        ) {
+            if let Some(t) = frame_time_ns(pts, (num, den)) {
+                let exact = i128::from(pts) * i128::from(num) * 1_000_000_000 / i128::from(den);
+                prop_assert_eq!(i128::from(t), exact);
+            }
         }
     }
 }

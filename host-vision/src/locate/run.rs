@@ -157,7 +157,7 @@ pub const OUTPUTS: [&str; 3] = ["pose.json", "locate.json", "overlay.png"];
 fn read_input(input: &LocateInput) -> Result<(GrayImage, String), LocateError> {
     match input {
         LocateInput::Image(path) => {
-            let img = image::open(path)
+            let img = camera::read_frame(path)
                 .map_err(|source| LocateError::Image {
                     path: path.clone(),
                     source,

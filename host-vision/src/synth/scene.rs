@@ -82,7 +82,7 @@ impl SceneModels {
         }
         let mut users = Vec::new();
         for p in &options.user_images {
-            let img = image::open(p)
+            let img = camera::read_frame(p)
                 .map_err(|source| SynthError::Texture {
                     path: p.clone(),
                     source,

@@ -10,6 +10,7 @@
 
 mod calib;
 mod distortion;
+pub mod frame_file;
 mod intrinsics;
 mod pinhole;
 mod pose;
@@ -21,6 +22,7 @@ pub use calib::{
     read_euroc_sensor_yaml, read_kalibr_camchain,
 };
 pub use distortion::Distortion;
+pub use frame_file::{decode_frame, read_frame};
 pub use intrinsics::{parse_camera_json, parse_intrinsics, pinhole_camera, read_camera_json};
 pub use pinhole::Pinhole;
 pub use pose::CameraPose;

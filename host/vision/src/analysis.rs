@@ -488,7 +488,7 @@ impl Vision {
     /// Step 1 of [`Self::process`]: the job's live image, read or taken, at the camera's size.
     fn read_live(&self, job: &mut FrameJob) -> Result<GrayImage, VisionError> {
         let raw = match &mut job.image {
-            FrameImage::File(path) => image::open(&*path)
+            FrameImage::File(path) => camera::read_frame(&*path)
                 .map_err(|source| VisionError::Image {
                     path: path.clone(),
                     source,

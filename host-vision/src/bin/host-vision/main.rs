@@ -292,7 +292,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
                 .map_err(|e| TrackError::Option(format!("--start-pose {}: {e}", p.display())))
         })
         .transpose()?;
-    let mut o = host_vision::eval::options_for(dataset, a.out.clone());
+    let mut o = host_vision::eval::options_for(dataset, a.out.clone())?;
     o.model = a.model.clone();
     o.link = a.link.clone();
     o.filter = filter;

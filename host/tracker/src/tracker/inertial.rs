@@ -360,7 +360,7 @@ impl<T: CoreTransport> Tracker<T> {
         };
         let image = match &frame.image {
             FrameImage::Decoded(image) => Ok(image.clone()),
-            FrameImage::File(path) => image::open(path)
+            FrameImage::File(path) => camera::read_frame(path)
                 .map(|i| i.into_luma8())
                 .map_err(|e| format!("{}: {e} (no search on it)", path.display())),
         };

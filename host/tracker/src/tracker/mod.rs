@@ -340,7 +340,7 @@ impl<T: CoreTransport> Tracker<T> {
     pub fn check_frame(&mut self, frame: Frame) -> Result<(u64, GrayImage), TrackerError> {
         let image = match frame.image {
             FrameImage::Decoded(image) => image,
-            FrameImage::File(path) => image::open(&path)
+            FrameImage::File(path) => camera::read_frame(&path)
                 .map_err(|source| vision::VisionError::Image { path, source })?
                 .into_luma8(),
         };
