@@ -413,8 +413,12 @@ mod tests {
     #[test]
     fn frame_lists_refuse_names_outside_the_folder_and_bad_rows() {
         let (csv, data) = (Path::new("cam0/data.csv"), Path::new("cam0/data"));
-        let list = parse_frame_list("#timestamp [ns],filename\n10,a.png\n20, b.png \n", csv, data)
-            .unwrap();
+        let list = parse_frame_list(
+            "#timestamp [ns],filename\n10,a.png\n20, b.png \n",
+            csv,
+            data,
+        )
+        .unwrap();
         assert_eq!(list.len(), 2);
         assert_eq!(list[1].path, data.join("b.png"));
         for (text, says) in [

@@ -597,7 +597,10 @@ mod tests {
         let deep = "[".repeat(200);
         for (text, says) in [
             (r#"{"camera": {"exposure_s": -1}}"#, "camera.exposure_s"),
-            (r#"{"peaks": {"free_acceleration_m_s2": "fast"}}"#, "peaks.free_acceleration_m_s2"),
+            (
+                r#"{"peaks": {"free_acceleration_m_s2": "fast"}}"#,
+                "peaks.free_acceleration_m_s2",
+            ),
             (r#"{"camera": {"exposure_s": 0}}"#, "positive number"),
             (r#"{"camera": "#, "EOF"),
             (deep.as_str(), "recursion limit"),

@@ -35,9 +35,7 @@ fn invalid(what: String) -> ImageError {
 /// an image over the limits is an error that names them.
 pub fn decode_frame(bytes: &[u8]) -> Result<DynamicImage, ImageError> {
     let reader = || ImageReader::new(Cursor::new(bytes)).with_guessed_format();
-    let (w, h) = reader()
-        .map_err(ImageError::IoError)?
-        .into_dimensions()?;
+    let (w, h) = reader().map_err(ImageError::IoError)?.into_dimensions()?;
     if w == 0 || h == 0 || w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
         return Err(invalid(format!(
             "{w}x{h} px: not a usable frame (1 to {MAX_IMAGE_SIDE} px a side)"
@@ -84,7 +82,11 @@ mod tests {
         for &b in bytes {
             c ^= u32::from(b);
             for _ in 0..8 {
-                c = if c & 1 == 1 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+                c = if c & 1 == 1 {
+                    (c >> 1) ^ 0xEDB8_8320
+                } else {
+                    c >> 1
+                };
             }
         }
         !c
@@ -119,7 +121,12 @@ mod tests {
     #[test]
     fn empty_truncated_and_foreign_bytes_are_errors() {
         let good = png(8, 8);
-        for bytes in [&[][..], &good[..20], &good[..good.len() - 5], b"P5 8 8 255\n"] {
+        for bytes in [
+            &[][..],
+            &good[..20],
+            &good[..good.len() - 5],
+            b"P5 8 8 255\n",
+        ] {
             assert!(decode_frame(bytes).is_err());
         }
         let dir = tempfile::tempdir().unwrap();
