@@ -79,7 +79,7 @@ pub struct DatasetHints {
 /// Reads the hints of `dataset/manifest.json`: all `None` without the file (a dataset not
 /// made by `synth`), a hint `None` where the manifest has no such field. A manifest that is
 /// there but unreadable, over [`camera::MAX_TEXT_FILE_BYTES`], not JSON, or whose hint is not
-/// a positive finite number is an error that names it: a hint silently dropped would track
+/// a finite number of zero or more (zero: no hint) is an error that names it: a hint silently dropped would track
 /// with other noise settings than the dataset says.
 pub fn dataset_hints(dataset: &Path) -> Result<DatasetHints, EvalError> {
     let path = dataset.join("manifest.json");
@@ -108,10 +108,11 @@ pub fn parse_dataset_hints(text: &str) -> Result<DatasetHints, String> {
                 None => return Ok(None),
             }
         }
-        match x.as_f64().filter(|f| f.is_finite() && *f > 0.0) {
-            Some(f) => Ok(Some(f)),
+        // Zero is a manifest's "none" (a still scenario's peak acceleration): no hint.
+        match x.as_f64().filter(|f| f.is_finite() && *f >= 0.0) {
+            Some(f) => Ok((f > 0.0).then_some(f)),
             None => Err(format!(
-                "{}: expected a positive number, got {x}",
+                "{}: expected a number of zero or more, got {x}",
                 path.join(".")
             )),
         }
@@ -594,6 +595,8 @@ mod tests {
         assert_eq!(h.exposure, Some(0.004));
         let none = parse_dataset_hints(r#"{"generator": "x"}"#).unwrap();
         assert_eq!((none.peak_accel, none.exposure), (None, None));
+        let zero = parse_dataset_hints(r#"{"peaks": {"free_acceleration_m_s2": 0.0}}"#).unwrap();
+        assert_eq!(zero.peak_accel, None);
         let deep = "[".repeat(200);
         for (text, says) in [
             (r#"{"camera": {"exposure_s": -1}}"#, "camera.exposure_s"),
@@ -601,7 +604,7 @@ mod tests {
                 r#"{"peaks": {"free_acceleration_m_s2": "fast"}}"#,
                 "peaks.free_acceleration_m_s2",
             ),
-            (r#"{"camera": {"exposure_s": 0}}"#, "positive number"),
+            (r#"{"camera": {"exposure_s": null}}"#, "zero or more"),
             (r#"{"camera": "#, "EOF"),
             (deep.as_str(), "recursion limit"),
         ] {
