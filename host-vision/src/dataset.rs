@@ -307,14 +307,14 @@ impl Dataset {
 
 /// The frames of a EuRoC `cam0/data.csv` (`timestamp,filename`, increasing stamps), as paths
 /// under `data`; the file within the CSV limits ([`euroc::read_csv_text`]).
-pub(crate) fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
+pub fn read_frame_list(csv: &Path, data: &Path) -> Result<Vec<FrameRecord>, DatasetError> {
     parse_frame_list(&euroc::read_csv_text(csv)?, csv, data)
 }
 
 /// [`read_frame_list`] on the file's text (`csv` names it in errors). A file name must be a
 /// plain name in `data` (no folder, no `..`): EuRoC's are, and any other would read a file
 /// outside the dataset.
-pub(crate) fn parse_frame_list(
+pub fn parse_frame_list(
     text: &str,
     csv: &Path,
     data: &Path,

@@ -379,7 +379,7 @@ impl Iterator for VideoFrames {
 /// A frame's time [ns]: `pts × num / den` s, `None` where it does not fit an `i64` (or `den`
 /// is 0). `pts × num` alone always fits in an `i128`; times 10⁹ it need not (a stream's absurd
 /// time base).
-pub(crate) fn frame_time_ns(pts: i64, (num, den): (i64, i64)) -> Option<i64> {
+pub fn frame_time_ns(pts: i64, (num, den): (i64, i64)) -> Option<i64> {
     if den == 0 {
         return None;
     }

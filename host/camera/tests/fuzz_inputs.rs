@@ -232,3 +232,17 @@ fn files_past_the_size_limit_are_refused_before_reading() {
     let e = camera::start_pose::read_start_pose(&big).unwrap_err();
     assert!(e.to_string().contains("too large"), "{e}");
 }
+
+/// A JPEG whose DC prediction overflows zune-jpeg's `i32` multiply (found by the `frame`
+/// fuzz target): decoded to some image or refused, never a panic, in test builds too (the
+/// workspace's profile lets that crate's arithmetic wrap, as a release build does).
+#[test]
+fn a_jpeg_whose_dc_overflows_is_not_a_panic() {
+    let bytes = std::fs::read(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/regressions/jpeg_dc_overflow.jpg"),
+    )
+    .unwrap();
+    if let Ok(img) = camera::decode_frame(&bytes) {
+        assert!(img.width() <= camera::MAX_IMAGE_SIDE && img.height() <= camera::MAX_IMAGE_SIDE);
+    }
+}
