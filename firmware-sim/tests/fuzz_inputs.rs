@@ -35,22 +35,10 @@ fn real(file: &str) -> Option<String> {
     Some(text[..=cut].to_owned())
 }
 
+/// Bit flips, truncations, insertions and overwrites with bytes that matter to CSV numbers.
 fn mutated(seed: String) -> impl Strategy<Value = String> {
-    let op = (0u8..4, any::<prop::sample::Index>(), any::<u8>());
-    prop::collection::vec(op, 1..6).prop_map(move |ops| {
-        let mut data = seed.clone().into_bytes();
-        for (kind, at, byte) in ops {
-            let i = at.index(data.len() + 1);
-            match kind {
-                0 if i < data.len() => data[i] ^= 1 << (byte % 8),
-                1 => data.truncate(i),
-                2 => data.insert(i, byte),
-                _ if i < data.len() => data[i] = b"0-9.,e#\n "[usize::from(byte % 9)],
-                _ => {}
-            }
-        }
-        String::from_utf8_lossy(&data).into_owned()
-    })
+    fuzz_support::mutated(seed.into_bytes(), b"0-9.,e#\n ")
+        .prop_map(|b| String::from_utf8_lossy(&b).into_owned())
 }
 
 fn all(text: &str) {

@@ -1,8 +1,10 @@
 //! What the fuzz targets share: a global allocator that counts the bytes in use and aborts
 //! on any single allocation over the limit a target documents, so that libFuzzer reports an
 //! input that makes a parser ask for more than its limits allow as a crash (input saved).
+//! With the `proptest` feature, [`mutated`]: the stable suite's mutations of a valid file.
 //!
-//! Not part of the main workspace: a dependency of the `fuzz` crates only.
+//! Not part of the main workspace: a dependency of the `fuzz` crates, and of the
+//! workspace's `fuzz_inputs` tests.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -73,4 +75,36 @@ unsafe impl GlobalAlloc for LimitAlloc {
         // SAFETY: as above.
         unsafe { System.dealloc(ptr, layout) }
     }
+}
+
+/// A valid file `seed` under one to five mutations: bit flips, truncations, insertions of any
+/// byte, and overwrites with a byte of `alphabet` (the bytes that matter to the format).
+#[cfg(feature = "proptest")]
+pub fn mutated(
+    seed: Vec<u8>,
+    alphabet: &'static [u8],
+) -> impl proptest::strategy::Strategy<Value = Vec<u8>> {
+    use proptest::prelude::*;
+    let op = (
+        0u8..4,
+        any::<prop::sample::Index>(),
+        any::<prop::sample::Index>(),
+    );
+    prop::collection::vec(op, 1..6).prop_map(move |ops| {
+        let mut data = seed.clone();
+        for (kind, at, pick) in ops {
+            let i = at.index(data.len() + 1);
+            let byte = pick.index(256) as u8;
+            match kind {
+                0 if i < data.len() => data[i] ^= 1 << (byte % 8),
+                1 => data.truncate(i),
+                2 => data.insert(i, byte),
+                _ if i < data.len() && !alphabet.is_empty() => {
+                    data[i] = alphabet[pick.index(alphabet.len())]
+                }
+                _ => {}
+            }
+        }
+        data
+    })
 }

@@ -132,21 +132,7 @@ fn load_gltf_bytes(bytes: &[u8]) -> Result<Model, ModelError> {
 
 /// Bit flips, truncations, insertions and overwrites with bytes that matter to text formats.
 fn mutated(seed: Vec<u8>) -> impl Strategy<Value = Vec<u8>> {
-    let op = (0u8..4, any::<prop::sample::Index>(), any::<u8>());
-    prop::collection::vec(op, 1..6).prop_map(move |ops| {
-        let mut data = seed.clone();
-        for (kind, at, byte) in ops {
-            let i = at.index(data.len() + 1);
-            match kind {
-                0 if i < data.len() => data[i] ^= 1 << (byte % 8),
-                1 => data.truncate(i),
-                2 => data.insert(i, byte),
-                _ if i < data.len() => data[i] = b"0-9/. \n%e"[usize::from(byte % 9)],
-                _ => {}
-            }
-        }
-        data
-    })
+    fuzz_support::mutated(seed, b"0-9/. \n%e")
 }
 
 /// A loaded model satisfies its own checks (a parser never hands out a broken one).
