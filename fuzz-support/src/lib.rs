@@ -1,4 +1,4 @@
-//! What the fuzz targets share: a global allocator that counts the bytes in use and aborts
+//! What the fuzz targets share: a global allocator that aborts
 //! on any single allocation over the limit a target documents, so that libFuzzer reports an
 //! input that makes a parser ask for more than its limits allow as a crash (input saved).
 //! With the `proptest` feature, [`mutated`]: the stable suite's mutations of a valid file.
@@ -7,30 +7,20 @@
 //! workspace's `fuzz_inputs` tests.
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The system allocator with a limit on each allocation's size.
 pub struct LimitAlloc {
     /// Largest single allocation allowed [bytes].
     pub limit: usize,
-    /// Bytes allocated and not freed.
-    pub in_use: AtomicUsize,
-    /// Largest single allocation seen [bytes].
-    pub largest: AtomicUsize,
 }
 
 impl LimitAlloc {
     /// An allocator aborting on allocations over `limit` bytes.
     pub const fn new(limit: usize) -> Self {
-        Self {
-            limit,
-            in_use: AtomicUsize::new(0),
-            largest: AtomicUsize::new(0),
-        }
+        Self { limit }
     }
 
     fn check(&self, size: usize) {
-        self.largest.fetch_max(size, Ordering::Relaxed);
         if size > self.limit {
             // An allocator must not unwind: the message goes straight to stderr (no
             // allocation), then abort, which libFuzzer reports as a crash.
@@ -50,28 +40,23 @@ impl LimitAlloc {
 unsafe impl GlobalAlloc for LimitAlloc {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         self.check(layout.size());
-        self.in_use.fetch_add(layout.size(), Ordering::Relaxed);
         // SAFETY: the caller's layout, as given.
         unsafe { System.alloc(layout) }
     }
 
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
         self.check(layout.size());
-        self.in_use.fetch_add(layout.size(), Ordering::Relaxed);
         // SAFETY: as above.
         unsafe { System.alloc_zeroed(layout) }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         self.check(new_size);
-        self.in_use.fetch_add(new_size, Ordering::Relaxed);
-        self.in_use.fetch_sub(layout.size(), Ordering::Relaxed);
         // SAFETY: the caller's pointer and layout, as given.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        self.in_use.fetch_sub(layout.size(), Ordering::Relaxed);
         // SAFETY: as above.
         unsafe { System.dealloc(ptr, layout) }
     }
