@@ -294,12 +294,13 @@ pub fn data_lines<'a>(
 }
 
 /// Parses a CSV text of numbers (first column an integer time stamp), skipping `#` lines;
-/// every data row must have exactly `columns` fields.
+/// every data row must have exactly `columns` fields. Each row comes with its 1-based line
+/// number, for the callers' own checks to name.
 fn read_rows(
     text: &str,
     path: &Path,
     columns: usize,
-) -> Result<Vec<(u64, Vec<f64>)>, DatasetError> {
+) -> Result<Vec<(usize, u64, Vec<f64>)>, DatasetError> {
     let lines = data_lines(text, path)?;
     let mut out = Vec::new();
     for (number, line) in lines {
@@ -329,7 +330,7 @@ fn read_rows(
                     })
             })
             .collect::<Result<Vec<f64>, _>>()?;
-        out.push((stamp, values));
+        out.push((number, stamp, values));
     }
     Ok(out)
 }
@@ -354,7 +355,7 @@ pub fn read_imu_csv(path: &Path) -> Result<Vec<ImuRow>, DatasetError> {
 pub fn parse_imu_csv(text: &str, path: &Path) -> Result<Vec<ImuRow>, DatasetError> {
     Ok(read_rows(text, path, 7)?
         .into_iter()
-        .map(|(stamp, v)| ImuRow {
+        .map(|(_, stamp, v)| ImuRow {
             stamp,
             gyro: Vector3::new(v[0], v[1], v[2]),
             accel: Vector3::new(v[3], v[4], v[5]),
@@ -391,15 +392,14 @@ pub fn read_groundtruth_csv(path: &Path) -> Result<Vec<GroundTruthRow>, DatasetE
 pub fn parse_groundtruth_csv(text: &str, path: &Path) -> Result<Vec<GroundTruthRow>, DatasetError> {
     let first = text
         .lines()
-        .find(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .map(str::trim)
+        .find(|l| !l.is_empty() && !l.starts_with('#'))
         .map_or(17, |l| l.split(',').count());
     let columns = if first == 23 { 23 } else { 17 };
     let v3 = |v: &[f64], i: usize| Vector3::new(v[i], v[i + 1], v[i + 2]);
-    let numbers: Vec<usize> = data_lines(text, path)?.map(|(n, _)| n).collect();
     read_rows(text, path, columns)?
         .into_iter()
-        .zip(numbers)
-        .map(|((stamp, v), line)| {
+        .map(|(line, stamp, v)| {
             let q = Quaternion::new(v[3], v[4], v[5], v[6]);
             // A norm far from 1 is a wrong column, not round-off; an infinite one (finite
             // components whose squares overflow) cannot be normalised.
