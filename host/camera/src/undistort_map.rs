@@ -284,54 +284,62 @@ fn interpolate([a, b, c, d]: [f32x8; 4], ax: f32x8, ay: f32x8) -> f32x8 {
     top * (one - ay) + bottom * ay
 }
 
-/// The [`RunKind::Inside`] pixels `range` of an 8-bit image into `out`, [`BLOCK`] pixels at a
-/// time: first the gathers, per pixel two 2-byte loads packed into one `u32`
-/// (`a | b << 8 | c << 16 | d << 24`), then unpacking, conversion, interpolation and rounding on
-/// vectors of eight. Two passes over a block rather than one per chunk: a vector load right
-/// after the eight scalar stores it reads stalls (the stores cannot be forwarded to it).
-fn inside_u8(src: &[u8], sw: usize, taps: &Taps, range: std::ops::Range<usize>, out: &mut [u8]) {
-    let (half, byte) = (f32x8::splat(0.5), i32x8::splat(0xff));
-    let blocks = taps.offset[range.clone()]
-        .chunks(BLOCK)
-        .zip(taps.ax[range.clone()].chunks(BLOCK))
-        .zip(taps.ay[range.clone()].chunks(BLOCK))
-        .zip(out[range].chunks_mut(BLOCK));
-    let mut packed = [0i32; BLOCK];
-    for (((offsets, ax), ay), out) in blocks {
-        for (p, &i) in packed.iter_mut().zip(offsets) {
-            let i = i as usize;
-            // One bounds check for the four neighbours (an inside run has x0 + 1 < w,
-            // y0 + 1 < h).
-            let q = &src[i..i + sw + 2];
-            let pair = |k: usize| i32::from(u16::from_le_bytes([q[k], q[k + 1]]));
-            let (top, bottom) = (pair(0), pair(sw));
-            *p = top | bottom << 16;
-        }
-        let chunks = packed
-            .chunks_exact(CHUNK)
-            .zip(ax.chunks(CHUNK))
-            .zip(ay.chunks(CHUNK))
-            .zip(out.chunks_mut(CHUNK));
-        for (((p, ax), ay), o) in chunks {
-            let v = i32x8::new(p.try_into().expect("a chunk"));
-            let abcd = [
-                v & byte,
-                (v >> 8) & byte,
-                (v >> 16) & byte,
-                (v >> 24) & byte,
-            ]
-            .map(f32x8::from_i32x8);
-            let v = interpolate(abcd, chunk_f32(ax), chunk_f32(ay));
-            // `round_u8`: + 0.5, truncate, and the clamp to 0..=255 from the saturating packs
-            // (i32 → i16 → u8): the same byte for every |v| < 2³¹ and for NaN (0), and v, a
-            // convex combination of bytes, is within 0 ..= 255 (+ rounding).
-            let q = i16x8::from_i32x8_saturate((v + half).fast_trunc_int());
-            let q = u8x16::narrow_i16x8(q, q).to_array();
-            match <&mut [u8; CHUNK]>::try_from(&mut *o) {
-                Ok(o) => o.copy_from_slice(&q[..CHUNK]),
-                Err(_) => {
-                    for (o, &q) in o.iter_mut().zip(&q) {
-                        *o = q;
+isa::dispatch! {
+    /// The [`RunKind::Inside`] pixels `range` of an 8-bit image into `out`, [`BLOCK`] pixels at a
+    /// time: first the gathers, per pixel two 2-byte loads packed into one `u32` (`a | b << 8 | c
+    /// << 16 | d << 24`), then unpacking, conversion, interpolation and rounding on vectors of
+    /// eight. Two passes over a block rather than one per chunk: a vector load right after the
+    /// eight scalar stores it reads stalls (the stores cannot be forwarded to it).
+    fn inside_u8(
+        src: &[u8],
+        sw: usize,
+        taps: &Taps,
+        range: std::ops::Range<usize>,
+        out: &mut [u8],
+    ) {
+        let (half, byte) = (f32x8::splat(0.5), i32x8::splat(0xff));
+        let blocks = taps.offset[range.clone()]
+            .chunks(BLOCK)
+            .zip(taps.ax[range.clone()].chunks(BLOCK))
+            .zip(taps.ay[range.clone()].chunks(BLOCK))
+            .zip(out[range].chunks_mut(BLOCK));
+        let mut packed = [0i32; BLOCK];
+        for (((offsets, ax), ay), out) in blocks {
+            for (p, &i) in packed.iter_mut().zip(offsets) {
+                let i = i as usize;
+                // One bounds check for the four neighbours (an inside run has x0 + 1 < w,
+                // y0 + 1 < h).
+                let q = &src[i..i + sw + 2];
+                let pair = |k: usize| i32::from(u16::from_le_bytes([q[k], q[k + 1]]));
+                let (top, bottom) = (pair(0), pair(sw));
+                *p = top | bottom << 16;
+            }
+            let chunks = packed
+                .chunks_exact(CHUNK)
+                .zip(ax.chunks(CHUNK))
+                .zip(ay.chunks(CHUNK))
+                .zip(out.chunks_mut(CHUNK));
+            for (((p, ax), ay), o) in chunks {
+                let v = i32x8::new(p.try_into().expect("a chunk"));
+                let abcd = [
+                    v & byte,
+                    (v >> 8) & byte,
+                    (v >> 16) & byte,
+                    (v >> 24) & byte,
+                ]
+                .map(f32x8::from_i32x8);
+                let v = interpolate(abcd, chunk_f32(ax), chunk_f32(ay));
+                // `round_u8`: + 0.5, truncate, and the clamp to 0..=255 from the saturating packs
+                // (i32 → i16 → u8): the same byte for every |v| < 2³¹ and for NaN (0), and v, a
+                // convex combination of bytes, is within 0 ..= 255 (+ rounding).
+                let q = i16x8::from_i32x8_saturate((v + half).fast_trunc_int());
+                let q = u8x16::narrow_i16x8(q, q).to_array();
+                match <&mut [u8; CHUNK]>::try_from(&mut *o) {
+                    Ok(o) => o.copy_from_slice(&q[..CHUNK]),
+                    Err(_) => {
+                        for (o, &q) in o.iter_mut().zip(&q) {
+                            *o = q;
+                        }
                     }
                 }
             }
@@ -339,29 +347,37 @@ fn inside_u8(src: &[u8], sw: usize, taps: &Taps, range: std::ops::Range<usize>, 
     }
 }
 
-/// The [`RunKind::Inside`] pixels `range` of an `f32` image into `out`.
-fn inside_f32(src: &[f32], sw: usize, taps: &Taps, range: std::ops::Range<usize>, out: &mut [f32]) {
-    let chunks = taps.offset[range.clone()]
-        .chunks(CHUNK)
-        .zip(taps.ax[range.clone()].chunks(CHUNK))
-        .zip(taps.ay[range.clone()].chunks(CHUNK))
-        .zip(out[range].chunks_mut(CHUNK));
-    for (((offsets, ax), ay), o) in chunks {
-        let mut g = [[0f32; CHUNK]; 4];
-        for (j, &i) in offsets.iter().enumerate().take(CHUNK) {
-            let i = i as usize;
-            let q = &src[i..i + sw + 2];
-            g[0][j] = q[0];
-            g[1][j] = q[1];
-            g[2][j] = q[sw];
-            g[3][j] = q[sw + 1];
-        }
-        let v = interpolate(g.map(f32x8::new), chunk_f32(ax), chunk_f32(ay)).to_array();
-        match <&mut [f32; CHUNK]>::try_from(&mut *o) {
-            Ok(o) => *o = v,
-            Err(_) => {
-                for (o, &v) in o.iter_mut().zip(&v) {
-                    *o = v;
+isa::dispatch! {
+    /// The [`RunKind::Inside`] pixels `range` of an `f32` image into `out`.
+    fn inside_f32(
+        src: &[f32],
+        sw: usize,
+        taps: &Taps,
+        range: std::ops::Range<usize>,
+        out: &mut [f32],
+    ) {
+        let chunks = taps.offset[range.clone()]
+            .chunks(CHUNK)
+            .zip(taps.ax[range.clone()].chunks(CHUNK))
+            .zip(taps.ay[range.clone()].chunks(CHUNK))
+            .zip(out[range].chunks_mut(CHUNK));
+        for (((offsets, ax), ay), o) in chunks {
+            let mut g = [[0f32; CHUNK]; 4];
+            for (j, &i) in offsets.iter().enumerate().take(CHUNK) {
+                let i = i as usize;
+                let q = &src[i..i + sw + 2];
+                g[0][j] = q[0];
+                g[1][j] = q[1];
+                g[2][j] = q[sw];
+                g[3][j] = q[sw + 1];
+            }
+            let v = interpolate(g.map(f32x8::new), chunk_f32(ax), chunk_f32(ay)).to_array();
+            match <&mut [f32; CHUNK]>::try_from(&mut *o) {
+                Ok(o) => *o = v,
+                Err(_) => {
+                    for (o, &v) in o.iter_mut().zip(&v) {
+                        *o = v;
+                    }
                 }
             }
         }

@@ -11,11 +11,12 @@
 //!   score of each of its 8 neighbours (0 where there is no corner).
 //! - Candidates: pixels at least 3 from every border.
 //!
-//! The implementation works a row at a time on 16 pixels at once in saturating `u8`
-//! arithmetic (docs/VISION.md §4 gives the formulation and why it equals the definition);
-//! [`reference`] is the plain per-pixel version it is tested against.
+//! The implementation works a row at a time on 16 pixels at once (32 with AVX2, chosen at run time)
+//! in saturating `u8` arithmetic (docs/VISION.md §4 gives the formulation and why it equals the
+//! definition); [`reference`] is the plain per-pixel version it is tested against.
 
 use image::GrayImage;
+use isa::U8Lanes;
 use wide::u8x16;
 
 pub mod reference;
@@ -58,50 +59,40 @@ pub struct Corner {
     pub score: u16,
 }
 
-/// Lanes per vector: the row kernel classifies and scores 16 consecutive pixels at once.
-const LANES: usize = 16;
-
-/// Bytes of one row a 16-pixel chunk reads: the chunk and `RADIUS` on either side.
-const SPAN: usize = LANES + 2 * RADIUS;
-
 /// The 7 image rows `y − 3 ..= y + 3` around row `y`.
 type Rows<'a> = [&'a [u8]; 2 * RADIUS + 1];
 
-/// Circle pixel `k` of the 16 pixels of a chunk, from the chunk's 7 row windows.
+/// Circle pixel `k` of the `V::LANES` pixels of a chunk, from the chunk's 7 row windows.
 #[inline(always)]
-fn circle_at(win: &[&[u8; SPAN]; 2 * RADIUS + 1], k: usize) -> u8x16 {
+fn circle_at<V: U8Lanes>(isa: V::Isa, win: &Rows<'_>, k: usize) -> V {
     let (dx, dy) = CIRCLE[k];
     let row = win[(dy + RADIUS as i32) as usize];
-    let x = (dx + RADIUS as i32) as usize;
-    let lanes: [u8; LANES] = row[x..x + LANES].try_into().expect("16 bytes");
-    u8x16::new(lanes)
+    V::load(isa, &row[(dx + RADIUS as i32) as usize..])
 }
 
-/// The strength of 16 pixels at once (see [`strength_scalar`]), or `None` when the compass
-/// test rejects all 16 (the common case, and the reason this path is fast).
+/// The strength of `V::LANES` pixels at once (see [`strength_scalar`]), or `None` when the
+/// compass test rejects them all (the common case, and the reason this path is fast). `win`:
+/// the chunk's 7 row windows, each the chunk and `RADIUS` on either side.
 ///
 /// Every difference is a saturating `u8` subtraction: `c ⊖ v` is `c − v` where `c` is brighter
 /// and 0 otherwise, so a minimum over an arc is positive only if the whole arc is brighter,
 /// exactly the reference's signed arithmetic clamped at 0 (where it starts its maximum).
 #[inline(always)]
-fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16> {
-    let zero = u8x16::ZERO;
-    let v = {
-        let lanes: [u8; LANES] = win[RADIUS][RADIUS..RADIUS + LANES]
-            .try_into()
-            .expect("16 bytes");
-        u8x16::new(lanes)
-    };
+fn strength_chunk<V: U8Lanes>(isa: V::Isa, win: &Rows<'_>, t: V) -> Option<V> {
+    let zero = V::splat(isa, 0);
+    let v = V::load(isa, &win[RADIUS][RADIUS..]);
     // Compass points 0, 4, 8, 12: an arc of 9 contains two of them that are neighbours in
     // that order, so a pixel where no such pair is on one side (beyond t) is no corner. As in
     // OpenCV's vector path, this rejects most chunks after a handful of operations.
     let hi = v.saturating_add(t);
     let lo = v.saturating_sub(t);
+    // Called out one by one: a closure (`array::map`) would not be inlined, and would run
+    // the baseline's code in the AVX2 copy.
     let (c0, c4, c8, c12) = (
-        circle_at(win, 0),
-        circle_at(win, 4),
-        circle_at(win, 8),
-        circle_at(win, 12),
+        circle_at::<V>(isa, win, 0),
+        circle_at::<V>(isa, win, 4),
+        circle_at::<V>(isa, win, 8),
+        circle_at::<V>(isa, win, 12),
     );
     let (b0, b4, b8, b12) = (
         c0.saturating_sub(hi),
@@ -115,9 +106,12 @@ fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16
         lo.saturating_sub(c8),
         lo.saturating_sub(c12),
     );
-    let pair = b0.min(b4).max(b4.min(b8)).max(b8.min(b12)).max(b12.min(b0))
-        | d0.min(d4).max(d4.min(d8)).max(d8.min(d12)).max(d12.min(d0));
-    if pair.simd_eq(zero).all() {
+    let pair = (b0.min(b4).max(b4.min(b8)).max(b8.min(b12)).max(b12.min(b0))).or(d0
+        .min(d4)
+        .max(d4.min(d8))
+        .max(d8.min(d12))
+        .max(d12.min(d0)));
+    if pair.all_zero() {
         return None;
     }
     // Per polarity, the best arc's weakest pixel: `c ↦ c ⊖ v` rises and `c ↦ v ⊖ c` falls with
@@ -126,16 +120,29 @@ fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16
     // max over arcs of min over the arc of (v ⊖ c) = v ⊖ (min over arcs of max over the arc of c):
     // sliding minima and maxima of the raw circle (windows of 2, 4, 8, then 8 + 1 by doubling,
     // with wrap-around), and two subtractions instead of 32.
-    // Written out: built for AVX2, `array::from_fn` here stayed a loop reading `CIRCLE` at
-    // run time (FAST took 15 % longer); this way every offset is a constant.
-    let c = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15].map(|k| circle_at(win, k));
-    let lo2: [u8x16; 16] = std::array::from_fn(|k| c[k].min(c[(k + 1) & 15]));
-    let hi2: [u8x16; 16] = std::array::from_fn(|k| c[k].max(c[(k + 1) & 15]));
-    let lo4: [u8x16; 16] = std::array::from_fn(|k| lo2[k].min(lo2[(k + 2) & 15]));
-    let hi4: [u8x16; 16] = std::array::from_fn(|k| hi2[k].max(hi2[(k + 2) & 15]));
-    let lo8: [u8x16; 16] = std::array::from_fn(|k| lo4[k].min(lo4[(k + 4) & 15]));
-    let hi8: [u8x16; 16] = std::array::from_fn(|k| hi4[k].max(hi4[(k + 4) & 15]));
-    let (mut max_of_min, mut min_of_max) = (zero, u8x16::MAX);
+    // Plain loops of constant length, which unroll, rather than `array::from_fn`: that one
+    // stayed a call (compiled for the baseline even in the AVX2 copy) or a loop reading
+    // `CIRCLE` at run time (FAST took 15 % longer).
+    let mut c = [zero; 16];
+    for (k, c) in c.iter_mut().enumerate() {
+        *c = circle_at(isa, win, k);
+    }
+    let (mut lo2, mut hi2) = ([zero; 16], [zero; 16]);
+    for k in 0..16 {
+        lo2[k] = c[k].min(c[(k + 1) & 15]);
+        hi2[k] = c[k].max(c[(k + 1) & 15]);
+    }
+    let (mut lo4, mut hi4) = ([zero; 16], [zero; 16]);
+    for k in 0..16 {
+        lo4[k] = lo2[k].min(lo2[(k + 2) & 15]);
+        hi4[k] = hi2[k].max(hi2[(k + 2) & 15]);
+    }
+    let (mut lo8, mut hi8) = ([zero; 16], [zero; 16]);
+    for k in 0..16 {
+        lo8[k] = lo4[k].min(lo4[(k + 4) & 15]);
+        hi8[k] = hi4[k].max(hi4[(k + 4) & 15]);
+    }
+    let (mut max_of_min, mut min_of_max) = (zero, V::splat(isa, u8::MAX));
     for k in 0..16 {
         max_of_min = max_of_min.max(lo8[k].min(c[(k + 8) & 15]));
         min_of_max = min_of_max.min(hi8[k].max(c[(k + 8) & 15]));
@@ -144,7 +151,7 @@ fn strength_chunk(win: &[&[u8; SPAN]; 2 * RADIUS + 1], t: u8x16) -> Option<u8x16
     let dark = v.saturating_sub(min_of_max);
     let s = bright.max(dark);
     // A corner at t has an arc whose every difference exceeds t: s > t. Others get 0.
-    Some(s & !s.saturating_sub(t).simd_eq(zero))
+    Some(s.where_nonzero(s.saturating_sub(t)))
 }
 
 /// The strength of one pixel: 0 if it fails the segment test at `t`, otherwise the largest
@@ -168,13 +175,29 @@ fn strength_scalar(rows: &Rows<'_>, x: usize, t: u8) -> u8 {
     if s > t { s } else { 0 }
 }
 
-/// Strengths of one row (`out`, the image's width; 0 on the 3-pixel borders), and the columns
-/// where they are non-zero, ascending, appended to `corners`.
-fn strength_row(rows: &Rows<'_>, t: u8, out: &mut [u8], corners: &mut Vec<u32>) {
+isa::dispatch! {
+    /// Strengths of one row (`out`, the image's width; 0 on the 3-pixel borders), and the
+    /// columns where they are non-zero, ascending, appended to `corners`: 32 pixels at a time
+    /// with AVX2, 16 without (the same values).
+    fn strength_row(rows: &Rows<'_>, t: u8, out: &mut [u8], corners: &mut Vec<u32>) {
+        baseline => strength_row_with::<u8x16>((), rows, t, out, corners),
+        avx2(proof) => strength_row_with::<isa::U8x32>(proof, rows, t, out, corners),
+    }
+}
+
+/// [`strength_row`] with `V::LANES` pixels a step.
+#[inline(always)]
+fn strength_row_with<V: U8Lanes>(
+    isa: V::Isa,
+    rows: &Rows<'_>,
+    t: u8,
+    out: &mut [u8],
+    corners: &mut Vec<u32>,
+) {
     let w = out.len();
     out.fill(0);
     let end = w - RADIUS;
-    if end - RADIUS < LANES {
+    if end - RADIUS < V::LANES {
         for (x, s) in out.iter_mut().enumerate().take(end).skip(RADIUS) {
             *s = strength_scalar(rows, x, t);
             if *s != 0 {
@@ -183,33 +206,30 @@ fn strength_row(rows: &Rows<'_>, t: u8, out: &mut [u8], corners: &mut Vec<u32>) 
         }
         return;
     }
-    let tv = u8x16::splat(t);
-    // Chunks of 16 from x = 3; the last one is moved left to end at the border (overlapping
-    // its predecessor, whose lanes it recomputes identically) so no pixel needs a scalar tail.
+    let tv = V::splat(isa, t);
+    let span = V::LANES + 2 * RADIUS;
+    // Chunks from x = 3; the last one is moved left to end at the border (overlapping its
+    // predecessor, whose lanes it recomputes identically) so no pixel needs a scalar tail.
     let mut x0 = RADIUS;
     let mut done = RADIUS;
     while done < end {
-        x0 = x0.min(end - LANES);
-        let at = |j: usize| -> &[u8; SPAN] {
-            rows[j][x0 - RADIUS..x0 - RADIUS + SPAN]
-                .try_into()
-                .expect("a chunk's window")
-        };
+        x0 = x0.min(end - V::LANES);
+        // Each window exactly `span` long, so the loads' bounds checks fold away.
+        let at = |j: usize| &rows[j][x0 - RADIUS..x0 - RADIUS + span];
         // Written out rather than `array::from_fn`: built for AVX2, the compiler kept that
         // one as a loop of seven, and FAST took 15 % longer.
         let win = [at(0), at(1), at(2), at(3), at(4), at(5), at(6)];
-        if let Some(s) = strength_chunk(&win, tv) {
-            out[x0..x0 + LANES].copy_from_slice(&s.to_array());
+        if let Some(s) = strength_chunk(isa, &win, tv) {
+            s.store(&mut out[x0..]);
             // Non-zero lanes, less those the previous, overlapping chunk already reported.
-            let mut bits =
-                !s.simd_eq(u8x16::ZERO).to_bitmask() & 0xffff & (u32::MAX << (done - x0));
+            let mut bits = s.nonzero_bits() & (u64::MAX << (done - x0));
             while bits != 0 {
                 corners.push((x0 + bits.trailing_zeros() as usize) as u32);
                 bits &= bits - 1;
             }
         }
-        done = x0 + LANES;
-        x0 += LANES;
+        done = x0 + V::LANES;
+        x0 += V::LANES;
     }
 }
 

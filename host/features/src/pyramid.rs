@@ -71,6 +71,7 @@ fn tap_at(row: &[f32], kernel: &[f32], x: usize) -> f32 {
 /// Horizontal pass at every column: reflect-101 at the `r` columns of each border, eight
 /// outputs at a time in between (the last chunk overlaps the one before it rather than
 /// leaving a scalar tail; the overlapped outputs are computed twice, identically).
+#[inline(always)]
 fn blur_row(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
     match kernel.len() - 1 {
         1 => blur_row_impl(row, kernel, kv, out, 1),
@@ -117,6 +118,7 @@ fn blur_row_impl(row: &[f32], kernel: &[f32], kv: &[f32x8], out: &mut [f32], r: 
 /// Vertical pass over whole rows: `rows` are the `2r + 1` (horizontally filtered) rows around
 /// the output row, top first; `out[x] = kernel[0]·rows[r][x] + Σ_k kernel[k]·(rows[r−k][x] +
 /// rows[r+k][x])`, eight columns at a time.
+#[inline(always)]
 fn column_pass(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f32]) {
     match kernel.len() - 1 {
         1 => column_pass_impl(rows, kernel, kv, out, 1),
@@ -169,6 +171,7 @@ fn column_pass_impl(rows: &[&[f32]], kernel: &[f32], kv: &[f32x8], out: &mut [f3
 /// The `2r + 1` rows of `ring` (slot of source row `j`: `j mod (2r + 1)`) around output row
 /// `y`, reflect-101, top first. The ring holds every row the window needs: reflect-101 indices
 /// of `y − r ..= y + r` stay within that range.
+#[inline(always)]
 fn ring_rows<'a>(ring: &'a [f32], w: usize, h: usize, y: usize, r: usize) -> RingRows<'a> {
     let n = 2 * r + 1;
     let mut rows: RingRows<'a> = [&[]; 2 * MAX_RADIUS + 1];
@@ -182,29 +185,31 @@ fn ring_rows<'a>(ring: &'a [f32], w: usize, h: usize, y: usize, r: usize) -> Rin
 /// Row slices of a ring buffer (only the first `2r + 1` are used).
 type RingRows<'a> = [&'a [f32]; 2 * MAX_RADIUS + 1];
 
-/// Separable blur in place (rows, then columns, as [`reference::gaussian_blur`]): each source
-/// row is filtered horizontally into a ring of `2r + 1` rows (a few kB, stays in L1) just before
-/// the first output row that needs it; output row `y` overwrites source row `y`, which is
-/// already in the ring.
-fn blur_in_place(data: &mut [f32], w: usize, h: usize, kernel: &[f32]) {
-    let r = kernel.len() - 1;
-    let n = 2 * r + 1;
-    let kv: Vec<f32x8> = kernel.iter().map(|&k| f32x8::splat(k)).collect();
-    let mut ring = vec![0f32; n * w];
-    let mut next = 0;
-    for y in 0..h {
-        while next <= (y + r).min(h - 1) {
-            let slot = next % n;
-            blur_row(
-                &data[next * w..(next + 1) * w],
-                kernel,
-                &kv,
-                &mut ring[slot * w..(slot + 1) * w],
-            );
-            next += 1;
+isa::dispatch! {
+    /// Separable blur in place (rows, then columns, as [`reference::gaussian_blur`]): each source
+    /// row is filtered horizontally into a ring of `2r + 1` rows (a few kB, stays in L1) just
+    /// before the first output row that needs it; output row `y` overwrites source row `y`, which
+    /// is already in the ring.
+    fn blur_in_place(data: &mut [f32], w: usize, h: usize, kernel: &[f32]) {
+        let r = kernel.len() - 1;
+        let n = 2 * r + 1;
+        let kv: Vec<f32x8> = kernel.iter().map(|&k| f32x8::splat(k)).collect();
+        let mut ring = vec![0f32; n * w];
+        let mut next = 0;
+        for y in 0..h {
+            while next <= (y + r).min(h - 1) {
+                let slot = next % n;
+                blur_row(
+                    &data[next * w..(next + 1) * w],
+                    kernel,
+                    &kv,
+                    &mut ring[slot * w..(slot + 1) * w],
+                );
+                next += 1;
+            }
+            let rows = ring_rows(&ring, w, h, y, r);
+            column_pass(&rows[..n], kernel, &kv, &mut data[y * w..(y + 1) * w]);
         }
-        let rows = ring_rows(&ring, w, h, y, r);
-        column_pass(&rows[..n], kernel, &kv, &mut data[y * w..(y + 1) * w]);
     }
 }
 
@@ -256,6 +261,7 @@ const BINOMIAL: [f32; 3] = [6.0 / 16.0, 4.0 / 16.0, 1.0 / 16.0];
 /// split into its even `E` and odd `O` samples, `out[i] = k₀·E[i] + k₁·(O[i−1] + O[i]) +
 /// k₂·(E[i−1] + E[i+1])`: the terms of [`reference::pyr_down`] in its order, from contiguous
 /// loads. `even`, `odd`: scratch of `⌈w/2⌉` and `⌊w/2⌋` values.
+#[inline(always)]
 fn pyr_row(row: &[f32], kv: &[f32x8; 3], even: &mut [f32], odd: &mut [f32], out: &mut [f32]) {
     let w = row.len();
     let w2 = out.len();
@@ -298,37 +304,39 @@ fn pyr_row(row: &[f32], kv: &[f32x8; 3], even: &mut [f32], odd: &mut [f32], out:
     }
 }
 
-/// One pyramid step: binomial smoothing and every second pixel; size `⌈w/2⌉ × ⌈h/2⌉`.
-///
-/// Only the kept samples are computed: the horizontal pass at the even columns of every row
-/// (into a ring of five rows), the vertical pass at the even rows, both vectorised across the
-/// row; the same sums in the same order as [`reference::pyr_down`].
-pub fn pyr_down(img: &GrayF32) -> GrayF32 {
-    let (w, h) = (img.width(), img.height());
-    let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
-    let src = img.data();
-    let kv = BINOMIAL.map(f32x8::splat);
-    let (mut even, mut odd) = (vec![0f32; w2], vec![0f32; w / 2]);
-    let mut ring = vec![0f32; 5 * w2];
-    let mut out = vec![0f32; w2 * h2];
-    let mut next = 0;
-    for (y2, o) in out.chunks_exact_mut(w2).enumerate() {
-        let y = 2 * y2;
-        while next <= (y + 2).min(h - 1) {
-            let slot = next % 5;
-            pyr_row(
-                &src[next * w..(next + 1) * w],
-                &kv,
-                &mut even,
-                &mut odd,
-                &mut ring[slot * w2..(slot + 1) * w2],
-            );
-            next += 1;
+isa::dispatch! {
+    /// One pyramid step: binomial smoothing and every second pixel; size `⌈w/2⌉ × ⌈h/2⌉`.
+    ///
+    /// Only the kept samples are computed: the horizontal pass at the even columns of every row
+    /// (into a ring of five rows), the vertical pass at the even rows, both vectorised across the
+    /// row; the same sums in the same order as [`reference::pyr_down`].
+    pub fn pyr_down(img: &GrayF32) -> GrayF32 {
+        let (w, h) = (img.width(), img.height());
+        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+        let src = img.data();
+        let kv = BINOMIAL.map(f32x8::splat);
+        let (mut even, mut odd) = (vec![0f32; w2], vec![0f32; w / 2]);
+        let mut ring = vec![0f32; 5 * w2];
+        let mut out = vec![0f32; w2 * h2];
+        let mut next = 0;
+        for (y2, o) in out.chunks_exact_mut(w2).enumerate() {
+            let y = 2 * y2;
+            while next <= (y + 2).min(h - 1) {
+                let slot = next % 5;
+                pyr_row(
+                    &src[next * w..(next + 1) * w],
+                    &kv,
+                    &mut even,
+                    &mut odd,
+                    &mut ring[slot * w2..(slot + 1) * w2],
+                );
+                next += 1;
+            }
+            let rows = ring_rows(&ring, w2, h, y, 2);
+            column_pass(&rows[..5], &BINOMIAL, &kv, o);
         }
-        let rows = ring_rows(&ring, w2, h, y, 2);
-        column_pass(&rows[..5], &BINOMIAL, &kv, o);
+        GrayF32::new(w2, h2, out).unwrap_or_else(|_| img.clone())
     }
-    GrayF32::new(w2, h2, out).unwrap_or_else(|_| img.clone())
 }
 
 /// A Gaussian pyramid; level 0 is the input, or the input smoothed (see

@@ -13,41 +13,43 @@ use camera::Gray32FImage;
 /// Rows per band of the parallel conversion: a few bands per thread at 240 rows and more.
 const BAND_ROWS: usize = 32;
 
-/// One row of depth bits (`f32`, native byte order) into camera `z` (0 on background) and the
-/// mask (255 where `z > 0`): [`depth_to_z`]'s operations in its order on four lanes of `f64`,
-/// so the values are the same to the last bit. Background (`d = 0`) and non-finite values fail
-/// the `d > 0` lane test or give `z = 0` (`d = ∞`), as [`depth_to_z`]'s `None`.
-fn depth_row(bits: &[u8], near: f64, far: f64, z: &mut [f32], mask: &mut [u8]) {
-    let (range, n, nf) = (
-        f64x4::splat(far - near),
-        f64x4::splat(near),
-        f64x4::splat(near * far),
-    );
-    let zero = f64x4::ZERO;
-    let depth = |b: &[u8]| f32::from_bits(u32::from_ne_bytes([b[0], b[1], b[2], b[3]]));
-    let mut z4 = z.chunks_exact_mut(4);
-    let mut m4 = mask.chunks_exact_mut(4);
-    let mut b16 = bits.chunks_exact(16);
-    for ((z, m), b) in (&mut z4).zip(&mut m4).zip(&mut b16) {
-        let d = f64x4::from([
-            depth(&b[0..4]) as f64,
-            depth(&b[4..8]) as f64,
-            depth(&b[8..12]) as f64,
-            depth(&b[12..16]) as f64,
-        ]);
-        let v = d
-            .simd_gt(zero)
-            .select(nf / (range * d + n), zero)
-            .to_array();
-        for k in 0..4 {
-            z[k] = v[k] as f32;
-            m[k] = if z[k] > 0.0 { 255 } else { 0 };
+isa::dispatch! {
+    /// One row of depth bits (`f32`, native byte order) into camera `z` (0 on background) and the
+    /// mask (255 where `z > 0`): [`depth_to_z`]'s operations in its order on four lanes of `f64`,
+    /// so the values are the same to the last bit. Background (`d = 0`) and non-finite values fail
+    /// the `d > 0` lane test or give `z = 0` (`d = ∞`), as [`depth_to_z`]'s `None`.
+    fn depth_row(bits: &[u8], near: f64, far: f64, z: &mut [f32], mask: &mut [u8]) {
+        let (range, n, nf) = (
+            f64x4::splat(far - near),
+            f64x4::splat(near),
+            f64x4::splat(near * far),
+        );
+        let zero = f64x4::ZERO;
+        let depth = |b: &[u8]| f32::from_bits(u32::from_ne_bytes([b[0], b[1], b[2], b[3]]));
+        let mut z4 = z.chunks_exact_mut(4);
+        let mut m4 = mask.chunks_exact_mut(4);
+        let mut b16 = bits.chunks_exact(16);
+        for ((z, m), b) in (&mut z4).zip(&mut m4).zip(&mut b16) {
+            let d = f64x4::from([
+                depth(&b[0..4]) as f64,
+                depth(&b[4..8]) as f64,
+                depth(&b[8..12]) as f64,
+                depth(&b[12..16]) as f64,
+            ]);
+            let v = d
+                .simd_gt(zero)
+                .select(nf / (range * d + n), zero)
+                .to_array();
+            for k in 0..4 {
+                z[k] = v[k] as f32;
+                m[k] = if z[k] > 0.0 { 255 } else { 0 };
+            }
         }
-    }
-    let tail = z4.into_remainder().iter_mut().zip(m4.into_remainder());
-    for ((z, m), b) in tail.zip(b16.remainder().chunks_exact(4)) {
-        *z = depth_to_z(depth(b), near, far).unwrap_or(0.0) as f32;
-        *m = if *z > 0.0 { 255 } else { 0 };
+        let tail = z4.into_remainder().iter_mut().zip(m4.into_remainder());
+        for ((z, m), b) in tail.zip(b16.remainder().chunks_exact(4)) {
+            *z = depth_to_z(depth(b), near, far).unwrap_or(0.0) as f32;
+            *m = if *z > 0.0 { 255 } else { 0 };
+        }
     }
 }
 
@@ -59,38 +61,40 @@ fn positive_depth_is_foreground(near: f64, far: f64) -> bool {
     depth_to_z(f32::MAX, near, far).is_some_and(|z| z as f32 > 0.0)
 }
 
-/// One row of depth bits (`f32`, native byte order) copied into `buffer`, and the mask (255
-/// where `z > 0`, as [`depth_row`]'s): from the bits alone when `bits_decide`
-/// ([`positive_depth_is_foreground`]), which vectorises; else through [`depth_to_z`].
-fn buffer_row(
-    bits: &[u8],
-    near: f64,
-    far: f64,
-    bits_decide: bool,
-    buffer: &mut [f32],
-    mask: &mut [u8],
-) {
-    match bytemuck::try_cast_slice::<u8, f32>(bits) {
-        Ok(values) => buffer.copy_from_slice(values),
-        Err(_) => {
-            for (d, b) in buffer.iter_mut().zip(bits.chunks_exact(4)) {
-                *d = f32::from_ne_bytes([b[0], b[1], b[2], b[3]]);
+isa::dispatch! {
+    /// One row of depth bits (`f32`, native byte order) copied into `buffer`, and the mask (255
+    /// where `z > 0`, as [`depth_row`]'s): from the bits alone when `bits_decide`
+    /// ([`positive_depth_is_foreground`]), which vectorises; else through [`depth_to_z`].
+    fn buffer_row(
+        bits: &[u8],
+        near: f64,
+        far: f64,
+        bits_decide: bool,
+        buffer: &mut [f32],
+        mask: &mut [u8],
+    ) {
+        match bytemuck::try_cast_slice::<u8, f32>(bits) {
+            Ok(values) => buffer.copy_from_slice(values),
+            Err(_) => {
+                for (d, b) in buffer.iter_mut().zip(bits.chunks_exact(4)) {
+                    *d = f32::from_ne_bytes([b[0], b[1], b[2], b[3]]);
+                }
             }
         }
-    }
-    if bits_decide {
-        // Positive finite values are the bit patterns 1 ..= 0x7f7f_ffff.
-        for (m, d) in mask.iter_mut().zip(buffer.iter()) {
-            *m = if d.to_bits().wrapping_sub(1) < 0x7f7f_ffff {
-                255
-            } else {
-                0
-            };
-        }
-    } else {
-        for (m, &d) in mask.iter_mut().zip(buffer.iter()) {
-            let z = depth_to_z(d, near, far).unwrap_or(0.0) as f32;
-            *m = if z > 0.0 { 255 } else { 0 };
+        if bits_decide {
+            // Positive finite values are the bit patterns 1 ..= 0x7f7f_ffff.
+            for (m, d) in mask.iter_mut().zip(buffer.iter()) {
+                *m = if d.to_bits().wrapping_sub(1) < 0x7f7f_ffff {
+                    255
+                } else {
+                    0
+                };
+            }
+        } else {
+            for (m, &d) in mask.iter_mut().zip(buffer.iter()) {
+                let z = depth_to_z(d, near, far).unwrap_or(0.0) as f32;
+                *m = if z > 0.0 { 255 } else { 0 };
+            }
         }
     }
 }

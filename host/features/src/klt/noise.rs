@@ -109,18 +109,21 @@ pub(super) fn interpolated(
     (c, m)
 }
 
-/// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel` and
-/// returns the result transposed (line `l`, position `j` at `out[j · lines + l]`): two passes
-/// convolve a field along both axes and restore its orientation.
-fn convolve_lines_transposed(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
-    // The default smoothing (σ = 1 px) has 7 taps: a copy with them unrolled.
-    match <[f32; 7]>::try_from(kernel) {
-        Ok(k) => convolve_fixed(src, lines, k),
-        Err(_) => convolve_any(src, lines, kernel),
+isa::dispatch! {
+    /// Convolves each of the `lines` equal lines of `src` with the full 1-D symmetric `kernel`
+    /// and returns the result transposed (line `l`, position `j` at `out[j · lines + l]`): two
+    /// passes convolve a field along both axes and restore its orientation.
+    fn convolve_lines_transposed(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
+        // The default smoothing (σ = 1 px) has 7 taps: a copy with them unrolled.
+        match <[f32; 7]>::try_from(kernel) {
+            Ok(k) => convolve_fixed(src, lines, k),
+            Err(_) => convolve_any(src, lines, kernel),
+        }
     }
 }
 
 /// [`convolve_lines_transposed`] for a kernel of `N` taps.
+#[inline(always)]
 fn convolve_fixed<const N: usize>(src: &[f32x4], lines: usize, kernel: [f32; N]) -> Vec<f32x4> {
     let len = src.len() / lines.max(1);
     let out_len = len + N - 1;
@@ -147,6 +150,7 @@ fn convolve_fixed<const N: usize>(src: &[f32x4], lines: usize, kernel: [f32; N])
 }
 
 /// [`convolve_lines_transposed`] for any kernel length.
+#[inline(always)]
 fn convolve_any(src: &[f32x4], lines: usize, kernel: &[f32]) -> Vec<f32x4> {
     let len = src.len() / lines.max(1);
     let mut out = vec![f32x4::ZERO; (len + kernel.len() - 1) * lines];

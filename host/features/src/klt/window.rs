@@ -321,10 +321,7 @@ impl Window {
     /// [`Window::clipped_prediction`]; `pre` as there).
     pub fn accumulate(&mut self, a: f64, b: f64, pre: Option<Pre<'_>>) -> Normal {
         let (side, pw, es) = (self.side, self.pw, self.es);
-        let (av, bv) = (f32x4::splat(a as f32), f32x4::splat(b as f32));
-        let half = f32x4::splat(0.5);
-        // Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ, gy ρ, I ρ, ρ, ρ².
-        let mut s = [f32x4::ZERO; 15];
+        let (av, bv) = (a as f32, b as f32);
         self.clip_model = match pre {
             Some(pre) if self.clip_any => self.clipped_prediction(a, b, pre),
             _ => false,
@@ -332,36 +329,7 @@ impl Window {
         if self.clip_model {
             return self.accumulate_clipped();
         }
-        let weights = self.weights();
-        for j in 0..side {
-            let e0 = (j + 1) * es + 1;
-            let rows = [
-                &self.ext[e0..e0 + pw],
-                &self.ext[e0 - 1..e0 - 1 + pw],
-                &self.ext[e0 + 1..e0 + 1 + pw],
-                &self.ext[e0 - es..e0 - es + pw],
-                &self.ext[e0 + es..e0 + es + pw],
-                &self.t[j * pw..(j + 1) * pw],
-                &weights[j * pw..(j + 1) * pw],
-            ];
-            // The default window (15 px, rows of 16) with the row's four steps unrolled.
-            match rows.map(<&[f32; 16]>::try_from) {
-                [Ok(jc), Ok(jl), Ok(jr), Ok(ju), Ok(jd), Ok(t), Ok(w)] => {
-                    for c in 0..16 / LANES {
-                        let at = |r: &[f32; 16]| v4(&r[c * LANES..(c + 1) * LANES]);
-                        let v = [at(jc), at(jl), at(jr), at(ju), at(jd), at(t), at(w)];
-                        accumulate_lanes(&mut s, v, av, bv, half);
-                    }
-                }
-                _ => {
-                    for c in (0..pw).step_by(LANES) {
-                        let v = rows.map(|r| v4(&r[c..c + LANES]));
-                        accumulate_lanes(&mut s, v, av, bv, half);
-                    }
-                }
-            }
-        }
-        let v = s.map(sum);
+        let v = sums(&self.ext, &self.t, self.weights(), [side, pw, es], av, bv);
         // Every pixel used: Σ w, Σ I and Σ I² are the Jacobian's own sums.
         self.normal(&v, v[9], v[8], v[7])
     }
@@ -510,6 +478,54 @@ impl Window {
     }
 }
 
+isa::dispatch! {
+    /// The sums of [`Window::accumulate`] over the window (`dims`: side, template row length,
+    /// live row length), in `f64`: Σ gx², gx gy, gx I, gx, gy², gy I, gy, I², I, n, gx ρ,
+    /// gy ρ, I ρ, ρ, ρ².
+    fn sums(
+        ext: &[f32],
+        t: &[f32],
+        weights: &[f32],
+        dims: [usize; 3],
+        a: f32,
+        b: f32,
+    ) -> [f64; 15] {
+        let [side, pw, es] = dims;
+        let (av, bv) = (f32x4::splat(a), f32x4::splat(b));
+        let half = f32x4::splat(0.5);
+        let mut s = [f32x4::ZERO; 15];
+        for j in 0..side {
+            let e0 = (j + 1) * es + 1;
+            let rows = [
+                &ext[e0..e0 + pw],
+                &ext[e0 - 1..e0 - 1 + pw],
+                &ext[e0 + 1..e0 + 1 + pw],
+                &ext[e0 - es..e0 - es + pw],
+                &ext[e0 + es..e0 + es + pw],
+                &t[j * pw..(j + 1) * pw],
+                &weights[j * pw..(j + 1) * pw],
+            ];
+            // The default window (15 px, rows of 16) with the row's four steps unrolled.
+            match rows.map(<&[f32; 16]>::try_from) {
+                [Ok(jc), Ok(jl), Ok(jr), Ok(ju), Ok(jd), Ok(t), Ok(w)] => {
+                    for c in 0..16 / LANES {
+                        let at = |r: &[f32; 16]| v4(&r[c * LANES..(c + 1) * LANES]);
+                        let v = [at(jc), at(jl), at(jr), at(ju), at(jd), at(t), at(w)];
+                        accumulate_lanes(&mut s, v, av, bv, half);
+                    }
+                }
+                _ => {
+                    for c in (0..pw).step_by(LANES) {
+                        let v = rows.map(|r| v4(&r[c..c + LANES]));
+                        accumulate_lanes(&mut s, v, av, bv, half);
+                    }
+                }
+            }
+        }
+        s.map(sum)
+    }
+}
+
 /// One step of [`Window::accumulate`]: four pixels' live samples (centre, left, right, up,
 /// down), template values and weights.
 #[inline(always)]
@@ -543,70 +559,73 @@ fn v4(c: &[f32]) -> f32x4 {
 }
 
 /// The lanes' sum in `f64`.
-#[inline]
+#[inline(always)]
 fn sum(v: f32x4) -> f64 {
     v.to_array().iter().map(|&x| x as f64).sum()
 }
 
-/// Bilinear samples of `img` at `(ox + i, oy + j)`, `i < cols`, `j < rows`, into rows of
-/// `stride` values of `out`, if every sample's four pixels are inside the image (returns
-/// `false` and leaves `out` to the caller otherwise). Same arithmetic as `GrayF32::sample`.
-fn fill_bilinear(
-    img: &GrayF32,
-    ox: f64,
-    oy: f64,
-    cols: usize,
-    rows: usize,
-    stride: usize,
-    out: &mut [f32],
-) -> bool {
-    let (w, h) = (img.width(), img.height());
-    if !(ox >= 0.0 && oy >= 0.0) {
-        return false;
-    }
-    let (x0, y0) = (ox.floor(), oy.floor());
-    let (x0, y0) = (x0 as usize, y0 as usize);
-    // The last sample's right and lower neighbours must exist.
-    if x0 + cols >= w || y0 + rows >= h || out.len() < rows * stride {
-        return false;
-    }
-    let fx = (ox - x0 as f64) as f32;
-    let fy = (oy - y0 as f64) as f32;
-    let data = img.data();
-    // Whole lanes where the rows and the image have room: the extra samples land in the
-    // rows' padding, which carries weight 0.
-    let lanes = cols.div_ceil(LANES) * LANES;
-    if lanes <= stride && x0 + lanes < w {
-        let (vx, vy) = (f32x4::splat(fx), f32x4::splat(fy));
+isa::dispatch! {
+    /// Bilinear samples of `img` at `(ox + i, oy + j)`, `i < cols`, `j < rows`, into rows of
+    /// `stride` values of `out`, if every sample's four pixels are inside the image (returns
+    /// `false` and leaves `out` to the caller otherwise). Same arithmetic as `GrayF32::sample`.
+    fn fill_bilinear(
+        img: &GrayF32,
+        ox: f64,
+        oy: f64,
+        cols: usize,
+        rows: usize,
+        stride: usize,
+        out: &mut [f32],
+    ) -> bool {
+        let (w, h) = (img.width(), img.height());
+        if !(ox >= 0.0 && oy >= 0.0) {
+            return false;
+        }
+        let (x0, y0) = (ox.floor(), oy.floor());
+        let (x0, y0) = (x0 as usize, y0 as usize);
+        // The last sample's right and lower neighbours must exist.
+        if x0 + cols >= w || y0 + rows >= h || out.len() < rows * stride {
+            return false;
+        }
+        let fx = (ox - x0 as f64) as f32;
+        let fy = (oy - y0 as f64) as f32;
+        let data = img.data();
+        // Whole lanes where the rows and the image have room: the extra samples land in the
+        // rows' padding, which carries weight 0.
+        let lanes = cols.div_ceil(LANES) * LANES;
+        if lanes <= stride && x0 + lanes < w {
+            let (vx, vy) = (f32x4::splat(fx), f32x4::splat(fy));
+            for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
+                let at = (y0 + j) * w + x0;
+                let row = |from: usize| data[from..from + lanes].chunks_exact(LANES);
+                let top = row(at).zip(row(at + 1));
+                let bottom = row(at + w).zip(row(at + w + 1));
+                let chunks = o[..lanes].chunks_exact_mut(LANES).zip(top.zip(bottom));
+            for (o, ((a, b), (c, d))) in chunks {
+                    let (a, c) = (v4(a), v4(c));
+                    let t = a + vx * (v4(b) - a);
+                    let u = c + vx * (v4(d) - c);
+                    o.copy_from_slice(&(t + vy * (u - t)).to_array());
+                }
+            }
+            return true;
+        }
         for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
             let at = (y0 + j) * w + x0;
-            let row = |from: usize| data[from..from + lanes].chunks_exact(LANES);
-            let top = row(at).zip(row(at + 1));
-            let bottom = row(at + w).zip(row(at + w + 1));
-            for (o, ((a, b), (c, d))) in o[..lanes].chunks_exact_mut(LANES).zip(top.zip(bottom)) {
-                let (a, c) = (v4(a), v4(c));
-                let t = a + vx * (v4(b) - a);
-                let u = c + vx * (v4(d) - c);
-                o.copy_from_slice(&(t + vy * (u - t)).to_array());
+            let (a, b) = (&data[at..at + cols], &data[at + 1..at + 1 + cols]);
+            let (c, d) = (
+                &data[at + w..at + w + cols],
+                &data[at + w + 1..at + w + 1 + cols],
+            );
+            let o = &mut o[..cols];
+            for i in 0..cols {
+                let top = a[i] + fx * (b[i] - a[i]);
+                let bottom = c[i] + fx * (d[i] - c[i]);
+                o[i] = top + fy * (bottom - top);
             }
         }
-        return true;
+        true
     }
-    for (j, o) in out.chunks_exact_mut(stride).take(rows).enumerate() {
-        let at = (y0 + j) * w + x0;
-        let (a, b) = (&data[at..at + cols], &data[at + 1..at + 1 + cols]);
-        let (c, d) = (
-            &data[at + w..at + w + cols],
-            &data[at + w + 1..at + w + 1 + cols],
-        );
-        let o = &mut o[..cols];
-        for i in 0..cols {
-            let top = a[i] + fx * (b[i] - a[i]);
-            let bottom = c[i] + fx * (d[i] - c[i]);
-            o[i] = top + fy * (bottom - top);
-        }
-    }
-    true
 }
 
 /// Whether `m` is valid for every bilinear sample at `(ox + i, oy + j)`, `i < cols`,
