@@ -1090,3 +1090,38 @@ fn fast_path_agrees_with_the_reference() {
         "95th percentile position difference {p95:.4} px"
     );
 }
+
+/// Each instruction set's copy of the kernels (`isa::dispatch!`: the pyramids, the window's
+/// samples and sums, the covariance's convolution) gives the same registrations to the last
+/// bit: positions, photometric parameters, covariances, failures.
+#[test]
+fn every_instruction_set_registers_the_same() {
+    let cfg = KltConfig::default();
+    let tex = |x: usize, y: usize| {
+        let (fx, fy) = (x as f32, y as f32);
+        128.0 + 60.0 * (fx * 0.29).sin() * (fy * 0.21).cos() + 40.0 * ((fx + 2.0 * fy) * 0.13).sin()
+    };
+    let s = synthetic(320, 240, tex);
+    let points = features(&s, 20, 60);
+    assert!(points.len() >= 15, "{} features", points.len());
+    let mut runs = Vec::new();
+    isa::each_copy(|_| {
+        let tmpl = Pyramid::build_smoothed(s.clone(), cfg.levels, cfg.smoothing);
+        let target = cfg.target_pyramid(live(&s, [3.3, -2.6], 0.8, 20.0, 2.0, 11));
+        let found: Vec<String> = points
+            .iter()
+            .map(|&p| {
+                format!(
+                    "{:?}",
+                    klt::register(&tmpl, None, &target, p, [0.0; 2], &cfg)
+                )
+            })
+            .collect();
+        runs.push(found);
+    });
+    let ok = runs[0].iter().filter(|r| r.starts_with("Ok")).count();
+    assert!(ok * 2 > points.len(), "{ok} of {} registered", points.len());
+    for run in &runs[1..] {
+        assert_eq!(run, &runs[0]);
+    }
+}

@@ -68,6 +68,21 @@ pub fn force_baseline(baseline: bool) {
     CHOICE.store(if wide { WIDE } else { BASELINE }, Ordering::Relaxed);
 }
 
+/// Runs `f` with the kernels on their baseline copies, then (where the CPU has AVX2 and FMA)
+/// on the AVX2 copies, passing [`name`]; leaves the choice to the CPU afterwards. For tests
+/// that check every copy and benchmarks that time each. The choice is global: kernels that
+/// run meanwhile on other threads may run either copy (which give the same values).
+pub fn each_copy(mut f: impl FnMut(&'static str)) {
+    for baseline in [true, false] {
+        if !baseline && !cpu_has_avx2_fma() {
+            break;
+        }
+        force_baseline(baseline);
+        f(name());
+    }
+    force_baseline(false);
+}
+
 /// The proof that the kernels' AVX2 + FMA copies run on this CPU ([`avx2_fma`]), which
 /// [`U8x32`] vectors are made with.
 #[derive(Clone, Copy, Debug)]
@@ -198,11 +213,19 @@ mod tests {
         for (x, y) in a.iter().zip(&w) {
             expected += x * y + 0.25 * x;
         }
-        for baseline in [true, false] {
-            force_baseline(baseline);
-            assert_eq!(avx2_fma(), !baseline && cpu_has_avx2_fma());
+        let mut copies = Vec::new();
+        each_copy(|copy| {
+            assert_eq!(copy, name());
             assert_eq!(name() == "AVX2+FMA", avx2_fma());
             assert_eq!(weighted(&a, &w).to_bits(), expected.to_bits());
-        }
+            copies.push(copy);
+        });
+        let expected = if cpu_has_avx2_fma() {
+            vec!["baseline", "AVX2+FMA"]
+        } else {
+            vec!["baseline"]
+        };
+        assert_eq!(copies, expected);
+        assert_eq!(avx2_fma(), cpu_has_avx2_fma());
     }
 }

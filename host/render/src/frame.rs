@@ -375,9 +375,14 @@ mod tests {
     use super::*;
     use camera::{CameraPose, Pinhole};
 
-    /// The lanes of `depth_row` give `depth_to_z`'s values bit for bit, the tail included.
+    /// The lanes of `depth_row` give `depth_to_z`'s values bit for bit, the tail included,
+    /// with each instruction set's copy.
     #[test]
     fn depth_row_equals_depth_to_z() {
+        isa::each_copy(|_| depth_row_copy_equals_depth_to_z());
+    }
+
+    fn depth_row_copy_equals_depth_to_z() {
         let (near, far) = (0.05, 50.0);
         let mut values = vec![
             0.0f32,

@@ -135,74 +135,88 @@ fn assert_same(a: &GrayF32, b: &GrayF32, what: &str) {
 
 /// Every size up to 40 × 40 (all the border cases of every kernel here, both parities,
 /// the vector chunks' overlapping tails): blur and pyramid step equal the reference to the
-/// last bit.
+/// last bit, with each instruction set's copy of the kernels.
 #[test]
 fn vectorised_passes_equal_the_reference_bit_for_bit() {
-    let mut seed = 3;
-    for w in 1..=40 {
-        for h in 1..=40 {
-            let img = random_image(w, h, &mut seed);
-            for sigma in [0.5f32, 1.0, std::f32::consts::SQRT_2] {
+    isa::each_copy(|copy| {
+        let mut seed = 3;
+        for w in 1..=40 {
+            for h in 1..=40 {
+                let img = random_image(w, h, &mut seed);
+                for sigma in [0.5f32, 1.0, std::f32::consts::SQRT_2] {
+                    assert_same(
+                        &gaussian_blur(&img, sigma),
+                        &reference::gaussian_blur(&img, sigma),
+                        &format!("blur {w}x{h} σ={sigma}, {copy}"),
+                    );
+                }
                 assert_same(
-                    &gaussian_blur(&img, sigma),
-                    &reference::gaussian_blur(&img, sigma),
-                    &format!("blur {w}x{h} σ={sigma}"),
+                    &pyr_down(&img),
+                    &reference::pyr_down(&img),
+                    &format!("pyr_down {w}x{h}, {copy}"),
                 );
             }
+        }
+        // Wide kernels (radius above the vectorised passes' limit) and a wide image.
+        let img = random_image(300, 21, &mut seed);
+        for sigma in [2.5f32, 6.0] {
             assert_same(
-                &pyr_down(&img),
-                &reference::pyr_down(&img),
-                &format!("pyr_down {w}x{h}"),
+                &gaussian_blur(&img, sigma),
+                &reference::gaussian_blur(&img, sigma),
+                &format!("blur 300x21 σ={sigma}, {copy}"),
             );
         }
-    }
-    // Wide kernels (radius above the vectorised passes' limit) and a wide image.
-    let img = random_image(300, 21, &mut seed);
-    for sigma in [2.5f32, 6.0] {
         assert_same(
-            &gaussian_blur(&img, sigma),
-            &reference::gaussian_blur(&img, sigma),
-            &format!("blur 300x21 σ={sigma}"),
+            &pyr_down(&img),
+            &reference::pyr_down(&img),
+            &format!("pyr_down 300x21, {copy}"),
         );
-    }
-    assert_same(
-        &pyr_down(&img),
-        &reference::pyr_down(&img),
-        "pyr_down 300x21",
-    );
+    });
 }
 
-/// The pyramids as the tracker builds them, on a 752 × 480 image: every level equal.
+/// The pyramids as the tracker builds them, on a 752 × 480 image: every level equal, with
+/// each instruction set's copy of the kernels.
 #[test]
 fn pyramids_equal_the_reference_at_full_size() {
-    let mut seed = 17;
-    let img = random_image(752, 480, &mut seed);
-    let p = Pyramid::build_smoothed(img.clone(), 4, 1.0);
-    let mut want = vec![reference::gaussian_blur(&img, 1.0)];
-    for _ in 1..4 {
-        want.push(reference::pyr_down(&want[want.len() - 1]));
-    }
-    assert_eq!(p.len(), 4);
-    for (k, (a, b)) in p.levels().iter().zip(&want).enumerate() {
-        assert_same(a, b, &format!("level {k}"));
-    }
-    let mask = Mask::new(
-        752,
-        480,
-        (0..752 * 480)
-            .map(|_| !lcg(&mut seed).is_multiple_of(50))
-            .collect(),
-    )
-    .unwrap();
-    let t = TemplatePyramid::build(img.clone(), mask.clone(), 4, std::f32::consts::SQRT_2).unwrap();
-    let mut m = reference::erode(&mask, 3);
-    assert_eq!(t.mask.level(0).unwrap().data(), m.data());
-    for k in 1..4 {
-        m = reference::mask_pyr_down(&m).unwrap();
-        assert_eq!(t.mask.level(k).unwrap().data(), m.data(), "mask level {k}");
-    }
-    let b = reference::gaussian_blur(&img, std::f32::consts::SQRT_2);
-    assert_same(t.image.level(0).unwrap(), &b, "template level 0");
+    isa::each_copy(|copy| {
+        let mut seed = 17;
+        let img = random_image(752, 480, &mut seed);
+        let p = Pyramid::build_smoothed(img.clone(), 4, 1.0);
+        let mut want = vec![reference::gaussian_blur(&img, 1.0)];
+        for _ in 1..4 {
+            want.push(reference::pyr_down(&want[want.len() - 1]));
+        }
+        assert_eq!(p.len(), 4);
+        for (k, (a, b)) in p.levels().iter().zip(&want).enumerate() {
+            assert_same(a, b, &format!("level {k}, {copy}"));
+        }
+        let mask = Mask::new(
+            752,
+            480,
+            (0..752 * 480)
+                .map(|_| !lcg(&mut seed).is_multiple_of(50))
+                .collect(),
+        )
+        .unwrap();
+        let t =
+            TemplatePyramid::build(img.clone(), mask.clone(), 4, std::f32::consts::SQRT_2).unwrap();
+        let mut m = reference::erode(&mask, 3);
+        assert_eq!(t.mask.level(0).unwrap().data(), m.data());
+        for k in 1..4 {
+            m = reference::mask_pyr_down(&m).unwrap();
+            assert_eq!(
+                t.mask.level(k).unwrap().data(),
+                m.data(),
+                "mask level {k}, {copy}"
+            );
+        }
+        let b = reference::gaussian_blur(&img, std::f32::consts::SQRT_2);
+        assert_same(
+            t.image.level(0).unwrap(),
+            &b,
+            &format!("template level 0, {copy}"),
+        );
+    });
 }
 
 /// Erosion and the mask pyramid step against the reference for every size up to 24 × 24.
