@@ -58,6 +58,10 @@ fn all_frames() -> Vec<GrayImage> {
 }
 
 fn fast_on_all_frames(c: &mut Criterion) {
+    println!(
+        "kernels: {} copy (TRACKER_ISA=baseline runs the baseline's)",
+        isa::name()
+    );
     let frames = all_frames();
     if frames.is_empty() {
         eprintln!(

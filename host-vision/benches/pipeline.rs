@@ -90,6 +90,10 @@ fn process_cpu_seconds() -> Option<f64> {
 }
 
 fn pipeline(c: &mut Criterion) {
+    println!(
+        "kernels: {} copy (TRACKER_ISA=baseline runs the baseline's)",
+        isa::name()
+    );
     for (w, h) in [(320, 240), (640, 480)] {
         let dir = dataset(w, h);
         let ds = Dataset::open(&dir).expect("bench dataset");
