@@ -156,6 +156,62 @@ pub fn robust_fit(
     Some((pose, mags))
 }
 
+/// Eq. R3: the information `H = Σ_i (J_uᵢ J_uᵢᵀ + J_vᵢ J_vᵢᵀ) / σ̂²` of a fit of `pose` to
+/// `pairs`, over the pose perturbation of [`pixel_rows`]: `σ̂` the residuals' robust per-axis
+/// scale there ([`robust_scale`]), so `H⁻¹` is the fit's covariance. `None` where a point is
+/// behind the camera or there are no pairs.
+pub fn fit_information(
+    camera: &Camera,
+    pose: &CameraPose,
+    pairs: &[Registration],
+) -> Option<Matrix6<f64>> {
+    if pairs.is_empty() {
+        return None;
+    }
+    let mags: Vec<f64> = residuals(camera, pose, pairs)?
+        .iter()
+        .map(|v| v.norm())
+        .collect();
+    let scale = robust_scale(&mags);
+    let mut h = Matrix6::<f64>::zeros();
+    for (_, p_w) in pairs {
+        let [ju, jv] = pixel_rows(&camera.pinhole, &pose.world_to_camera(p_w));
+        h += ju * ju.transpose() + jv * jv.transpose();
+    }
+    Some(h / (scale * scale))
+}
+
+/// The perturbation `δ = (δθ, δt)` that takes `from` to `to` ([`perturbed`]`(from, δ) = to`).
+pub fn step_between(from: &CameraPose, to: &CameraPose) -> Vector6<f64> {
+    let rot = (to.q_cw * from.q_cw.inverse()).scaled_axis();
+    let t = to.q_cw * (from.c_w - to.c_w);
+    Vector6::new(rot.x, rot.y, rot.z, t.x, t.y, t.z)
+}
+
+/// The 95 % quantile of χ² with 6 degrees of freedom ([`within_noise`]).
+const CHI2_6_95: f64 = 12.592;
+
+/// Eq. V1 (docs/notes/issue15-cold-start.md §5): whether a re-fit that took the pose `from` to
+/// `to` over `pairs` moved it no more than noise would. Two fits to one frame's registrations
+/// differ by `N(0, 2 H⁻¹)` (`H` their information at `to`, eq. R3), so for the step `δ` noise
+/// alone gives `δᵀ H δ / 2 ~ χ²₆`; a step within its 95 % quantile is no evidence that the pose
+/// is still moving. Fewer than six pairs (the pose's parameters) pin nothing down: `false`.
+pub fn within_noise(
+    camera: &Camera,
+    from: &CameraPose,
+    to: &CameraPose,
+    pairs: &[Registration],
+) -> bool {
+    if pairs.len() < 6 {
+        return false;
+    }
+    let Some(h) = fit_information(camera, to, pairs) else {
+        return false;
+    };
+    let delta = step_between(from, to);
+    (delta.transpose() * h * delta)[(0, 0)] / 2.0 <= CHI2_6_95
+}
+
 /// Which of `pairs` are outliers by `rule` (eq. R2), judged at their robust fit from
 /// `predicted`. Too few pairs, or a fit that fails, judge none an outlier: the core's gate
 /// still applies.
@@ -255,5 +311,33 @@ mod tests {
                 .iter()
                 .all(|o| !o)
         );
+    }
+
+    #[test]
+    fn step_between_inverts_the_perturbation() {
+        let (_, pose, _) = setup();
+        let delta = Vector6::new(0.02, -0.01, 0.03, 0.005, -0.002, 0.01);
+        let to = perturbed(&pose, &delta);
+        let back = step_between(&pose, &to);
+        assert!((back - delta).norm() < 1e-12, "{back:?}");
+    }
+
+    #[test]
+    fn the_information_falls_with_the_residuals_square() {
+        let (camera, truth, pairs) = setup();
+        let (fitted, _) = robust_fit(&camera, &truth, &pairs).unwrap();
+        let h = fit_information(&camera, &fitted, &pairs).unwrap();
+        // Twice the jitter about the same points: a quarter of the information.
+        let wider: Vec<Registration> = pairs
+            .iter()
+            .map(|(px, p)| {
+                let exact = camera.project(fitted.world_to_camera(p)).unwrap();
+                (exact + (px - exact) * 2.0, *p)
+            })
+            .collect();
+        let h2 = fit_information(&camera, &fitted, &wider).unwrap();
+        assert!((h2 * 4.0 - h).norm() < 1e-6 * h.norm());
+        assert!(h.cholesky().is_some(), "three faces pin all six directions");
+        assert!(fit_information(&camera, &fitted, &[]).is_none());
     }
 }

@@ -34,6 +34,7 @@ use camera::CameraPose;
 use choice::{Choice, choose};
 pub use choice::{Comparison, Evidence, compare};
 use database::Database;
+use features::outliers::within_noise;
 use index::Index;
 use matching::{MatchConfig, match_descriptors};
 use orb::{Descriptor, Orb, OrbConfig};
@@ -389,8 +390,10 @@ const CONVERGED_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
 /// (or [`MAX_VERIFICATIONS`] times). One verification is two rounds of registration and
 /// re-fit; where the pose is poorly pinned down (one face of a cube, seen nearly face on),
 /// it is still moving after them, and a judgement or a comparison made there is a judgement
-/// of an arbitrary point on the way (docs/notes/issue15-cold-start.md §5). Returns the last verification and the pose it ran
-/// from (verifying from it again gives the same result, and its feature map).
+/// of an arbitrary point on the way (docs/notes/issue15-cold-start.md §5). It has stopped
+/// moving when it moves less than 1 mm and 0.1°, or less than its registrations pin it down
+/// (`features::outliers::within_noise`, eq. V1). Returns the last verification and the pose it ran from
+/// (verifying from it again gives the same result, and its feature map).
 pub fn converged(
     vision: &mut Vision,
     raw: &GrayImage,
@@ -402,7 +405,14 @@ pub fn converged(
     for _ in 1..MAX_VERIFICATIONS {
         let moved = (verified.pose.c_w - from.c_w).norm();
         let turned = verified.pose.q_cw.angle_to(&from.q_cw);
-        if moved < CONVERGED_M && turned < CONVERGED_RAD {
+        if moved < CONVERGED_M && turned < CONVERGED_RAD
+            || within_noise(
+                vision.ideal_camera(),
+                &from,
+                &verified.pose,
+                &verified.registered,
+            )
+        {
             break;
         }
         from = verified.pose;

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use camera::{Camera, CameraPose, UndistortMap};
 use features::correspondence::correspondence;
 use features::map::MapFeature;
-use features::outliers::{Registration, outliers, robust_fit};
+use features::outliers::{Registration, outliers, robust_fit, within_noise};
 use features::{
     FeatureMap, GrayF32, KltConfig, KltFailure, KltResult, MapConfig, Mask, Outcome, OutlierRule,
     Predicted, Pyramid, TemplatePyramid, register,
@@ -177,8 +177,9 @@ pub struct FrameResult {
 /// registrations' own outlier rule judges from 8).
 const TEXTURE_FIT_MIN: usize = 8;
 
-/// Rounds of registration and re-fitting in [`Vision::verify`]: the first starts from a pose a
-/// few pixels off, the second from one the registrations fit.
+/// Rounds of registration and re-fitting in [`Vision::verify`], at most: the first starts from a
+/// pose a few pixels off, the second from one the registrations fit (unless the first re-fit
+/// moved it no more than their noise, eq. V1).
 const VERIFY_ROUNDS: usize = 2;
 
 /// A pose verified by [`Vision::verify`].
@@ -397,7 +398,7 @@ impl Vision {
             small_object_cells: true,
             ..tracking
         };
-        for round in 0..VERIFY_ROUNDS {
+        for _ in 0..VERIFY_ROUNDS {
             self.map = FeatureMap::new(verifying);
             let q = pose.q_cw;
             let job = FrameJob {
@@ -411,7 +412,8 @@ impl Vision {
                     q_cw: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
                     cov: [0.0; 21],
                 },
-                keep_image: keep_image && round + 1 == VERIFY_ROUNDS,
+                // Whichever round is the last keeps it (see the early stop below).
+                keep_image,
                 omega_c: None,
             };
             match self.process_with(job, true) {
@@ -429,7 +431,15 @@ impl Vision {
                 break;
             }
             match robust_fit(&self.ideal, &pose, &last.registered) {
-                Some((fitted, _)) => pose = fitted,
+                Some((fitted, _)) => {
+                    // A re-fit the registrations cannot tell from where it started (eq. V1):
+                    // another round would move it by their noise only.
+                    let settled = within_noise(&self.ideal, &pose, &fitted, &last.registered);
+                    pose = fitted;
+                    if settled {
+                        break;
+                    }
+                }
                 None => break,
             }
         }
