@@ -70,6 +70,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "isa",
+        dir: "host/isa/src",
+        module: &[],
+    },
+    Tree {
         name: "camera",
         dir: "host/camera/src",
         module: &[],
