@@ -69,10 +69,12 @@ pub fn force_baseline(baseline: bool) {
 }
 
 /// Runs `f` with the kernels on their baseline copies, then (where the CPU has AVX2 and FMA)
-/// on the AVX2 copies, passing [`name`]; leaves the choice to the CPU afterwards. For tests
-/// that check every copy and benchmarks that time each. The choice is global: kernels that
-/// run meanwhile on other threads may run either copy (which give the same values).
+/// on the AVX2 copies, passing [`name`]; leaves the choice as it was (so [`ENV`] still holds
+/// afterwards). For tests that check every copy and benchmarks that time each. The choice is
+/// global: kernels that run meanwhile on other threads may run either copy (which give the
+/// same values).
 pub fn each_copy(mut f: impl FnMut(&'static str)) {
+    let before = CHOICE.load(Ordering::Relaxed);
     for baseline in [true, false] {
         if !baseline && !cpu_has_avx2_fma() {
             break;
@@ -80,7 +82,7 @@ pub fn each_copy(mut f: impl FnMut(&'static str)) {
         force_baseline(baseline);
         f(name());
     }
-    force_baseline(false);
+    CHOICE.store(before, Ordering::Relaxed);
 }
 
 /// The proof that the kernels' AVX2 + FMA copies run on this CPU ([`avx2_fma`]), which
@@ -213,6 +215,7 @@ mod tests {
         for (x, y) in a.iter().zip(&w) {
             expected += x * y + 0.25 * x;
         }
+        let before = avx2_fma();
         let mut copies = Vec::new();
         each_copy(|copy| {
             assert_eq!(copy, name());
@@ -226,6 +229,7 @@ mod tests {
             vec!["baseline"]
         };
         assert_eq!(copies, expected);
-        assert_eq!(avx2_fma(), cpu_has_avx2_fma());
+        // The choice is back where it was: the CPU's, or the baseline under `TRACKER_ISA`.
+        assert_eq!(avx2_fma(), before);
     }
 }
