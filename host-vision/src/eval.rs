@@ -79,8 +79,8 @@ pub struct DatasetHints {
 /// Reads the hints of `dataset/manifest.json`: all `None` without the file (a dataset not
 /// made by `synth`), a hint `None` where the manifest has no such field. A manifest that is
 /// there but unreadable, over [`camera::MAX_TEXT_FILE_BYTES`], not JSON, or whose hint is not
-/// a finite number of zero or more (zero: no hint) is an error that names it: a hint silently dropped would track
-/// with other noise settings than the dataset says.
+/// a finite number of zero or more (zero: no hint) is an error that names it: a hint silently
+/// dropped would track with other noise settings than the dataset says.
 pub fn dataset_hints(dataset: &Path) -> Result<DatasetHints, EvalError> {
     let path = dataset.join("manifest.json");
     if !path.is_file() {
