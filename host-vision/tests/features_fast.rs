@@ -257,9 +257,7 @@ fn grid_extraction_skips_occupied_and_masked_cells() {
 /// one may run either copy meanwhile; every copy must give the reference's answer anyway.
 fn assert_same_as_reference(img: &GrayImage, t: u8, nms: bool) {
     let (w, h) = img.dimensions();
-    for baseline in [true, false] {
-        isa::force_baseline(baseline);
-        let copy = isa::name();
+    isa::each_copy(|copy| {
         assert_eq!(
             fast::detect(img, t, nms),
             fast::reference::detect(img, t, nms),
@@ -270,7 +268,7 @@ fn assert_same_as_reference(img: &GrayImage, t: u8, nms: bool) {
             fast::reference::score_map(img, t),
             "score map {w}x{h}, threshold {t}, {copy}"
         );
-    }
+    });
 }
 
 /// A pseudo-random image with pixel values in `0..levels` spread over 0..=255 (few levels:
