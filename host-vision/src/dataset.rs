@@ -116,6 +116,15 @@ impl Dataset {
                 what: "dataset folder",
             });
         }
+        if root.join(crate::synth::UNFINISHED).exists() {
+            return Err(DatasetError::Invalid {
+                path: root.to_owned(),
+                what: format!(
+                    "an unfinished dataset: `host-vision synth` was interrupted or killed while writing it ({} is there); run synth into it again",
+                    crate::synth::UNFINISHED
+                ),
+            });
+        }
         let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
         let imu_csv = mav0.join("imu0/data.csv");
         let cam_dir = require(mav0.join("cam0"), "camera folder")?;

@@ -492,6 +492,14 @@ impl EvalReport {
                 models.push(&r.model);
             }
         }
+        if self.interrupted {
+            let _ = writeln!(
+                s,
+                "**Interrupted**: only the runs done are here; † marks one stopped part-way, whose figures cover only what it ran.\n"
+            );
+        }
+        // A run stopped part-way is marked wherever its figures appear.
+        let partial = |r: &EvalRow| if r.summary.stopped_early { " †" } else { "" };
         let _ = writeln!(
             s,
             "## Table 2: mean prediction error [px] (share of frames with vision after snap-on)\n"
@@ -503,11 +511,12 @@ impl EvalReport {
                 .iter()
                 .map(|m| match self.cell(sc, default_features(), m) {
                     Some(r) => format!(
-                        "{} ({:.0} %)",
+                        "{} ({:.0} %){}",
                         r.summary
                             .mean_prediction_error_px
                             .map_or("n/a".into(), |v| format!("{v:.2}")),
-                        100.0 * r.vision_share
+                        100.0 * r.vision_share,
+                        partial(r)
                     ),
                     None => "-".into(),
                 })
@@ -549,8 +558,24 @@ impl EvalReport {
             };
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {mean} | {max} | {euler} | {diverged} | {lost} |",
-                r.scenario, r.features, r.model
+                "| {} | {} | {}{} | {mean} | {max} | {euler} | {diverged} | {lost} |",
+                r.scenario,
+                r.features,
+                r.model,
+                partial(r)
+            );
+        }
+        for r in self.rows.iter().filter(|r| r.summary.stopped_early) {
+            let _ = writeln!(
+                s,
+                "\n† {} {}: stopped after {:.2} s of the data{}.",
+                r.scenario,
+                r.model,
+                r.summary.duration_s,
+                r.summary
+                    .error
+                    .as_deref()
+                    .map_or(" (interrupted)".into(), |e| format!(": {e}"))
             );
         }
         s

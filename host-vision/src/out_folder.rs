@@ -83,8 +83,9 @@ pub struct OutFolder {
 }
 
 impl OutFolder {
-    /// Checks `path` and makes it. `owned` are the names a run writes into it: present, they
-    /// are refused, or removed with `overwrite`. `input` is the dataset, which must not hold
+    /// Checks `path` and makes it. `owned` are the names a run writes into it (`dir/prefix*suffix`
+    /// for the files of a folder it shares with the user's): present, they are refused, or
+    /// removed with `overwrite`. `input` is the dataset, which must not hold
     /// the folder.
     pub fn prepare(
         path: &Path,
@@ -150,22 +151,33 @@ impl OutFolder {
             }
             Err(std::fs::TryLockError::Error(e)) => return Err(not_writable(e)),
         }
-        let found: Vec<&String> = owned.iter().filter(|n| path.join(n).exists()).collect();
+        let found: Vec<(&String, Vec<PathBuf>)> = owned
+            .iter()
+            .map(|n| (n, matching(path, n)))
+            .filter(|(_, files)| !files.is_empty())
+            .collect();
         if !found.is_empty() {
             if !overwrite {
                 return Err(OutFolderError::Exists {
                     path: path.to_owned(),
-                    found: found.into_iter().cloned().collect(),
+                    found: found.into_iter().map(|(n, _)| n.clone()).collect(),
                 });
             }
-            for name in found {
-                let p = path.join(name);
-                let removed = if p.is_dir() {
-                    std::fs::remove_dir_all(&p)
-                } else {
-                    std::fs::remove_file(&p)
-                };
-                removed.map_err(|source| OutFolderError::Remove { path: p, source })?;
+            for (_, files) in found {
+                for p in files {
+                    let removed = if p.is_dir() {
+                        std::fs::remove_dir_all(&p)
+                    } else {
+                        std::fs::remove_file(&p)
+                    };
+                    removed.map_err(|source| OutFolderError::Remove { path: p, source })?;
+                }
+            }
+            // A folder of outputs left empty goes too; one that holds the user's files stays.
+            for name in owned {
+                if let Some((dir, _)) = name.split_once('/') {
+                    let _ = std::fs::remove_dir(path.join(dir));
+                }
             }
         }
         Ok(folder)
@@ -199,6 +211,34 @@ impl Drop for OutFolder {
             }
         }
     }
+}
+
+/// What of `owned` lies in the folder `path`: the file or folder of that name, or, for a name
+/// `dir/prefix*suffix`, the files in `dir` whose names match (a run's plots or overlays,
+/// beside which the user's own files stay).
+fn matching(path: &Path, owned: &str) -> Vec<PathBuf> {
+    let Some((dir, pattern)) = owned.split_once('/') else {
+        let p = path.join(owned);
+        return if p.exists() { vec![p] } else { Vec::new() };
+    };
+    let (prefix, suffix) = pattern.split_once('*').unwrap_or((pattern, ""));
+    let Ok(entries) = std::fs::read_dir(path.join(dir)) else {
+        return Vec::new();
+    };
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(Result::ok)
+        .filter(|e| {
+            let name = e.file_name();
+            let name = name.to_string_lossy();
+            e.path().is_file()
+                && name.len() >= prefix.len() + suffix.len()
+                && name.starts_with(prefix)
+                && name.ends_with(suffix)
+        })
+        .map(|e| e.path())
+        .collect();
+    files.sort();
+    files
 }
 
 /// The absolute form of `path`, which need not exist yet: `..` and `.` resolved by name, then
@@ -258,6 +298,35 @@ mod tests {
             std::fs::read_to_string(out.join("notes.txt")).unwrap(),
             "mine"
         );
+    }
+
+    /// Issue 54, point 8: `--overwrite` removed a whole `plots/` with the user's notes in it,
+    /// and a `plots/` holding only the user's files was refused as an earlier run's.
+    #[test]
+    fn a_shared_folder_loses_only_the_runs_files() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        std::fs::create_dir_all(out.join("plots")).unwrap();
+        std::fs::write(out.join("plots/my_notes.txt"), "mine").unwrap();
+        let owned = names(&["summary.json", "plots/*_error.svg", "overlays/frame_*.png"]);
+        drop(OutFolder::prepare(&out, &owned, None, false).expect("the user's files only"));
+        std::fs::write(out.join("plots/prediction_error.svg"), "<svg/>").unwrap();
+        let err = OutFolder::prepare(&out, &owned, None, false).unwrap_err();
+        assert!(
+            err.to_string().contains("already holds plots/*_error.svg"),
+            "{err}"
+        );
+        drop(OutFolder::prepare(&out, &owned, None, true).unwrap());
+        assert!(!out.join("plots/prediction_error.svg").exists());
+        assert_eq!(
+            std::fs::read_to_string(out.join("plots/my_notes.txt")).unwrap(),
+            "mine"
+        );
+        // A folder of outputs alone goes with them.
+        std::fs::create_dir_all(out.join("overlays")).unwrap();
+        std::fs::write(out.join("overlays/frame_000001.png"), "png").unwrap();
+        drop(OutFolder::prepare(&out, &owned, None, true).unwrap());
+        assert!(!out.join("overlays").exists());
     }
 
     /// Issue 33, point 7: two runs could write into one folder at once. The second is

@@ -83,6 +83,17 @@ pub enum FrameError {
         /// ffmpeg's error lines.
         reason: String,
     },
+    /// A pipe (or socket, or device) was closed by its writer: a live stream has no end of its
+    /// own, so the run cannot know it saw the whole input.
+    #[error(
+        "{path}: the pipe was closed after {frames} frames: its writer finished or died, which a stream does not tell apart (a finite recording is tracked from its file; --max-frames ends a live run on purpose)"
+    )]
+    PipeClosed {
+        /// The input.
+        path: PathBuf,
+        /// Frames delivered.
+        frames: usize,
+    },
     /// The input holds no frame.
     #[error("{path}: no frames ({what})")]
     Empty {
@@ -102,7 +113,7 @@ pub enum FrameError {
         what: String,
     },
     /// A frame differs in size from the first one.
-    #[error("{path}: frame {index} is {got:?} pixels, the first frame was {first:?}")]
+    #[error("{path}: frame {index} is {}x{} pixels, the first frame was {}x{}", got.0, got.1, first.0, first.1)]
     WrongSize {
         /// The input (or the frame's file).
         path: PathBuf,
@@ -178,9 +189,15 @@ impl FrameInput {
         })
     }
 
-    /// Whether it names a live camera (a V4L2 device), whose frames come at its own pace.
-    pub fn is_live(&self) -> bool {
+    /// Whether it names a camera device (V4L2), whose frames carry their capture time.
+    pub fn is_camera(&self) -> bool {
         matches!(self, FrameInput::Video(p) if video::is_v4l2_device(p))
+    }
+
+    /// Whether it names a live source, whose frames come at its own pace: a camera (a V4L2
+    /// device) or a pipe.
+    pub fn is_live(&self) -> bool {
+        matches!(self, FrameInput::Video(p) if video::is_v4l2_device(p) || video::is_pipe(p))
     }
 
     /// The file or folder.

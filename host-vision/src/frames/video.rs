@@ -70,6 +70,17 @@ pub(crate) fn is_v4l2_device(path: &Path) -> bool {
     path.to_str().is_some_and(|p| p.starts_with("/dev/video"))
 }
 
+/// Whether `path` is a stream with no end of its own: a named pipe, a socket or a character
+/// device other than a camera. Its frames come at the writer's pace, and its end is the
+/// writer's, which cannot tell a writer that finished from one that died.
+pub(crate) fn is_pipe(path: &Path) -> bool {
+    use std::os::unix::fs::FileTypeExt as _;
+    std::fs::metadata(path).is_ok_and(|m| {
+        let t = m.file_type();
+        t.is_fifo() || t.is_socket() || t.is_char_device()
+    }) && !is_v4l2_device(path)
+}
+
 impl VideoFrames {
     /// Starts ffmpeg on `path`. A missing file or program is an error here; ffmpeg's own
     /// refusal (an unreadable file) comes with the first frame asked for.
@@ -95,6 +106,11 @@ impl VideoFrames {
         ]);
         if is_v4l2_device(path) {
             cmd.args(["-f", "v4l2"]);
+        }
+        if is_pipe(path) {
+            // A live stream is not probed for seconds (5 s of an mpegts feed by default, which
+            // the run would then stay behind): the first packets say what it holds.
+            cmd.args(["-probesize", "32768", "-analyzeduration", "0"]);
         }
         cmd.arg("-copyts")
             .arg("-i")
@@ -192,9 +208,10 @@ impl VideoFrames {
         self.frame_rate
     }
 
-    /// Whether this is a live camera (a V4L2 device), whose frames come at its own pace.
+    /// Whether this is live: a camera (a V4L2 device) or a pipe, whose frames come at its own
+    /// pace.
     pub fn is_live(&self) -> bool {
-        is_v4l2_device(self.path())
+        is_v4l2_device(self.path()) || is_pipe(self.path())
     }
 
     /// The input.
@@ -262,6 +279,14 @@ impl VideoFrames {
                 path,
                 frames: self.next_index,
                 reason: errors.join("; "),
+            }));
+        }
+        // A pipe's end is its writer's: finished or dead, the stream does not say (issue 54:
+        // a writer killed mid-stream exited 0 as complete, ffmpeg saying nothing).
+        if is_pipe(&path) {
+            return Some(Err(FrameError::PipeClosed {
+                path,
+                frames: self.next_index,
             }));
         }
         None

@@ -96,7 +96,7 @@ pub enum LocateError {
         frames: usize,
     },
     /// An image of another size than the camera's.
-    #[error("{what}: {got:?} pixels, but the camera is {expected:?}")]
+    #[error("{what}: the image is {}x{} pixels, the camera's intrinsics are for {}x{}", got.0, got.1, expected.0, expected.1)]
     ImageSize {
         /// The image.
         what: String,

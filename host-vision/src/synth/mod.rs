@@ -278,6 +278,14 @@ pub fn cam_sensor_yaml(scenario: &Scenario, camera: &Camera) -> String {
     s
 }
 
+/// The file that marks a dataset `synth` has not finished writing: made before anything else,
+/// removed after the last file. A folder that holds it (an interrupted or killed `synth`) is
+/// refused by [`crate::dataset::Dataset::open`] and replaced by the next `synth` into it.
+pub const UNFINISHED: &str = ".synth-unfinished";
+
+/// What `synth` writes into its folder.
+const WRITTEN: [&str; 4] = ["mav0", "model", "frames.csv", "manifest.json"];
+
 fn prepare_out(out: &Path, overwrite: bool) -> Result<(), SynthError> {
     if out.exists() && !out.is_dir() {
         return Err(SynthError::BadOption(format!(
@@ -285,20 +293,45 @@ fn prepare_out(out: &Path, overwrite: bool) -> Result<(), SynthError> {
             out.display()
         )));
     }
-    let owned = [out.join("mav0"), out.join("model")];
-    if owned.iter().any(|p| p.exists()) {
-        if !overwrite {
+    // An unfinished dataset of ours is replaced as if asked to.
+    let unfinished = out.join(UNFINISHED).exists();
+    if ["mav0", "model"].iter().any(|p| out.join(p).exists()) {
+        if !overwrite && !unfinished {
             return Err(SynthError::Exists(out.to_owned()));
         }
-        for p in owned.iter().filter(|p| p.exists()) {
-            std::fs::remove_dir_all(p).map_err(|e| SynthError::io(p, e))?;
-        }
+        remove_written(out)?;
+    } else if unfinished {
+        remove_written(out)?;
     }
     std::fs::create_dir_all(out).map_err(|e| SynthError::io(out, e))?;
-    // Fail early, with the folder's name, if it cannot be written.
-    let probe = out.join(".synth-write-test");
-    std::fs::write(&probe, b"").map_err(|e| SynthError::io(out, e))?;
-    std::fs::remove_file(&probe).map_err(|e| SynthError::io(&probe, e))?;
+    // The mark goes first: it also shows, early and with the folder's name, that the folder
+    // can be written.
+    let mark = out.join(UNFINISHED);
+    std::fs::write(
+        &mark,
+        "host-vision synth had not finished writing this dataset (interrupted or killed): run synth into this folder again\n",
+    )
+    .map_err(|e| SynthError::io(out, e))?;
+    Ok(())
+}
+
+/// Removes what `synth` writes into `out` (its own names only), the unfinished mark last.
+pub fn remove_written(out: &Path) -> Result<(), SynthError> {
+    for name in WRITTEN {
+        let p = out.join(name);
+        let removed = if p.is_dir() {
+            std::fs::remove_dir_all(&p)
+        } else if p.exists() {
+            std::fs::remove_file(&p)
+        } else {
+            Ok(())
+        };
+        removed.map_err(|e| SynthError::io(&p, e))?;
+    }
+    let mark = out.join(UNFINISHED);
+    if mark.exists() {
+        std::fs::remove_file(&mark).map_err(|e| SynthError::io(&mark, e))?;
+    }
     Ok(())
 }
 
@@ -430,5 +463,7 @@ pub fn run(
         "generation_seconds": report.seconds,
     });
     euroc::write_json(&out.join("manifest.json"), &manifest)?;
+    let mark = out.join(UNFINISHED);
+    std::fs::remove_file(&mark).map_err(|e| SynthError::io(&mark, e))?;
     Ok(report)
 }

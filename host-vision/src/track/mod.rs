@@ -108,7 +108,8 @@ pub enum TrackError {
     Interrupted,
     /// The cold start never found the model.
     #[error(
-        "cold start: the model was not found in any of the {attempts} frames tried (is it in view, and is this its model?); `host-vision locate` on one frame shows the figures"
+        "cold start: the model was not found in {} (is it in view, and is this its model?); `host-vision locate` on one frame shows the figures",
+        if *attempts == 1 { "the one frame tried".to_string() } else { format!("any of the {attempts} frames tried") }
     )]
     NotFound {
         /// Frames tried.
@@ -117,6 +118,19 @@ pub enum TrackError {
     /// A bad option (named by its command-line flag).
     #[error("{0}")]
     Option(String),
+    /// The run failed part-way: what was tracked before the failure is written.
+    #[error(
+        "{error} (what was tracked before it is written in {}: the trajectories, frames.csv, and summary.json with this error)",
+        out.display()
+    )]
+    Stopped {
+        /// Why it stopped.
+        error: Box<TrackError>,
+        /// The output folder.
+        out: PathBuf,
+        /// What was written, and the summary of what was tracked.
+        written: Box<(Summary, Vec<PathBuf>)>,
+    },
     /// The tracker: the link to the core and the core (a run that recovers from faults,
     /// protocol/PROTOCOL.md §8, reconnects; others stop with it), the vision threads, a
     /// frame's analysis, the cold start's database, a refused input.
@@ -144,6 +158,11 @@ impl From<TrackerError> for TrackError {
         }
     }
 }
+
+/// The largest start position a run takes, per axis [m].
+pub const MAX_START_POSITION_M: f64 = 1e5;
+/// The largest start yaw a run takes [deg] (a hundred turns).
+pub const MAX_START_YAW_DEG: f64 = 36_000.0;
 
 /// How the input is paced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -370,17 +389,23 @@ impl TrackOptions {
                 "--corrupt-at counts seconds from the dataset's first IMU sample and must lie in the tracked span [0, {tracked_s:.2}) s, got {t}"
             ));
         }
+        // The core takes single floats: beyond these a position or angle loses its precision
+        // (an ulp of 8 mm at 100 km, of 0.03 mrad at a hundred turns), and far beyond, its value.
         if let Some(p) = self.start.position
-            && !p.iter().all(|c| c.is_finite())
+            && !p.iter().all(|c| c.is_finite() && c.abs() <= MAX_START_POSITION_M)
         {
             return bad(format!(
-                "--start-position must be three finite numbers, got {p:?}"
+                "--start-position must be three finite numbers within ±{MAX_START_POSITION_M} m, got {},{},{}",
+                p[0], p[1], p[2]
             ));
         }
         if let Some(y) = self.start.yaw
-            && !y.is_finite()
+            && !(y.is_finite() && y.to_degrees().abs() <= MAX_START_YAW_DEG)
         {
-            return bad(format!("--start-yaw must be a finite angle, got {y}"));
+            return bad(format!(
+                "--start-yaw must be a finite angle within ±{MAX_START_YAW_DEG} degrees, got {}",
+                y.to_degrees()
+            ));
         }
         if self.start.pose.is_some() && (self.start.position.is_some() || self.start.yaw.is_some())
         {
@@ -691,7 +716,13 @@ pub fn run(
     if options.imu_on_core {
         written.push(on_core::write_core_imu(&options.out, &record)?);
     }
-    outcome?;
+    if let Err(error) = outcome {
+        return Err(TrackError::Stopped {
+            error: Box::new(error),
+            out: options.out.clone(),
+            written: Box::new((summary, written)),
+        });
+    }
     Ok(TrackRun {
         log: record.log,
         frames,

@@ -1,6 +1,7 @@
 //! What a tracking run writes: TUM trajectories (readable by `evo`), a per-frame CSV, a JSON
 //! summary, overlay images and plots; and the accuracy figures against ground truth.
 
+use std::collections::BTreeMap;
 use std::fmt;
 use std::io::Write as _;
 use std::path::{Path, PathBuf};
@@ -14,7 +15,7 @@ use firmware_sim::board::BoardReport;
 // Defined below the plots, which draw it; still reachable here, where it was.
 pub use super::frame_row::FrameRow;
 use tracker::latency::Percentiles;
-use tracker::record::Outage;
+use tracker::record::{Fate, Outage};
 
 use super::{
     CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot,
@@ -23,16 +24,23 @@ use super::{
 use crate::dataset::{Dataset, HandEye};
 use crate::locate::database::Provenance;
 
-/// What a run writes into its output folder (files and folders).
-pub const OUTPUTS: [&str; 7] = [
+/// What a run writes into its output folder: files, and the files it writes into its folders
+/// (`dir/prefix*suffix`; other files there are the user's, and stay).
+pub const OUTPUTS: [&str; 8] = [
     "trajectory.tum",
     "trajectory_frames.tum",
     "groundtruth.tum",
     "frames.csv",
     "summary.json",
-    "overlays",
-    "plots",
+    "core_imu.csv",
+    "overlays/frame_*.png",
+    "plots/*_error.svg",
 ];
+
+/// `n` with its noun: "1 attempt", "3 attempts".
+pub fn counted(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
 
 /// Seconds of a core time stamp [µs] (counted from the first IMU sample). Divided, not
 /// multiplied by 1e-6, so that 340 000 µs is 0.34 s and not 0.33999999999999997.
@@ -347,9 +355,13 @@ pub fn track_losses(rows: &[FrameRow], from: f64) -> Vec<TrackLoss> {
 /// How old the poses were when they came out ([`tracker::latency`]), and the frames dropped.
 #[derive(Debug, Clone, Serialize)]
 pub struct LatencySummary {
-    /// Whether the run was live (a camera, or `--pacing real-time`): the frames' ages count
-    /// from their capture; in a replay, from when each was read.
+    /// Whether the run was live (a camera, a pipe, or `--pacing real-time`).
     pub live: bool,
+    /// What the frames' ages count from: `capture` (a camera device: when the frame came out
+    /// of its driver), `arrival` (a pipe: when the frame came out of the decoder; the writer's
+    /// own delay before it is not seen), `due` (a recording played at its rate: when its clock
+    /// said the frame was due), `read` (a replay: when it was read).
+    pub clock: &'static str,
     /// Frames taken by the tracker.
     pub frames_taken: usize,
     /// Frames of the input never taken (a live run's frames it had no time for).
@@ -365,9 +377,16 @@ pub struct LatencySummary {
 }
 
 impl LatencySummary {
-    fn of(l: &tracker::latency::Latencies, live: bool) -> Self {
+    fn of(l: &tracker::latency::Latencies, options: &super::TrackOptions) -> Self {
+        let clock = match &options.frames {
+            Some(f) if f.is_camera() => "capture",
+            Some(f) if f.is_live() => "arrival",
+            _ if options.live() => "due",
+            _ => "read",
+        };
         Self {
-            live,
+            live: options.live(),
+            clock,
             frames_taken: l.frames.len(),
             dropped_frames: l.dropped(),
             capture_to_taken: l.age_taken(),
@@ -380,7 +399,7 @@ impl LatencySummary {
 
 impl fmt::Display for LatencySummary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let from = if self.live { "capture" } else { "read" };
+        let from = self.clock;
         writeln!(
             f,
             "latency      {} run: {} frames taken, {} dropped",
@@ -415,15 +434,23 @@ pub struct Summary {
     pub link: String,
     /// Renderer adapter.
     pub adapter: String,
-    /// Dataset time stamp [ns] of the first IMU sample: every time [s] here and in
-    /// `frames.csv` counts from it; the TUM files carry the dataset's own stamps.
+    /// Dataset time stamp [ns] of the first IMU sample (vision-only: of the first frame taken):
+    /// every time [s] here and in `frames.csv` counts from it; the TUM files carry the
+    /// dataset's own stamps.
     pub t0_stamp_ns: u64,
-    /// Seconds of data streamed to the core (from the first IMU sample to the last sent).
+    /// When the core's clock started [s]: 0, or, where a cold start found the model in a later
+    /// frame than the first, that frame's time.
+    pub streamed_from_s: f64,
+    /// Where the data streamed to the core ended [s]: the last sample or tick sent.
     pub duration_s: f64,
     /// Seconds tracked: from snap-on to the last sample sent (0 if never snapped on).
     pub tracked_s: f64,
     /// Frames analysed.
     pub frames: usize,
+    /// Every frame taken, counted by what became of it (`frames.csv`'s `outcome`): analysed,
+    /// searched (the cold start or a recovery ran on it), no_prediction (the core had no pose
+    /// for it yet), unusable (why: `frame_errors`), unsettled (the run ended first).
+    pub frame_outcomes: BTreeMap<&'static str, usize>,
     /// Frames that could not be analysed.
     pub frame_errors: Vec<String>,
     /// Correspondences sent.
@@ -510,13 +537,27 @@ impl fmt::Display for Summary {
         writeln!(f, "renderer     {}", self.adapter)?;
         writeln!(
             f,
-            "data         0.00-{:.2} s streamed, {} frames analysed ({} unusable), wall time {:.1} s, {:.1} ms per frame",
+            "data         {:.2}-{:.2} s streamed, {} frames analysed ({} unusable), wall time {:.1} s, {:.1} ms per frame",
+            self.streamed_from_s,
             self.duration_s,
             self.frames,
             self.frame_errors.len(),
             self.wall_s,
             self.mean_frame_ms
         )?;
+        let taken: usize = self.frame_outcomes.values().sum();
+        if taken > self.frames {
+            let ways: Vec<String> = self
+                .frame_outcomes
+                .iter()
+                .map(|(k, n)| format!("{n} {}", k.replace('_', " ")))
+                .collect();
+            writeln!(
+                f,
+                "frames       {taken} taken: {} (frames.csv's outcome column)",
+                ways.join(", ")
+            )?;
+        }
         write!(f, "{}", self.latency)?;
         match self.snapped_on_at {
             Some(t0) => writeln!(
@@ -589,8 +630,8 @@ impl fmt::Display for Summary {
                     .collect();
                 writeln!(
                     f,
-                    "not tracked  {} stretches, the longest: {}",
-                    t.untracked.len(),
+                    "not tracked  {}, the longest: {}",
+                    counted(t.untracked.len(), "stretch", "stretches"),
                     shown.join(", ")
                 )?;
             }
@@ -602,13 +643,13 @@ impl fmt::Display for Summary {
             match c.found {
                 Some((frame, t)) => writeln!(
                     f,
-                    "cold start   model found in frame {frame} ({t:.2} s) after {} attempts, {:.0} ms per attempt (longest {:.0} ms), {:.1} frame periods each",
-                    c.attempts, c.mean_ms, c.max_ms, c.frames_per_attempt
+                    "cold start   model found in frame {frame} ({t:.2} s) after {}, {:.0} ms per attempt (longest {:.0} ms), {:.1} frame periods each",
+                    counted(c.attempts, "attempt", "attempts"), c.mean_ms, c.max_ms, c.frames_per_attempt
                 )?,
                 None => writeln!(
                     f,
-                    "cold start   model not found in {} attempts ({:.0} ms each): nothing tracked",
-                    c.attempts, c.mean_ms
+                    "cold start   model not found in {} ({:.0} ms each): nothing tracked",
+                    counted(c.attempts, "attempt", "attempts"), c.mean_ms
                 )?,
             }
         }
@@ -620,20 +661,26 @@ impl fmt::Display for Summary {
                 .take(6)
                 .map(|r| match (r.ended_at, r.found) {
                     (Some(e), true) => format!(
-                        "{:.2} s found at {e:.2} s ({} attempts)",
-                        r.lost_at, r.attempts
+                        "{:.2} s found at {e:.2} s ({})",
+                        r.lost_at,
+                        counted(r.attempts, "attempt", "attempts")
                     ),
                     (Some(e), false) => format!(
-                        "{:.2} s back by itself at {e:.2} s ({} attempts)",
-                        r.lost_at, r.attempts
+                        "{:.2} s back by itself at {e:.2} s ({})",
+                        r.lost_at,
+                        counted(r.attempts, "attempt", "attempts")
                     ),
-                    (None, _) => format!("{:.2} s never back ({} attempts)", r.lost_at, r.attempts),
+                    (None, _) => format!(
+                        "{:.2} s never back ({})",
+                        r.lost_at,
+                        counted(r.attempts, "attempt", "attempts")
+                    ),
                 })
                 .collect();
             writeln!(
                 f,
-                "searched     {} times after a loss, {found} found the model: {}{}",
-                self.recoveries.len(),
+                "searched     after {}, {found} found the model: {}{}",
+                counted(self.recoveries.len(), "loss", "losses"),
                 shown.join(", "),
                 if self.recoveries.len() > 6 {
                     ", …"
@@ -696,8 +743,8 @@ impl fmt::Display for Summary {
             let total: f64 = self.without_vision.iter().map(|w| w[1] - w[0]).sum();
             writeln!(
                 f,
-                "no vision    {} stretches, {:.2} s in all",
-                self.without_vision.len(),
+                "no vision    {}, {:.2} s in all",
+                counted(self.without_vision.len(), "stretch", "stretches"),
                 total
             )?;
         }
@@ -869,6 +916,48 @@ pub(super) struct Seen<'a> {
     pub adapter: &'a str,
 }
 
+/// A line of `frames.csv`.
+enum FrameLine<'a> {
+    /// An analysed frame's row.
+    Analysed(&'a FrameRow),
+    /// A frame taken and not analysed, at `t` [s].
+    Not { index: usize, t: f64, fate: Fate },
+}
+
+/// Every frame taken, in the order taken, as its analysed row or with what became of it; then
+/// the rows of frames analysed but never taken (none from the tracker).
+fn frame_lines<'a>(
+    taken: &[tracker::record::TakenFrame],
+    rows: &'a [FrameRow],
+    stamp0: u64,
+) -> Vec<FrameLine<'a>> {
+    let mut analysed: BTreeMap<usize, &FrameRow> = rows.iter().map(|r| (r.index, r)).collect();
+    let mut lines: Vec<FrameLine> = taken
+        .iter()
+        .filter_map(|f| match analysed.remove(&f.index) {
+            Some(r) => Some(FrameLine::Analysed(r)),
+            // Its analysis is the line (a frame analysed twice is one row).
+            None if f.fate == Fate::Analysed => None,
+            None => Some(FrameLine::Not {
+                index: f.index,
+                t: (f.t_ns - stamp0 as i64) as f64 * 1e-9,
+                fate: f.fate,
+            }),
+        })
+        .collect();
+    lines.extend(analysed.into_values().map(FrameLine::Analysed));
+    lines
+}
+
+/// How many frames taken ended each way, by [`Fate::name`].
+fn frame_outcomes(taken: &[tracker::record::TakenFrame]) -> BTreeMap<&'static str, usize> {
+    let mut counts = BTreeMap::new();
+    for f in taken {
+        *counts.entry(f.fate.name()).or_insert(0) += 1;
+    }
+    counts
+}
+
 /// Builds the frame rows and the summary, and writes every output file.
 pub(super) fn write_all(
     dataset: &Dataset,
@@ -887,9 +976,10 @@ pub(super) fn write_all(
     let out = &options.out;
     let log = &record.log;
     // Times count from the input's first sample, also where an attached run began later.
-    let stamp0 = match record.attached_at {
-        Some(_) => dataset.imu.first().map_or(0, |r| r.stamp),
-        None => record.clock.first().copied().unwrap_or(0),
+    let stamp0 = match (record.attached_at, record.origin_ns) {
+        (Some(_), _) => dataset.imu.first().map_or(0, |r| r.stamp),
+        (None, Some(origin)) => u64::try_from(origin).unwrap_or(0),
+        (None, None) => record.clock.first().copied().unwrap_or(0),
     };
     let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
     let mut written = Vec::new();
@@ -1006,15 +1096,23 @@ pub(super) fn write_all(
         let e = io(&path);
         writeln!(
             w,
-            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before"
+            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome"
         )
         .map_err(&e)?;
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
         let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
-        for r in &rows {
+        for line in frame_lines(&record.frames, &rows, stamp0) {
+            let r = match line {
+                FrameLine::Analysed(r) => r,
+                FrameLine::Not { index, t, fate } => {
+                    // A frame taken and not analysed: its index, time and what became of it.
+                    writeln!(w, "{index},{t:.6}{}{}", ",".repeat(26), fate.name()).map_err(&e)?;
+                    continue;
+                }
+            };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1044,7 +1142,8 @@ pub(super) fn write_all(
                 ms(r.age_ms),
                 ms(r.sent_ms),
                 ms(r.pose_ms),
-                r.dropped_before
+                r.dropped_before,
+                Fate::Analysed.name()
             )
             .map_err(&e)?;
         }
@@ -1079,7 +1178,10 @@ pub(super) fn write_all(
             let t = seconds(s.t_us);
             match (s.mode, from) {
                 (Mode::Tracking, Some(f)) => {
-                    without_vision.push([f, t]);
+                    // A status that went and came back within one time stamp is no stretch.
+                    if t > f {
+                        without_vision.push([f, t]);
+                    }
                     from = None;
                 }
                 (Mode::DeadReckoning | Mode::Diverged | Mode::Reinitialising, None)
@@ -1133,19 +1235,21 @@ pub(super) fn write_all(
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
     let contour_px: Vec<f64> = rows.iter().filter_map(|r| r.contour_error_px).collect();
-    let duration_s = record
-        .clock
-        .last()
-        .map_or(0.0, |&stamp| (stamp - stamp0) as f64 / 1e9);
+    let since_stamp0 = |stamp: Option<&u64>| {
+        stamp.map_or(0.0, |&stamp| stamp.saturating_sub(stamp0) as f64 / 1e9)
+    };
+    let duration_s = since_stamp0(record.clock.last());
     let summary = Summary {
         dataset: dataset.root.display().to_string(),
         model: format!("{:?}", options.filter).to_lowercase(),
         link: options.link.to_string(),
         adapter: adapter.to_string(),
         t0_stamp_ns: stamp0,
+        streamed_from_s: since_stamp0(record.clock.first()),
         duration_s,
         tracked_s: snapped_on_at.map_or(0.0, |t0| (duration_s - t0).max(0.0)),
         frames: rows.len(),
+        frame_outcomes: frame_outcomes(&record.frames),
         frame_errors: record.frame_errors.iter().map(|(_, e)| e.clone()).collect(),
         correspondences_sent: record.sent_correspondences,
         accepted: rows.iter().map(|r| r.accepted).sum(),
@@ -1199,7 +1303,7 @@ pub(super) fn write_all(
         outages: record.outages.clone(),
         attach: record.attach_note.clone(),
         track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
-        latency: LatencySummary::of(&record.latency, options.live()),
+        latency: LatencySummary::of(&record.latency, options),
         mean_frame_ms: if rows.is_empty() {
             0.0
         } else {

@@ -22,6 +22,10 @@ pub struct Record {
     /// The mount the core was configured with: the rig's, or none (the camera is the sensor)
     /// in vision-only runs.
     pub core_hand_eye: HandEye,
+    /// The input's time [ns] that the run's times [µs] count from: its first IMU sample, or
+    /// (vision-only) the first frame taken, whether or not the core's clock started there (a
+    /// cold start ticks the core first at the frame the model was found in).
+    pub origin_ns: Option<i64>,
     /// Time stamp [ns, the input's clock] of every clock message sent, in order: the IMU
     /// samples, or the vision-only ticks.
     pub clock: Vec<u64>,
@@ -29,6 +33,8 @@ pub struct Record {
     pub assessments: BTreeMap<u32, Assessment>,
     /// What the core said.
     pub log: CoreLog,
+    /// Every frame taken, in the order taken, with what became of it.
+    pub frames: Vec<TakenFrame>,
     /// Frame results with the id the core gave them.
     pub results: Vec<(u32, FrameResult)>,
     /// Frames that could not be analysed, with why: the number of results before them, and
@@ -67,9 +73,11 @@ impl Record {
     pub fn new(core_hand_eye: HandEye, session_id: u32, axes: (Vector3<f64>, f64)) -> Self {
         Self {
             core_hand_eye,
+            origin_ns: None,
             clock: Vec::new(),
             assessments: BTreeMap::new(),
             log: CoreLog::default(),
+            frames: Vec::new(),
             results: Vec::new(),
             frame_errors: Vec::new(),
             sent_correspondences: 0,
@@ -87,6 +95,36 @@ impl Record {
         }
     }
 
+    /// The run's time origin, set by the first frame or sample (later ones keep it) [ns].
+    pub fn origin(&mut self, t_ns: i64) -> i64 {
+        *self.origin_ns.get_or_insert(t_ns)
+    }
+
+    /// A frame taken: its fate is [`Fate::Unsettled`] until [`Self::settle`] says more.
+    pub fn take_frame(&mut self, index: usize, t_ns: i64) {
+        self.frames.push(TakenFrame {
+            index,
+            t_ns,
+            fate: Fate::Unsettled,
+        });
+    }
+
+    /// What became of the frame `index` (the last one taken with that index). An outcome
+    /// replaces a fate it is [more certain than](Fate::replaces).
+    pub fn settle(&mut self, index: usize, fate: Fate) {
+        if let Some(f) = self.frames.iter_mut().rev().find(|f| f.index == index)
+            && fate.replaces(&f.fate)
+        {
+            f.fate = fate;
+        }
+    }
+
+    /// A frame's analysis, with the id the core gave it: kept, and its frame settled.
+    pub fn push_result(&mut self, frame_id: u32, result: FrameResult) {
+        self.settle(result.job.index, Fate::Analysed);
+        self.results.push((frame_id, result));
+    }
+
     /// Seconds since the run started.
     pub fn elapsed(&self) -> f64 {
         self.started.elapsed().as_secs_f64()
@@ -101,31 +139,27 @@ impl Record {
         }
     }
 
-    /// Records a recovery search for a loss that began at `lost_at` [s].
+    /// Records a recovery search for a loss that began at `lost_at` [s]: one record per loss,
+    /// also where tracking came back by itself before the search's answer arrived (live), in
+    /// which case the loss ended at whichever came first.
     pub fn record_recovery(&mut self, lost_at: f64, search: Search) {
-        let found = search.attempt.accepted();
-        let t = search.t;
-        let open = self
-            .recoveries
-            .last_mut()
-            .filter(|r| r.ended_at.is_none() && (r.lost_at - lost_at).abs() < 1e-9);
-        let r = match open {
-            Some(r) => r,
+        let found = search.attempt.accepted().then_some(search.t);
+        let same = |r: &Recovery| (r.lost_at - lost_at).abs() < 1e-9;
+        let index = match self.recoveries.iter().rposition(same) {
+            Some(i) => i,
             None => {
                 self.recoveries.push(Recovery {
                     lost_at,
                     searches: Vec::new(),
                     ended_at: None,
                 });
-                let Some(r) = self.recoveries.last_mut() else {
-                    return;
-                };
-                r
+                self.recoveries.len() - 1
             }
         };
+        let r = &mut self.recoveries[index];
         r.searches.push(search);
-        if found {
-            r.ended_at = Some(t);
+        if let Some(t) = found {
+            r.ended_at = Some(r.ended_at.map_or(t, |e| e.min(t)));
         }
     }
 
@@ -143,13 +177,13 @@ impl Record {
         }
     }
 
-    /// Sends the correspondences of the frame `frame_id` triggered at `trigger_us` to the core
-    /// and keeps its result. A frame whose image cannot be used is skipped (the core
-    /// dead-reckons) and reported; any other error stops the run.
+    /// Sends the correspondences of the frame `frame_id` (the input's frame `index`) triggered
+    /// at `trigger_us` to the core and keeps its result. A frame whose image cannot be used
+    /// is skipped (the core dead-reckons) and reported; any other error stops the run.
     pub fn deliver(
         &mut self,
         link: &mut impl CoreTransport,
-        frame_id: u32,
+        (frame_id, index): (u32, usize),
         trigger_us: u64,
         result: Result<FrameResult, TrackerError>,
     ) -> Result<(), TrackerError> {
@@ -161,6 +195,7 @@ impl Record {
                 ),
             ) => {
                 self.frame_errors.push((self.results.len(), e.to_string()));
+                self.settle(index, Fate::Unusable);
                 return Ok(());
             }
             Err(e) => return Err(e),
@@ -175,7 +210,7 @@ impl Record {
             }
             self.sent_correspondences += points.len() + contours.len();
         }
-        self.results.push((frame_id, result));
+        self.push_result(frame_id, result);
         Ok(())
     }
 
@@ -196,6 +231,61 @@ impl Record {
             .filter_map(|(id, _)| self.tracked(*id, rule))
             .collect();
         (judged.iter().filter(|&&t| t).count(), judged.len())
+    }
+}
+
+/// A frame the tracker took, and what became of it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct TakenFrame {
+    /// Its index in the input.
+    pub index: usize,
+    /// Its time stamp [ns, the input's clock].
+    pub t_ns: i64,
+    /// What became of it.
+    pub fate: Fate,
+}
+
+/// What became of a frame the tracker took: every frame taken ends as one of these, so that a
+/// run's outputs account for each.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Fate {
+    /// Not settled when the run ended: it waited for its trigger, its prediction or its
+    /// analysis (an interrupted run, an outage, the input's last frame).
+    Unsettled,
+    /// A search for the model (the cold start, or a recovery) ran on it instead of an
+    /// analysis: the core had no pose to predict it at.
+    Searched,
+    /// The core predicted no pose for it: not initialised yet (the model not found, the
+    /// search still running), or its prediction did not come in time.
+    NoPrediction,
+    /// Its image could not be used, or it was refused (size, time, no trigger): why is
+    /// among [`Record::frame_errors`].
+    Unusable,
+    /// Analysed at the core's prediction: its result is among [`Record::results`].
+    Analysed,
+}
+
+impl Fate {
+    /// Its name in the outputs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fate::Unsettled => "unsettled",
+            Fate::Searched => "searched",
+            Fate::NoPrediction => "no_prediction",
+            Fate::Unusable => "unusable",
+            Fate::Analysed => "analysed",
+        }
+    }
+
+    /// Whether this outcome replaces `earlier`: anything replaces "unsettled"; an analysis
+    /// or a refusal replaces anything; a frame searched stays so when no prediction came.
+    pub fn replaces(self, earlier: &Fate) -> bool {
+        match self {
+            Fate::Analysed | Fate::Unusable => true,
+            Fate::Searched | Fate::NoPrediction => *earlier == Fate::Unsettled,
+            Fate::Unsettled => false,
+        }
     }
 }
 

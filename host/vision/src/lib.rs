@@ -41,7 +41,7 @@ pub enum VisionError {
         source: image::ImageError,
     },
     /// A live image has the wrong size.
-    #[error("{path}: image is {got:?}, the calibration says {expected:?}")]
+    #[error("{path}: the image is {}x{} pixels, the calibration's are {}x{}", got.0, got.1, expected.0, expected.1)]
     ImageSize {
         /// File (or the frame's name).
         path: PathBuf,

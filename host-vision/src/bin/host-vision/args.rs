@@ -246,10 +246,11 @@ pub struct TrackArgs {
     /// and dropping those it had no time for (a camera device is always live).
     #[arg(long, value_enum, default_value = "lock-step")]
     pub pacing: host_vision::track::Pacing,
-    /// Trigger-to-correspondences latency in lock-step mode [s]: at least 0 and below one frame
-    /// period, so that each prediction has the previous frame's update.
-    #[arg(long, default_value_t = 0.03)]
-    pub latency: f64,
+    /// Trigger-to-correspondences latency in lock-step mode with an IMU [s] (default 0.03): at
+    /// least 0 and below one frame period, so that each prediction has the previous frame's
+    /// update. Refused where nothing waits for it (vision-only, --pacing real-time).
+    #[arg(long)]
+    pub latency: Option<f64>,
     /// Features registered per frame (1 to 128, what one frame can send the core).
     #[arg(long, default_value_t = 40)]
     pub features: usize,
@@ -323,9 +324,9 @@ pub struct TrackArgs {
     /// reconnects with back-off and brings the core up to date.
     #[arg(long)]
     pub cut_link_at: Option<f64>,
-    /// How long the cable of --cut-link-at stays out [s].
-    #[arg(long, default_value_t = 0.5)]
-    pub cut_seconds: f64,
+    /// How long the cable of --cut-link-at stays out [s] (default 0.5).
+    #[arg(long, requires = "cut_link_at")]
+    pub cut_seconds: Option<f64>,
     /// Attach to a core that is already running (a host restarted while the core went on):
     /// ask for its state and go on from where it is, without configuring or initialising it
     /// again if it is still tracking.
@@ -405,24 +406,25 @@ pub struct SynthArgs {
     /// Image size WxH.
     #[arg(long, default_value = "320x240", value_parser = parse_resolution)]
     pub resolution: (u32, u32),
-    /// Duration in seconds (default: the scenario's).
-    #[arg(long)]
+    /// Duration in seconds, up to an hour (default: the scenario's).
+    #[arg(long, value_parser = parse_synth_duration, allow_hyphen_values = true)]
     pub duration: Option<f64>,
-    /// IMU rate in Hz.
-    #[arg(long, default_value_t = 100.0)]
+    /// IMU rate in Hz (10-10000).
+    #[arg(long, default_value_t = 100.0, value_parser = parse_imu_rate, allow_hyphen_values = true)]
     pub imu_rate: f64,
-    /// One camera frame every N IMU samples.
-    #[arg(long, default_value_t = 4)]
+    /// One camera frame every N IMU samples (1 or more).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
     pub camera_every: u32,
-    /// Fewest sub-frames averaged over the exposure (with --max-subframes 1: 1 means no
+    /// Fewest sub-frames averaged over the exposure, 1-64 (with --max-subframes 1: 1 means no
     /// motion blur).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub subframes: u32,
-    /// Most sub-frames (fast frames get about one per pixel of image motion).
-    #[arg(long, default_value_t = 32)]
+    /// Most sub-frames, 1-64 and no fewer than --subframes (fast frames get about one per
+    /// pixel of image motion).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=64))]
     pub max_subframes: u32,
     /// Render supersampling per axis (1-4).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=4))]
     pub supersample: u32,
     /// Texel density factor of the generated textures.
     #[arg(long, default_value_t = 1.0)]
@@ -488,6 +490,27 @@ fn parse_seconds(s: &str) -> Result<f64, String> {
         Ok(v)
     } else {
         Err(format!("must be a positive number of seconds, got `{s}`"))
+    }
+}
+
+/// `synth --duration`: (0, 3600] s.
+fn parse_synth_duration(s: &str) -> Result<f64, String> {
+    let v = parse_seconds(s)?;
+    if v <= firmware_sim::sim::scenario::MAX_DURATION {
+        Ok(v)
+    } else {
+        Err(format!(
+            "at most {} s (an hour), got `{s}`",
+            firmware_sim::sim::scenario::MAX_DURATION
+        ))
+    }
+}
+
+/// `synth --imu-rate`: [10, 10000] Hz, as the simulated sensor takes it.
+fn parse_imu_rate(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && (10.0..=10_000.0).contains(&v) => Ok(v),
+        _ => Err(format!("an IMU rate in [10, 10000] Hz, got `{s}`")),
     }
 }
 
@@ -559,6 +582,6 @@ mod tests {
         };
         assert_eq!(a.start_position, Some([-0.5, 0.0, 0.2]));
         assert_eq!(a.start_yaw, Some(-10.0));
-        assert_eq!(a.latency, -1.0);
+        assert_eq!(a.latency, Some(-1.0));
     }
 }

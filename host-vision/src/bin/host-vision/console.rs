@@ -60,8 +60,17 @@ fn classify(error: &anyhow::Error) -> u8 {
         error.downcast_ref::<EvalError>(),
         Some(EvalError::Option(_))
     );
+    // A frame of another size than the camera given is the options' disagreement, as `track`
+    // says it.
+    let locate_size = error.chain().any(|e| {
+        matches!(
+            e.downcast_ref::<host_vision::locate::run::LocateError>(),
+            Some(host_vision::locate::run::LocateError::ImageSize { .. })
+        )
+    });
     match track {
         Some(TrackError::Option(_)) => exit::USAGE,
+        _ if locate_size => exit::USAGE,
         _ if eval_option => exit::USAGE,
         Some(TrackError::Interrupted) => exit::INTERRUPTED,
         _ if matches!(

@@ -35,7 +35,8 @@ enum Done {
     Interrupted,
 }
 
-/// A flag set by Ctrl-C. A second Ctrl-C ends the process at once, as usual.
+/// A flag set by Ctrl-C, SIGTERM or SIGHUP (a service manager, `kill`, a closed terminal): each
+/// stops the run cleanly, its outputs written. A second signal ends the process at once.
 fn interrupt_flag() -> Arc<AtomicBool> {
     let interrupt = Arc::new(AtomicBool::new(false));
     let flag = interrupt.clone();
@@ -70,7 +71,7 @@ fn track_camera(
     a: &TrackArgs,
     input: &host_vision::frames::FrameInput,
 ) -> Result<Option<host_vision::camera::Camera>, Failure> {
-    camera_from(&a.camera, &a.calib, a.intrinsics, || {
+    let size = || {
         let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
         match source.next() {
             Some(frame) => Ok(frame?.image.dimensions()),
@@ -79,7 +80,8 @@ fn track_camera(
                 code: exit::FAILED,
             }),
         }
-    })
+    };
+    camera_from(&a.camera, &a.calib, a.intrinsics, (input.path(), size))
 }
 
 /// The camera from a camera.json, a calibration file, or pinhole intrinsics for images of the
@@ -88,11 +90,13 @@ fn camera_from(
     camera: &Option<std::path::PathBuf>,
     calib: &Option<std::path::PathBuf>,
     intrinsics: Option<host_vision::camera::Pinhole>,
-    size: impl FnOnce() -> Result<(u32, u32), Failure>,
+    (input, size): (&Path, impl FnOnce() -> Result<(u32, u32), Failure>),
 ) -> Result<Option<host_vision::camera::Camera>, Failure> {
     use host_vision::camera::{
-        pinhole_camera, read_camera_json, read_euroc_sensor_yaml, read_kalibr_camchain,
+        MAX_IMAGE_SIDE, pinhole_camera, read_camera_json, read_euroc_sensor_yaml,
+        read_kalibr_camchain,
     };
+    let input = input.display();
     if let Some(path) = camera {
         return Ok(Some(read_camera_json(path)?));
     }
@@ -107,6 +111,15 @@ fn camera_from(
         return Ok(None);
     };
     let (w, h) = size()?;
+    // The size is the input's: an absurd one is the input's fault, not the intrinsics'.
+    if w == 0 || h == 0 || w > MAX_IMAGE_SIDE || h > MAX_IMAGE_SIDE {
+        return Err(Failure {
+            error: anyhow::anyhow!(
+                "{input}: the frames are {w}x{h} pixels: each side must be 1 to {MAX_IMAGE_SIDE}"
+            ),
+            code: exit::FAILED,
+        });
+    }
     Ok(Some(pinhole_camera(w, h, p).map_err(|e| Failure {
         error: anyhow::anyhow!("--intrinsics: {e}"),
         code: exit::USAGE,
@@ -130,7 +143,10 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
             });
         }
     };
-    let camera = camera_from(&a.camera, &a.calib, a.intrinsics, || match &input {
+    let path = match &input {
+        LocateInput::Image(p) | LocateInput::VideoFrame { video: p, .. } => p.as_path(),
+    };
+    let size = || match &input {
         LocateInput::Image(p) => {
             Ok(image::image_dimensions(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?)
         }
@@ -142,7 +158,8 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
                 None => Err(anyhow::anyhow!("{}: no frames", video.display()).into()),
             }
         }
-    })?
+    };
+    let camera = camera_from(&a.camera, &a.calib, a.intrinsics, (path, size))?
     .ok_or_else(|| Failure {
         error: anyhow::anyhow!("give the camera: --camera, --calib or --intrinsics"),
         code: exit::USAGE,
@@ -274,7 +291,15 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         None if !camera_only => protocol::ModelKind::Acc,
         None => {
             // Said of an input that is there: a missing one is named by its error alone.
-            if dataset.exists() {
+            let with_imu = [dataset.join("mav0/imu0/data.csv"), dataset.join("../imu0/data.csv")]
+                .iter()
+                .any(|p| p.exists());
+            if with_imu {
+                note!(
+                    "{}: --images takes the frames alone, vision-only (--filter vision): the IMU beside them is not used; --dataset tracks them with it",
+                    dataset.display()
+                );
+            } else if dataset.exists() {
                 note!(
                     "{}: no IMU: tracking vision-only (--filter vision)",
                     dataset.display()
@@ -283,6 +308,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
             protocol::ModelKind::Vision
         }
     };
+    ignored_options(a, filter)?;
     let dataset = &dataset;
     let pose = a
         .start_pose
@@ -303,7 +329,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         o.cache = c.clone();
     }
     o.pacing = a.pacing;
-    o.latency = a.latency;
+    o.latency = a.latency.unwrap_or(o.latency);
     o.vision.map.subset_size = a.features;
     o.modality = a.modality.modality();
     o.duration = a.duration;
@@ -336,7 +362,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         line_errors: a.line_errors,
         reset_core_at: a.reset_core_at,
         cut_link_at: a.cut_link_at,
-        cut_seconds: a.cut_seconds,
+        cut_seconds: a.cut_seconds.unwrap_or(0.5),
         seed: 1,
     };
     o.attach = a.attach;
@@ -353,7 +379,26 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         );
     });
     bar.finish();
-    let run = result?;
+    let run = match result {
+        Ok(run) => run,
+        Err(TrackError::Stopped {
+            error,
+            out,
+            written,
+        }) => {
+            // What was tracked before the failure is written: said before the error.
+            let (summary, files) = *written;
+            say!("{summary}");
+            list_outputs(&out, &files);
+            return Err(TrackError::Stopped {
+                error,
+                out,
+                written: Box::new((summary, Vec::new())),
+            }
+            .into());
+        }
+        Err(e) => return Err(e.into()),
+    };
     say!("{}", run.summary);
     let interrupted = interrupt.load(Ordering::Relaxed);
     if interrupted {
@@ -374,6 +419,30 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     Ok(Done::Complete)
 }
 
+/// Options that a run of `filter` would not use, refused with the reason (issue 54: they were
+/// silently ignored).
+fn ignored_options(a: &TrackArgs, filter: protocol::ModelKind) -> Result<(), Failure> {
+    let vision_only = !filter.has_imu();
+    let why = if a.fps.is_some() && a.images.is_none() {
+        Some("--fps is the frame rate of a plain --images folder: a video and a dataset carry their own time stamps")
+    } else if a.max_frames.is_some() && !vision_only {
+        Some("--max-frames counts the frames of a vision-only run: with an IMU, --duration limits the run")
+    } else if a.latency.is_some() && vision_only {
+        Some("--latency delays the correspondences after their IMU trigger: a vision-only run has no trigger to wait from")
+    } else if a.latency.is_some() && a.pacing == host_vision::track::Pacing::RealTime {
+        Some("--latency is the lock-step replay's delay: with --pacing real-time the correspondences go as soon as they are ready")
+    } else {
+        None
+    };
+    match why {
+        Some(why) => Err(Failure {
+            error: anyhow::anyhow!("{why}"),
+            code: exit::USAGE,
+        }),
+        None => Ok(()),
+    }
+}
+
 /// Lists the files written, the overlay images as their folder and count.
 fn list_outputs(out: &Path, written: &[std::path::PathBuf]) {
     let overlays = out.join("overlays");
@@ -389,11 +458,20 @@ fn list_outputs(out: &Path, written: &[std::path::PathBuf]) {
 }
 
 fn synth(a: &SynthArgs) -> Result<Done, Failure> {
-    use anyhow::Context as _;
     use host_vision::synth::{FrameOptions, SynthOptions, TextureOptions, run};
     if !(a.texture_scale.is_finite() && a.texture_scale > 0.0 && a.texture_scale <= 4.0) {
         return Err(Failure {
             error: anyhow::anyhow!("--texture-scale must be in (0, 4], got {}", a.texture_scale),
+            code: exit::USAGE,
+        });
+    }
+    if a.max_subframes < a.subframes {
+        return Err(Failure {
+            error: anyhow::anyhow!(
+                "--max-subframes {} is below --subframes {}: the most sub-frames must be no fewer than the fewest",
+                a.max_subframes,
+                a.subframes
+            ),
             code: exit::USAGE,
         });
     }
@@ -433,12 +511,29 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
             ..TextureOptions::generated()
         },
         overwrite: a.overwrite,
+        interrupt: Some(interrupt_flag()),
         ..SynthOptions::new(a.scenario, a.out.clone())
     };
     let mut bar = Bar::new(SYNTH_BAR);
     let label = format!("synth {}", a.scenario);
-    let report = run(&options, &mut |done, total| bar.update(&label, done, total))
-        .with_context(|| format!("generating {} into {}", a.scenario, a.out.display()))?;
+    let report = match run(&options, &mut |done, total| bar.update(&label, done, total)) {
+        Ok(report) => report,
+        Err(host_vision::synth::SynthError::Interrupted) => {
+            bar.finish();
+            // Half a dataset is no dataset: what this run wrote goes (the user's files stay).
+            host_vision::synth::remove_written(&a.out)?;
+            say!(
+                "interrupted: the unfinished dataset was removed from {}",
+                a.out.display()
+            );
+            return Ok(Done::Interrupted);
+        }
+        Err(e) => {
+            return Err(anyhow::Error::from(e)
+                .context(format!("generating {} into {}", a.scenario, a.out.display()))
+                .into());
+        }
+    };
     bar.finish();
     say!("{report}");
     say!("dataset written to {}", a.out.display());

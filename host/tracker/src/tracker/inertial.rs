@@ -26,6 +26,7 @@ use super::on_core::OnCore;
 use super::outage::{Attempt, MAX_BACKLOG_US, Open};
 use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::error::TrackerError;
+use crate::record::Fate;
 use crate::transport::CoreTransport;
 
 /// One IMU sample pushed into the tracker.
@@ -67,12 +68,13 @@ pub(crate) struct Inertial {
     pub latency_samples: usize,
     /// Samples pushed so far (the next one's index).
     pub k: usize,
-    /// The first sample's stamp [ns]: time 0.
-    pub t0_ns: Option<u64>,
     /// The last sample's stamp [ns].
     pub last_ns: Option<u64>,
     /// The frame waiting for its trigger, the next sample.
     pub queued: Option<Frame>,
+    /// Live: a frame triggered whose prediction had not come yet, analysed when it comes
+    /// (before the next trigger), with its trigger's time [µs] and the sample it is due at.
+    pub late: Option<(Frame, u64, usize)>,
     /// Frames with the vision thread.
     pub pending: VecDeque<Pending>,
     /// The samples of the last [`MAX_BACKLOG_US`], for a core that missed them.
@@ -96,9 +98,9 @@ impl Inertial {
         Self {
             latency_samples,
             k: 0,
-            t0_ns: None,
             last_ns: None,
             queued: None,
+            late: None,
             pending: VecDeque::new(),
             recent: VecDeque::new(),
             searcher,
@@ -213,15 +215,14 @@ impl<T: CoreTransport> Tracker<T> {
                 "the core samples its own IMU in this run: the program pushes frames only".into(),
             ));
         }
-        let inertial = self.imu_mut()?;
-        if let Some(last) = inertial.last_ns
+        if let Some(last) = self.imu_mut()?.last_ns
             && sample.t_ns <= last
         {
-            let t0 = inertial.t0_ns.unwrap_or(0);
+            let t0 = self.record.origin_ns.unwrap_or(0);
             return Err(TrackerError::TimeBackwards {
                 what: "IMU sample".into(),
-                t_us: (sample.t_ns as i64 - t0 as i64) / 1000,
-                previous_us: (last - t0) as i64 / 1000,
+                t_us: (sample.t_ns as i64 - t0) / 1000,
+                previous_us: (last as i64 - t0) / 1000,
             });
         }
         let step = self.imu_step(sample);
@@ -234,8 +235,9 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// [`Self::push_imu`]'s steps for a sample in order.
     fn imu_step(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
+        let t0 = u64::try_from(self.record.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)))
+            .unwrap_or(0);
         let inertial = self.imu_mut()?;
-        let t0 = *inertial.t0_ns.get_or_insert(sample.t_ns);
         inertial.last_ns = Some(sample.t_ns);
         let t_us = (sample.t_ns - t0) / 1000;
         let k = inertial.k;
@@ -317,6 +319,7 @@ impl<T: CoreTransport> Tracker<T> {
     ) -> Result<(), TrackerError> {
         let lock_step = self.config.answers == Answers::AtNextFrame;
         self.deliver_due(k, lock_step)?;
+        self.late_step(frame.is_some())?;
         self.poll_search(Some(k).filter(|_| lock_step), t_us)?;
         let sent = self.imu_mut()?.recent.back().copied();
         if let Some(s) = sent {
@@ -339,7 +342,24 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let due = k + self.imu_mut()?.latency_samples.max(1);
         self.attempt_step(&frame, t_us, due)?;
+        if !lock_step && !self.record.log.predictions.contains_key(&t_us) {
+            self.imu_mut()?.late = Some((frame, t_us, due));
+            return Ok(());
+        }
         self.frame_step(frame, t_us, due)
+    }
+
+    /// Live: the frame whose prediction was late, analysed once the prediction came; at the
+    /// next trigger (`trigger`) or the end it is given up, as one with no prediction.
+    fn late_step(&mut self, trigger: bool) -> Result<(), TrackerError> {
+        let Some((frame, t_us, due)) = self.imu_mut()?.late.take() else {
+            return Ok(());
+        };
+        if self.record.log.predictions.contains_key(&t_us) || trigger {
+            return self.frame_step(frame, t_us, due);
+        }
+        self.imu_mut()?.late = Some((frame, t_us, due));
+        Ok(())
     }
 
     /// At a trigger: the loss rule, and an attempt on the frame where it asks for one.
@@ -367,6 +387,7 @@ impl<T: CoreTransport> Tracker<T> {
         match image {
             Ok(image) => {
                 search.send_locate(image, self.config.cache.clone())?;
+                self.record.settle(frame.index, Fate::Searched);
                 if let Some(s) = self.searcher_mut() {
                     s.sent(LocateJob {
                         index: frame.index,
@@ -394,6 +415,7 @@ impl<T: CoreTransport> Tracker<T> {
         due: usize,
     ) -> Result<(), TrackerError> {
         let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
+            self.record.settle(frame.index, Fate::NoPrediction);
             return Ok(());
         };
         let omega_c = self.omega_c(t_us);
@@ -460,7 +482,7 @@ impl<T: CoreTransport> Tracker<T> {
         let results = self.record.results.len();
         let ok = result.is_ok();
         self.record
-            .deliver(&mut self.core, p.frame_id, p.trigger_us, result)?;
+            .deliver(&mut self.core, (p.frame_id, p.index), p.trigger_us, result)?;
         if ok {
             let after = self.imu_mut()?.last_sent_us.unwrap_or(p.trigger_us);
             self.record.latency.sent(p.index, after);
@@ -524,11 +546,14 @@ impl<T: CoreTransport> Tracker<T> {
             )));
         }
         if open.is_none() {
+            if !interrupted {
+                self.late_step(true)?;
+            }
             while let Some(p) = self.imu_mut()?.pending.pop_front() {
                 let r = self.worker.recv()?;
                 if interrupted {
                     if let Ok(r) = r {
-                        self.record.results.push((p.frame_id, r));
+                        self.record.push_result(p.frame_id, r);
                     }
                 } else {
                     self.deliver_frame(p, r)?;

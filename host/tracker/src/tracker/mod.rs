@@ -40,6 +40,7 @@ use vision::{FrameImage, FrameJob, TrackedRule};
 use self::inertial::Inertial;
 use crate::config::vision_config;
 use crate::error::TrackerError;
+use crate::record::Fate;
 pub use crate::event::{Event, FrameReport, Pose, State};
 use crate::link::CoreLink;
 use crate::loss::LossRule;
@@ -102,8 +103,6 @@ pub struct Tracker<T: CoreTransport = CoreLink> {
     /// The core's outlier gate on `s_i`.
     gate: f64,
     rule: TrackedRule,
-    /// Vision-only: the first frame's time stamp [ns], which is the core's time 0.
-    t0_ns: Option<i64>,
     /// Vision-only: the last tick's time [µs].
     last_us: Option<u64>,
     /// Vision-only: whether the core has a pose.
@@ -178,7 +177,6 @@ impl<T: CoreTransport> Tracker<T> {
         let mut tracker = Self {
             gate: 0.0,
             rule: TrackedRule::default(),
-            t0_ns: None,
             last_us: None,
             started: config.start != Start::Locate,
             tracked_since_start: false,
@@ -274,6 +272,7 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let index = frame.index;
         let captured = frame.captured.unwrap_or_else(Instant::now);
+        self.record.take_frame(index, frame.t_ns);
         let checked = match &self.inertial {
             Some(_) => self.queue_frame(frame).map(|()| None),
             None => self.check_frame(frame).map(Some),
@@ -287,6 +286,7 @@ impl<T: CoreTransport> Tracker<T> {
             Ok(None) => return Ok(()),
             Err(e) => {
                 // Refused, and recorded as a frame that could not be used.
+                self.record.settle(index, Fate::Unusable);
                 let why = e.to_string();
                 self.record
                     .frame_errors
@@ -345,7 +345,7 @@ impl<T: CoreTransport> Tracker<T> {
                 .into_luma8(),
         };
         self.check_size(frame.index, &image)?;
-        let t0 = *self.t0_ns.get_or_insert(frame.t_ns);
+        let t0 = self.record.origin(frame.t_ns);
         let t_us = frame.t_ns.saturating_sub(t0) / 1000;
         // The frame's tick must come after the last tick, which is 1 µs past the last frame.
         if let Some(last) = self.last_us
@@ -363,6 +363,15 @@ impl<T: CoreTransport> Tracker<T> {
     /// Steps 2 to 8 for the frame `index` at `t_us`.
     fn track(&mut self, index: usize, image: GrayImage, t_us: u64) -> Result<(), TrackerError> {
         if !self.start_step(index, &image, t_us)? {
+            // No pose yet: the frame was searched, or taken while a search ran.
+            let searched = self.in_search.is_some_and(|s| s.index == index)
+                || self.config.answers == Answers::AtNextFrame;
+            let fate = if searched {
+                Fate::Searched
+            } else {
+                Fate::NoPrediction
+            };
+            self.record.settle(index, fate);
             return Ok(());
         }
         self.take_answers(t_us)?;
@@ -516,7 +525,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// Sends one tick at `t_us` and records its stamp.
     fn send_tick(&mut self, t_us: u64, trigger: bool) -> Result<(), TrackerError> {
         self.core.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
-        let t0 = u64::try_from(self.t0_ns.unwrap_or(0)).unwrap_or(0);
+        let t0 = u64::try_from(self.record.origin_ns.unwrap_or(0)).unwrap_or(0);
         self.record.clock.push(t0 + t_us * 1000);
         self.last_us = Some(t_us);
         Ok(())
@@ -532,11 +541,12 @@ impl<T: CoreTransport> Tracker<T> {
         t_us: u64,
     ) -> Result<Option<Judged>, TrackerError> {
         let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
+            self.record.settle(index, Fate::NoPrediction);
             return Ok(None);
         };
         let every = self.config.keep_image_every;
         let omega_c = self.omega_c(t_us);
-        let t0 = u64::try_from(self.t0_ns.unwrap_or(0)).unwrap_or(0);
+        let t0 = u64::try_from(self.record.origin_ns.unwrap_or(0)).unwrap_or(0);
         self.worker.send(FrameJob {
             index,
             stamp: t0 + t_us * 1000,
@@ -549,7 +559,7 @@ impl<T: CoreTransport> Tracker<T> {
         let ok = result.is_ok();
         let errors = self.record.frame_errors.len();
         self.record
-            .deliver(&mut self.core, p.frame_id, t_us, result)?;
+            .deliver(&mut self.core, (p.frame_id, index), t_us, result)?;
         if ok {
             self.record.latency.sent(index, t_us);
         }
@@ -663,7 +673,12 @@ impl<T: CoreTransport> Tracker<T> {
                     self.record.log.take(item);
                     self.tell_poses();
                 }
-                Ok(None) => return,
+                // Nothing came: a threaded link waited until the deadline, an in-process
+                // core (which answers when called) returns at once, so the rest is slept.
+                Ok(None) => {
+                    std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
+                    return;
+                }
                 Err(_) => {
                     std::thread::sleep(deadline.saturating_duration_since(Instant::now()));
                     return;

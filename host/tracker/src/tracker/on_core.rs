@@ -326,6 +326,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// A frame refused with its reason: recorded and told.
     fn refuse(&mut self, index: usize, why: String) {
+        self.record.settle(index, crate::record::Fate::Unusable);
         self.record.frame_errors.push((
             self.record.results.len(),
             format!("frame {index}: {why}: skipped"),

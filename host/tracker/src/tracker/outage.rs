@@ -63,9 +63,11 @@ impl<T: CoreTransport> Tracker<T> {
     /// in flight are recorded but not delivered: their predictions may come from a core that
     /// is gone.
     pub(crate) fn begin_outage(&mut self, cause: String, t_us: u64) -> Result<Open, TrackerError> {
+        // A frame still waiting for its prediction waits for a core that is gone: unsettled.
+        self.imu_mut()?.late = None;
         while let Some(p) = self.imu_mut()?.pending.pop_front() {
             if let Ok(r) = self.worker.recv()? {
-                self.record.results.push((p.frame_id, r));
+                self.record.push_result(p.frame_id, r);
             }
         }
         let (injected_s, notice_wall_ms) = match self.injected.take() {
