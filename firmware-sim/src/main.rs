@@ -79,12 +79,19 @@ fn main() -> anyhow::Result<()> {
         }
         None => None,
     };
+    let mut listener = listener;
     loop {
         let link = match &listener {
             Some(l) => transport::tcp_accept(l)?,
             None => open(&cli.link)?,
         };
+        if !cli.forever {
+            // One session: a second host is refused at once, not kept waiting for this one
+            // to end and then cut off (issue 54).
+            listener = None;
+        }
         let name = link.name.clone();
+        let before = board.report();
         board
             .serve(link)
             .with_context(|| format!("serving the host on {name}"))?;
@@ -95,14 +102,18 @@ fn main() -> anyhow::Result<()> {
             Some(protocol::ModelKind::Vision) => "vision ticks",
             _ => "IMU samples",
         };
+        // This session's share: the board's totals run on from session to session, and its
+        // core's counters from its last reset.
+        let (c, c0) = (&report.counters, &before.counters);
+        let since = |now: u32, then: u32| if report.resets > before.resets { now } else { now.saturating_sub(then) };
         note!(
             "board: session on {name} ended: {} bytes in, {} out, {} {clock} applied, {} correspondences accepted, {} gated, {} divergences",
-            report.bytes_in,
-            report.bytes_out,
-            report.counters.imu_applied,
-            report.counters.accepted,
-            report.counters.gated,
-            report.counters.divergences
+            report.bytes_in - before.bytes_in,
+            report.bytes_out - before.bytes_out,
+            since(c.imu_applied, c0.imu_applied),
+            since(c.accepted, c0.accepted),
+            since(c.gated, c0.gated),
+            since(c.divergences, c0.divergences)
         );
         if !cli.forever || cli.link == "stdio" {
             return Ok(());

@@ -232,6 +232,79 @@ fn a_host_talks_to_the_board_process_over_tcp() {
     assert!(status.success(), "{status}");
 }
 
+/// Issue 54, point 18: `--forever` reported the board's totals since it started as each
+/// session's (the second said twice the first's samples). Each session's report is its own.
+#[test]
+fn each_session_of_a_board_that_serves_forever_reports_its_own_counts() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
+        .args(["--link", "tcp:127.0.0.1:0", "--forever"])
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("start firmware-sim");
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    let addr = line
+        .trim()
+        .rsplit_once("tcp:")
+        .map(|(_, a)| a.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let mut reports = Vec::new();
+    for _ in 0..2 {
+        session(transport::tcp_connect(addr.as_str()).expect("connect to the board"));
+        let mut report = String::new();
+        err.read_line(&mut report).unwrap();
+        reports.push(report);
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    for r in &reports {
+        assert!(
+            r.starts_with("board: session on ") && r.contains(", 5 IMU samples applied,"),
+            "{reports:?}"
+        );
+    }
+    let bytes = |r: &str| -> u64 {
+        r.split(" ended: ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap()
+    };
+    assert_eq!(bytes(&reports[0]), bytes(&reports[1]), "{reports:?}");
+}
+
+/// Issue 54, point 19: a second host of a one-session TCP board waited for the first to end,
+/// then met a bare `Connection reset by peer`. It is refused at once.
+#[test]
+fn a_one_session_tcp_board_refuses_a_second_host_at_once() {
+    let (mut child, line, _) = start("tcp:127.0.0.1:0");
+    let addr = line
+        .rsplit_once("tcp:")
+        .map(|(_, a)| a.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let first = transport::tcp_connect(addr.as_str()).expect("connect to the board");
+    let mut w = FrameWriter::new(first.writer);
+    let mut r = FrameReader::new(first.reader);
+    // Answered: the board took this host, and gave up its listener.
+    w.send(&HostToCore::Hello(Hello {
+        version: PROTOCOL_VERSION,
+    }))
+    .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        assert!(Instant::now() < deadline, "no answer from the board");
+        match r.recv::<CoreToHost>() {
+            Ok(CoreToHost::HelloAck(_)) => break,
+            Ok(other) => panic!("{other:?}"),
+            Err(RecvError::Io(e)) if transport::is_poll_timeout(&e) => {}
+            Err(e) => panic!("{e:?}"),
+        }
+    }
+    let second = transport::tcp_connect(addr.as_str());
+    assert!(second.is_err(), "a second host was taken in");
+    drop((w, r));
+    let status = child.wait().expect("board exits");
+    assert!(status.success(), "{status}");
+}
+
 #[test]
 fn a_bad_link_is_refused_with_a_clear_message() {
     let out = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))

@@ -6,109 +6,11 @@
 
 use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-use std::sync::Mutex;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-const HV: &str = env!("CARGO_BIN_EXE_host-vision");
-
-fn tmp(name: &str) -> PathBuf {
-    let p = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join("cli")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&p);
-    std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-    p
-}
-
-fn hv(args: &[&str]) -> Output {
-    Command::new(HV)
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .unwrap_or_else(|e| panic!("start {HV}: {e}"))
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// Runs `args`, checks the exit code, returns (stdout, stderr).
-fn expect(args: &[&str], code: i32) -> (String, String) {
-    let out = hv(args);
-    let (so, se) = (text(&out.stdout), text(&out.stderr));
-    assert_eq!(
-        out.status.code(),
-        Some(code),
-        "host-vision {}\nstdout:\n{so}\nstderr:\n{se}",
-        args.join(" ")
-    );
-    (so, se)
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// The tiny dataset, made once per test process by the command itself.
-fn dataset() -> PathBuf {
-    static DONE: Mutex<bool> = Mutex::new(false);
-    let mut done = DONE.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("cli-dataset");
-    if !*done {
-        expect(
-            &[
-                "synth",
-                "--scenario",
-                "desktop-fast",
-                "--duration",
-                "1.5",
-                "--resolution",
-                "160x120",
-                "--out",
-                s(&dir),
-                "--overwrite",
-            ],
-            0,
-        );
-        *done = true;
-    }
-    dir
-}
-
-/// `track` on the tiny dataset into `out`, with more arguments.
-fn track_args<'a>(ds: &'a Path, out: &'a Path, more: &[&'a str]) -> Vec<&'a str> {
-    let mut a = vec!["track", "--dataset", s(ds), "--out", s(out)];
-    a.extend_from_slice(more);
-    a
-}
-
-fn copy_dir(from: &Path, to: &Path, skip: &str) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        if e.file_name() == skip {
-            continue;
-        }
-        let target = to.join(e.file_name());
-        if e.file_type().unwrap().is_dir() {
-            copy_dir(&e.path(), &target, skip);
-        } else {
-            std::fs::copy(e.path(), &target).unwrap();
-        }
-    }
-}
-
-/// The tiny dataset without its IMU (vision-only), copied to `name`.
-fn without_imu(name: &str) -> PathBuf {
-    let no_imu = tmp(name);
-    copy_dir(&dataset(), &no_imu, "imu0");
-    no_imu
-}
-
-fn count(haystack: &str, needle: &str) -> usize {
-    haystack.matches(needle).count()
-}
+mod common;
+use common::*;
 
 /// Point 1: A failing link ends the process with its error, in order: never a crash (the renderer's
 /// thread was torn down by the exit). The 200-run loop is in the issue's notes; ten here.
@@ -701,15 +603,13 @@ fn p14_time_bases_and_the_tracked_span() {
     let t0_s = t0 as f64 / 1e9;
     assert_eq!(gt.len(), 101, "1 s at 100 Hz");
     assert!((gt[0] - t0_s).abs() < 1e-6 && (gt[100] - t0_s - 1.0).abs() < 1e-6);
-    // frames.csv's t_s counts from t0: the frames' TUM stamps are t0 + t_s.
+    // frames.csv's t_s counts from t0: the frames' TUM stamps are t0 + t_s (the predicted
+    // ones: the frames before the core's initialisation ended have rows without a pose).
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
-    let first: f64 = csv
-        .lines()
-        .nth(1)
-        .unwrap()
-        .split(',')
-        .nth(1)
-        .unwrap()
+    let first: f64 = frame_rows(&out)
+        .iter()
+        .find(|r| r["outcome"] == "analysed")
+        .unwrap()["t_s"]
         .parse()
         .unwrap();
     assert!((tum("trajectory_frames.tum")[0] - (t0_s + first)).abs() < 1e-6);
@@ -824,11 +724,6 @@ fn readme_commands_name_only_real_flags() {
         }
     }
     assert!(checked >= 40, "only {checked} flags found in the README");
-}
-
-/// The summary of a run in `out`.
-fn summary(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap()
 }
 
 /// Issue 14: `--start-pose` gives the core a full 6-DoF start. The ground truth's camera pose
@@ -984,7 +879,7 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
         csv.lines()
             .next()
             .unwrap()
-            .ends_with(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before")
+            .ends_with(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome")
     );
 
     // An inertial model needs the IMU.

@@ -446,7 +446,7 @@ impl Tracker {
         let mut done = py.detach(move || tracker.finish());
         self.keep(std::mem::take(&mut done.events));
         done.result.map_err(of_tracker)?;
-        let (tracked, judged) = done.record.tracked_count(&vision::TrackedRule::default());
+        let (tracked, judged) = done.record.tracked_count();
         let d = PyDict::new(py);
         d.set_item("tracked", tracked)?;
         d.set_item("judged", judged)?;

@@ -28,7 +28,7 @@ fn is_image(path: &Path) -> bool {
 }
 
 /// `cam0` of a EuRoC folder: `dir` itself, or `dir/mav0/cam0` of a dataset root.
-fn euroc_cam0(dir: &Path) -> Option<PathBuf> {
+pub fn euroc_cam0(dir: &Path) -> Option<PathBuf> {
     [dir.to_owned(), dir.join("mav0/cam0")]
         .into_iter()
         .find(|d| d.join("data.csv").is_file())

@@ -6,8 +6,8 @@ use serde::Serialize;
 /// One analysed frame.
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct FrameRow {
-    /// The image's row in `mav0/cam0/data.csv` (from 0; frames before the core's
-    /// initialisation ended get no prediction and no row).
+    /// The image's row in `mav0/cam0/data.csv` (from 0; the frames taken and not analysed are
+    /// `frames.csv`'s rows with another `outcome`, [`tracker::record::Fate`]).
     pub index: usize,
     /// Time since the first IMU sample [s].
     pub t: f64,
@@ -55,6 +55,11 @@ pub struct FrameRow {
     pub contour_rms_px: Option<f64>,
     /// The silhouette's agreement with the object's statistics at that pose (eq. K5).
     pub silhouette: Option<f64>,
+    /// How well the applied contour correspondences alone pin the position at that pose: its
+    /// largest standard deviation [m] (eq. K10).
+    pub contour_sigma_m: Option<f64>,
+    /// The same for the orientation [°].
+    pub contour_sigma_deg: Option<f64>,
     /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
     pub tracked: Option<bool>,
     /// The frame's age [ms since its capture, or since it was read in a replay] when the

@@ -506,7 +506,7 @@ impl TrackOptions {
         if let Some(rate) = f.line_errors {
             if !matches!(self.link, LinkSpec::Sim(_)) {
                 return bad(format!(
-                    "--line-errors garbles the simulated board's line: use --link sim, not {:?}",
+                    "--line-errors garbles the simulated board's line: use --link sim, not {}",
                     self.link
                 ));
             }
@@ -740,7 +740,7 @@ fn model_path(options: &TrackOptions, dataset: &Dataset) -> Result<PathBuf, Trac
         .ok_or_else(|| {
             TrackError::Option(if options.frames.is_some() {
                 format!(
-                    "{}: give the object's textured model with --model (OBJ or glTF)",
+                    "{}: give the object's model with --model (OBJ or glTF; with a texture it is tracked by its texture, without one by its contour)",
                     dataset.root.display()
                 )
             } else {

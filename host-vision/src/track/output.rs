@@ -609,7 +609,7 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours and silhouette agreement >= {}",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,
@@ -618,7 +618,12 @@ impl fmt::Display for Summary {
                 t.rule.min_ncc,
                 t.rule.max_contour_rms_px,
                 t.rule.min_contours,
-                t.rule.min_silhouette
+                t.rule.min_silhouette,
+                t.rule.max_contour_sigma_m * 100.0,
+                t.rule.max_contour_sigma_deg,
+                t.rule.confirm_frames,
+                t.rule.confirm_contour_rms_px,
+                t.rule.confirm_silhouette
             )?;
             if !t.untracked.is_empty() {
                 let mut longest = t.untracked.clone();
@@ -916,6 +921,9 @@ pub(super) struct Seen<'a> {
     pub adapter: &'a str,
 }
 
+/// The columns of `frames.csv`.
+const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome";
+
 /// A line of `frames.csv`.
 enum FrameLine<'a> {
     /// An analysed frame's row.
@@ -1057,7 +1065,7 @@ pub(super) fn write_all(
             Some((c - c_true).norm())
         });
         let judged = record.assessments.get(frame_id);
-        let tracked = record.tracked(*frame_id, &rule);
+        let tracked = record.tracked(*frame_id);
         let latency = record.latency.frames.get(&r.job.index);
         rows.push(FrameRow {
             age_ms: latency.map(|l| l.taken_ms),
@@ -1067,6 +1075,10 @@ pub(super) fn write_all(
             rms_px: judged.and_then(|a| a.rms_px),
             ncc: judged.and_then(|a| a.ncc),
             contour_rms_px: judged.and_then(|a| a.contour_rms_px),
+            contour_sigma_m: judged.and_then(|a| a.contour_spread).map(|s| s[0]),
+            contour_sigma_deg: judged
+                .and_then(|a| a.contour_spread)
+                .map(|s| s[1].to_degrees()),
             silhouette: judged.and_then(|a| a.silhouette),
             contours: r.contours.len(),
             contour_error_px: r.contour_error_px,
@@ -1096,9 +1108,10 @@ pub(super) fn write_all(
         let e = io(&path);
         writeln!(
             w,
-            "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome"
+            "{FRAMES_HEADER}"
         )
         .map_err(&e)?;
+        let empty = ",".repeat(FRAMES_HEADER.matches(',').count() - 2);
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
         let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
         for line in frame_lines(&record.frames, &rows, stamp0) {
@@ -1106,13 +1119,13 @@ pub(super) fn write_all(
                 FrameLine::Analysed(r) => r,
                 FrameLine::Not { index, t, fate } => {
                     // A frame taken and not analysed: its index, time and what became of it.
-                    writeln!(w, "{index},{t:.6}{}{}", ",".repeat(26), fate.name()).map_err(&e)?;
+                    writeln!(w, "{index},{t:.6},{empty}{}", fate.name()).map_err(&e)?;
                     continue;
                 }
             };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1134,6 +1147,8 @@ pub(super) fn write_all(
                 r.total_ms,
                 o(r.contour_rms_px),
                 o(r.silhouette),
+                o(r.contour_sigma_m),
+                o(r.contour_sigma_deg),
                 o(r.rms_px),
                 o(r.ncc),
                 r.tracked

@@ -84,6 +84,45 @@ pub fn robust_fit(
     Some((pose, residuals(pin, &pose, lines)?))
 }
 
+/// The least scale of the lines' residuals that eq. K10 takes [px]: about a line's σ
+/// (docs/VISION.md §9.3). A fit closer than that says more of the lines' agreement than of
+/// the pose.
+const SPREAD_MIN_SCALE_PX: f64 = 1.0;
+
+/// Eq. K10: how well `lines` alone pin the pose at `pose`: the largest standard deviations of
+/// the camera's position [m] and orientation [rad] under their information
+/// `H = Σ j_i j_iᵀ / s²` (`j_i` a line's residual row, `s` the residuals' robust scale, at
+/// least [`SPREAD_MIN_SCALE_PX`]). An outline that does not see a direction (a disc's roll,
+/// a wall's depth) leaves it loose. `None` with fewer than [`MIN_LINES`] lines, a point
+/// behind the camera, or a direction the lines do not see at all.
+pub fn pose_spread(
+    pin: &Pinhole,
+    pose: &CameraPose,
+    lines: &[ContourMeasurement],
+) -> Option<[f64; 2]> {
+    if lines.len() < MIN_LINES {
+        return None;
+    }
+    let r = residuals(pin, pose, lines)?;
+    let scale = residual_scale(&r).max(SPREAD_MIN_SCALE_PX);
+    let mut h = Matrix6::<f64>::zeros();
+    for m in lines {
+        let [ju, jv] = pixel_rows(pin, &pose.world_to_camera(&m.sample.m_w));
+        let n: Vector2<f64> = m.sample.normal;
+        let j = ju * n.x + jv * n.y;
+        h += j * j.transpose();
+    }
+    let cov = (h / (scale * scale)).try_inverse()?;
+    // δ = (δθ, δt) in the camera frame: the camera centre moves by −Rᵀ δt, the same spread.
+    let largest = |k: usize| {
+        let block = cov.fixed_view::<3, 3>(k, k).into_owned();
+        let block = (block + block.transpose()) / 2.0;
+        block.symmetric_eigenvalues().max().max(0.0).sqrt()
+    };
+    let spread = [largest(3), largest(0)];
+    spread.iter().all(|v| v.is_finite()).then_some(spread)
+}
+
 /// Eq. K7: which of `lines` are outliers by `rule`, judged at their robust fit from
 /// `predicted`: a residual beyond the median by more than `rule.mads` median absolute
 /// deviations, and above `rule.floor_px`. Fewer than [`MIN_LINES`] lines, or a fit that fails,

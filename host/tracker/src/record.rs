@@ -31,6 +31,9 @@ pub struct Record {
     pub clock: Vec<u64>,
     /// Per frame id, the vision-only frame's judgement at the pose estimated with its update.
     pub assessments: BTreeMap<u32, Assessment>,
+    /// Per frame id, the run's verdict on it ([`vision::Verdicts`]): tracked or not, before
+    /// the tilt branch withholds any.
+    pub verdicts: BTreeMap<u32, bool>,
     /// What the core said.
     pub log: CoreLog,
     /// Every frame taken, in the order taken, with what became of it.
@@ -76,6 +79,7 @@ impl Record {
             origin_ns: None,
             clock: Vec::new(),
             assessments: BTreeMap::new(),
+            verdicts: BTreeMap::new(),
             log: CoreLog::default(),
             frames: Vec::new(),
             results: Vec::new(),
@@ -214,21 +218,22 @@ impl Record {
         Ok(())
     }
 
-    /// Whether the frame `frame_id` counts as tracked: judged so by `rule`, and not withheld
-    /// by the tilt branch. `None` where it was not judged.
-    pub fn tracked(&self, frame_id: u32, rule: &vision::TrackedRule) -> Option<bool> {
-        self.assessments
+    /// Whether the frame `frame_id` counts as tracked: judged so by the run
+    /// ([`Self::verdicts`]), and not withheld by the tilt branch. `None` where it was not
+    /// judged.
+    pub fn tracked(&self, frame_id: u32) -> Option<bool> {
+        self.verdicts
             .get(&frame_id)
-            .map(|a| rule.holds(a) && !self.tilt.record.withheld.contains(&frame_id))
+            .map(|&t| t && !self.tilt.record.withheld.contains(&frame_id))
     }
 
     /// How many of the frames judged count as tracked ([`Self::tracked`]): `(tracked,
     /// judged)`.
-    pub fn tracked_count(&self, rule: &vision::TrackedRule) -> (usize, usize) {
+    pub fn tracked_count(&self) -> (usize, usize) {
         let judged: Vec<bool> = self
             .results
             .iter()
-            .filter_map(|(id, _)| self.tracked(*id, rule))
+            .filter_map(|(id, _)| self.tracked(*id))
             .collect();
         (judged.iter().filter(|&&t| t).count(), judged.len())
     }
@@ -329,4 +334,41 @@ pub struct Outage {
     pub backlog: usize,
     /// When the core reported `Tracking` again after the return [s].
     pub tracking_s: Option<f64>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 54, point 3: every frame taken ends with one outcome, the surest one said of it.
+    #[test]
+    fn a_frames_fate_is_the_surest_outcome_said_of_it() {
+        let mut r = Record::new(HandEye::IDENTITY, 1, (Vector3::zeros(), 0.1));
+        for i in 0..4 {
+            r.take_frame(i, i as i64 * 1000);
+        }
+        r.settle(0, Fate::Searched);
+        r.settle(0, Fate::NoPrediction);
+        r.settle(1, Fate::NoPrediction);
+        r.settle(1, Fate::Analysed);
+        r.settle(2, Fate::Unusable);
+        r.settle(2, Fate::Searched);
+        // Settling a frame never taken changes nothing.
+        r.settle(9, Fate::Analysed);
+        let fates: Vec<Fate> = r.frames.iter().map(|f| f.fate).collect();
+        assert_eq!(
+            fates,
+            [
+                Fate::Searched,
+                Fate::Analysed,
+                Fate::Unusable,
+                Fate::Unsettled
+            ]
+        );
+        // A frame pushed twice with one index: the later one is settled.
+        r.take_frame(3, 5000);
+        r.settle(3, Fate::NoPrediction);
+        assert_eq!(r.frames[3].fate, Fate::Unsettled);
+        assert_eq!(r.frames[4].fate, Fate::NoPrediction);
+    }
 }

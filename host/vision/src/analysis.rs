@@ -329,7 +329,7 @@ impl Vision {
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
-        let (contours, contour_rms_px, silhouette) = if self.options.modality.contour() {
+        let contour = if self.options.modality.contour() {
             let live = GrayF32::from_gray8(&last.live)?;
             self.contour.judge(
                 &last.contours,
@@ -340,7 +340,7 @@ impl Vision {
                 &live,
             )
         } else {
-            (0, None, None)
+            crate::contours::ContourJudgement::default()
         };
         self.rendering = Some(rendering);
         Ok(Assessment {
@@ -348,9 +348,10 @@ impl Vision {
             rms_px,
             ncc,
             ncc_pixels,
-            contours,
-            contour_rms_px,
-            silhouette,
+            contours: contour.contours,
+            contour_rms_px: contour.rms_px,
+            contour_spread: contour.spread,
+            silhouette: contour.silhouette,
         })
     }
 

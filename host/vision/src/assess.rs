@@ -36,6 +36,10 @@ pub struct Assessment {
     pub contours: usize,
     /// Their rms along the normals at the estimated pose [px].
     pub contour_rms_px: Option<f64>,
+    /// How well they alone pin the pose there: the largest standard deviations of position
+    /// [m] and orientation [rad] (eq. K10; `None` with too few, or a direction they do not
+    /// see at all).
+    pub contour_spread: Option<[f64; 2]>,
     /// The silhouette's agreement with the object's statistics at the estimated pose,
     /// relative to what they expect (eq. K5'; 0 is a silhouette anywhere, 1 as good a fit as
     /// the statistics can tell).
@@ -180,6 +184,18 @@ pub struct TrackedRule {
     /// The contour form: smallest silhouette agreement relative to what the statistics
     /// expect (eq. K5').
     pub min_silhouette: f64,
+    /// The contour form: the largest spread of the position its correspondences alone leave,
+    /// one standard deviation [m] (eq. K10).
+    pub max_contour_sigma_m: f64,
+    /// The contour form: the same of the orientation [°].
+    pub max_contour_sigma_deg: f64,
+    /// The contour form's confirmation (eq. K9): the agreement a frame needs to confirm a
+    /// contour track.
+    pub confirm_silhouette: f64,
+    /// The contour form's confirmation: the largest rms along the normals [px].
+    pub confirm_contour_rms_px: f64,
+    /// The contour form's confirmation: consecutive confirming frames needed.
+    pub confirm_frames: usize,
 }
 
 impl Default for TrackedRule {
@@ -195,7 +211,9 @@ impl Default for TrackedRule {
     /// relative agreement of ½: half-way from a silhouette anywhere (0) to one that fits as
     /// well as the statistics expect (1). An absolute agreement cannot serve: the statistics
     /// of a picture cube on a desk score a median of 0.72 at the poses its texture verifies,
-    /// and a tenth of them below 0.62.
+    /// and a tenth of them below 0.62. The lines must pin the pose to 2.5 cm and 2.5° (one σ,
+    /// eq. K10: two of them within the 5 cm and 5° a right pose is held to), and the track be
+    /// confirmed (eq. K9).
     fn default() -> Self {
         TrackedRule {
             max_rms_px: 1.5,
@@ -204,15 +222,21 @@ impl Default for TrackedRule {
             min_contours: 20,
             max_contour_rms_px: 2.0,
             min_silhouette: 0.5,
+            max_contour_sigma_m: 0.025,
+            max_contour_sigma_deg: 2.5,
+            confirm_silhouette: 0.85,
+            confirm_contour_rms_px: 1.5,
+            confirm_frames: 2,
         }
     }
 }
 
 impl TrackedRule {
     /// Whether `a` is a tracked frame: by its features, or, with too few of them, by its
-    /// contour.
+    /// contour. One frame's judgement; a run judges its frames with [`Verdicts`], which asks
+    /// the contour form for confirmation too.
     pub fn holds(&self, a: &Assessment) -> bool {
-        if a.features >= self.min_features {
+        if self.by_features(a) {
             a.rms_px.is_some_and(|r| r <= self.max_rms_px)
                 && a.ncc.is_some_and(|c| c >= self.min_ncc)
         } else {
@@ -220,7 +244,63 @@ impl TrackedRule {
                 && a.contour_rms_px
                     .is_some_and(|r| r <= self.max_contour_rms_px)
                 && a.silhouette.is_some_and(|s| s >= self.min_silhouette)
+                && a.contour_spread.is_some_and(|[m, rad]| {
+                    m <= self.max_contour_sigma_m && rad.to_degrees() <= self.max_contour_sigma_deg
+                })
         }
+    }
+
+    /// Whether `a` is judged by its features (else by its contour).
+    pub fn by_features(&self, a: &Assessment) -> bool {
+        a.features >= self.min_features
+    }
+
+    /// Whether `a`, judged by its contour, confirms a contour track (eq. K9).
+    pub fn confirms(&self, a: &Assessment) -> bool {
+        self.holds(a)
+            && a.contour_rms_px
+                .is_some_and(|r| r <= self.confirm_contour_rms_px)
+            && a.silhouette.is_some_and(|s| s >= self.confirm_silhouette)
+    }
+}
+
+/// A run's verdicts, frame after frame (docs/VISION.md §9.4, eq. K9). A frame judged by its
+/// features counts as [`TrackedRule::holds`] says, and a pass verifies the pose for the
+/// contour too. A frame judged by its contour counts only on a confirmed track: an outline
+/// fits poses along the directions it does not see, so a pose that drifted along them still
+/// passes the rule. Confirmation takes [`TrackedRule::confirm_frames`] consecutive frames that
+/// [confirm](TrackedRule::confirms); the track holds while frames pass the rule, and the first
+/// that does not ends it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Verdicts {
+    /// Consecutive confirming frames since the track ended.
+    confirming: usize,
+    /// Whether the track is confirmed.
+    confirmed: bool,
+}
+
+impl Verdicts {
+    /// The verdict on the next frame, `a`, by `rule`.
+    pub fn judge(&mut self, rule: &TrackedRule, a: &Assessment) -> bool {
+        let holds = rule.holds(a);
+        if rule.by_features(a) {
+            self.confirmed = holds;
+            self.confirming = 0;
+            return holds;
+        }
+        if !holds {
+            *self = Verdicts::default();
+            return false;
+        }
+        if !self.confirmed {
+            self.confirming = if rule.confirms(a) {
+                self.confirming + 1
+            } else {
+                0
+            };
+            self.confirmed = self.confirming >= rule.confirm_frames;
+        }
+        self.confirmed
     }
 }
 
@@ -352,8 +432,17 @@ mod tests {
         a.contours = 40;
         a.contour_rms_px = Some(1.2);
         a.silhouette = Some(0.85);
+        a.contour_spread = Some([0.01, 1f64.to_radians()]);
         a.ncc = None;
         assert!(rule.holds(&a));
+        // Lines that leave the pose loose along a direction they do not see (eq. K10).
+        a.contour_spread = Some([0.03, 1f64.to_radians()]);
+        assert!(!rule.holds(&a));
+        a.contour_spread = Some([0.01, 3f64.to_radians()]);
+        assert!(!rule.holds(&a));
+        a.contour_spread = None;
+        assert!(!rule.holds(&a));
+        a.contour_spread = Some([0.01, 1f64.to_radians()]);
         a.silhouette = Some(0.3);
         assert!(!rule.holds(&a));
         a.silhouette = Some(0.85);
@@ -368,5 +457,54 @@ mod tests {
         a.rms_px = Some(3.0);
         a.ncc = Some(0.5);
         assert!(!rule.holds(&a));
+    }
+
+    /// Issue 54, point 5: contour frames 5-68 cm off the truth passed the rule (rms 0.6-1.4 px,
+    /// agreement 0.67-0.76) after the track had drifted. A contour track counts once two
+    /// consecutive frames confirm it, and until a frame fails.
+    #[test]
+    fn a_contour_track_counts_once_confirmed_and_until_a_frame_fails() {
+        let rule = TrackedRule::default();
+        let contour = |rms: f64, silhouette: f64| Assessment {
+            features: 0,
+            contours: 40,
+            contour_rms_px: Some(rms),
+            contour_spread: Some([0.01, 1f64.to_radians()]),
+            silhouette: Some(silhouette),
+            ..Assessment::default()
+        };
+        let strong = contour(0.8, 0.95);
+        let weak = contour(1.2, 0.7);
+        let failing = contour(2.7, 0.8);
+        assert!(rule.holds(&weak) && !rule.confirms(&weak) && rule.confirms(&strong));
+        let mut v = Verdicts::default();
+        let seq = [
+            (strong, false),
+            (strong, true),
+            (weak, true),
+            (failing, false),
+            // After a failure: a weak frame does not count, nor does one confirmation.
+            (weak, false),
+            (strong, false),
+            (weak, false),
+            (strong, false),
+            (strong, true),
+            (weak, true),
+        ];
+        for (i, (a, tracked)) in seq.iter().enumerate() {
+            assert_eq!(v.judge(&rule, a), *tracked, "frame {i}");
+        }
+        // A pose the texture verifies is a confirmed track for the contour frames after it.
+        let textured = Assessment {
+            features: 12,
+            rms_px: Some(1.0),
+            ncc: Some(0.5),
+            ..Assessment::default()
+        };
+        let mut v = Verdicts::default();
+        assert!(v.judge(&rule, &textured));
+        assert!(v.judge(&rule, &weak));
+        assert!(!v.judge(&rule, &failing));
+        assert!(!v.judge(&rule, &weak));
     }
 }

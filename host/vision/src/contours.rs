@@ -189,9 +189,9 @@ impl ContourState {
         }
     }
 
-    /// The contour form of a frame's judgement at `pose`: the applied measurements' count and
-    /// rms along the normals [px], and the silhouette agreement (eq. K5') of `rendering` (the
-    /// model at `pose`) with `live`.
+    /// The contour form of a frame's judgement at `pose`: the applied measurements' count, rms
+    /// along the normals [px] and how well they pin the pose (eq. K10), and the silhouette
+    /// agreement (eq. K5') of `rendering` (the model at `pose`) with `live`.
     pub fn judge(
         &self,
         measurements: &[ContourMeasurement],
@@ -200,9 +200,33 @@ impl ContourState {
         pinhole: &Pinhole,
         rendering: &render::Frame,
         live: &GrayF32,
-    ) -> (usize, Option<f64>, Option<f64>) {
-        let (n, rms) = contour_rms(measurements, applied, pose, pinhole);
-        let agreement = silhouette_agreement(rendering, live, &self.colour, &self.config);
-        (n, rms, agreement)
+    ) -> ContourJudgement {
+        let (contours, rms_px) = contour_rms(measurements, applied, pose, pinhole);
+        let used: Vec<ContourMeasurement> = measurements
+            .iter()
+            .zip(applied)
+            .filter(|(_, a)| **a)
+            .map(|(m, _)| *m)
+            .collect();
+        ContourJudgement {
+            contours,
+            rms_px,
+            spread: contour::outliers::pose_spread(pinhole, pose, &used),
+            silhouette: silhouette_agreement(rendering, live, &self.colour, &self.config),
+        }
     }
+}
+
+/// The contour form of a frame's judgement ([`ContourState::judge`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ContourJudgement {
+    /// Applied contour correspondences in front of the camera.
+    pub contours: usize,
+    /// Their rms along the normals [px].
+    pub rms_px: Option<f64>,
+    /// The largest standard deviations of position [m] and orientation [rad] they leave
+    /// (eq. K10).
+    pub spread: Option<[f64; 2]>,
+    /// The silhouette agreement (eq. K5').
+    pub silhouette: Option<f64>,
 }

@@ -14,7 +14,7 @@ pub mod assess;
 pub mod contours;
 
 pub use analysis::{FrameImage, FrameJob, FrameResult, Verified, Vision, VisionOptions};
-pub use assess::{Assessment, Contrast, TrackedRule};
+pub use assess::{Assessment, Contrast, TrackedRule, Verdicts};
 pub use contours::{Modality, is_textured};
 
 use std::path::PathBuf;

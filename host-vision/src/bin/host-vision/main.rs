@@ -269,18 +269,6 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
             });
         }
     };
-    let camera = match &input {
-        Some(i) => track_camera(a, i)?,
-        None if a.camera.is_some() || a.calib.is_some() || a.intrinsics.is_some() => {
-            return Err(Failure {
-                error: anyhow::anyhow!(
-                    "--camera, --calib and --intrinsics give the camera of --video or --images; a dataset has its own (mav0/cam0/sensor.yaml)"
-                ),
-                code: exit::USAGE,
-            });
-        }
-        None => None,
-    };
     // Without an IMU (a video, an image folder, a dataset without mav0/imu0) the model is
     // vision-only, and a run says so.
     let camera_only = input.is_some()
@@ -291,9 +279,10 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         None if !camera_only => protocol::ModelKind::Acc,
         None => {
             // Said of an input that is there: a missing one is named by its error alone.
-            let with_imu = [dataset.join("mav0/imu0/data.csv"), dataset.join("../imu0/data.csv")]
-                .iter()
-                .any(|p| p.exists());
+            let with_imu = a.images.is_some()
+                && [dataset.join("mav0/imu0/data.csv"), dataset.join("../imu0/data.csv")]
+                    .iter()
+                    .any(|p| p.exists());
             if with_imu {
                 note!(
                     "{}: --images takes the frames alone, vision-only (--filter vision): the IMU beside them is not used; --dataset tracks them with it",
@@ -309,6 +298,18 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         }
     };
     ignored_options(a, filter)?;
+    let camera = match &input {
+        Some(i) => track_camera(a, i)?,
+        None if a.camera.is_some() || a.calib.is_some() || a.intrinsics.is_some() => {
+            return Err(Failure {
+                error: anyhow::anyhow!(
+                    "--camera, --calib and --intrinsics give the camera of --video or --images; a dataset has its own (mav0/cam0/sensor.yaml)"
+                ),
+                code: exit::USAGE,
+            });
+        }
+        None => None,
+    };
     let dataset = &dataset;
     let pose = a
         .start_pose
@@ -423,8 +424,12 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
 /// silently ignored).
 fn ignored_options(a: &TrackArgs, filter: protocol::ModelKind) -> Result<(), Failure> {
     let vision_only = !filter.has_imu();
-    let why = if a.fps.is_some() && a.images.is_none() {
-        Some("--fps is the frame rate of a plain --images folder: a video and a dataset carry their own time stamps")
+    let euroc = a
+        .images
+        .as_deref()
+        .and_then(host_vision::frames::images::euroc_cam0);
+    let why = if a.fps.is_some() && (a.images.is_none() || euroc.is_some()) {
+        Some("--fps is the frame rate of a plain --images folder: a video, a dataset and a EuRoC camera folder (data.csv) carry their own time stamps")
     } else if a.max_frames.is_some() && !vision_only {
         Some("--max-frames counts the frames of a vision-only run: with an IMU, --duration limits the run")
     } else if a.latency.is_some() && vision_only {

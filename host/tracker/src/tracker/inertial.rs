@@ -508,10 +508,14 @@ impl<T: CoreTransport> Tracker<T> {
     fn attach(&mut self, ack: &protocol::HelloAck) -> Result<Option<u64>, TrackerError> {
         let model = self.config.model;
         if ack.session == 0 || ack.model != Some(model) {
-            self.record.attach_note = Some(format!(
-                "the core ran no {model:?} session (model {:?}, session {}): configured anew",
-                ack.model, ack.session
-            ));
+            self.record.attach_note = Some(match (ack.model, ack.session) {
+                (_, 0) | (None, _) => "the core ran no session: configured anew".to_string(),
+                (Some(m), s) => format!(
+                    "the core ran a session ({s:#010x}) of the {} model, not of the {}: configured anew",
+                    m.name(),
+                    model.name()
+                ),
+            });
             return Ok(None);
         }
         let Some((mode, last_us)) = self.query()? else {

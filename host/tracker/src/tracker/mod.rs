@@ -103,6 +103,8 @@ pub struct Tracker<T: CoreTransport = CoreLink> {
     /// The core's outlier gate on `s_i`.
     gate: f64,
     rule: TrackedRule,
+    /// The run's verdicts so far (the contour form's confirmation).
+    verdicts: vision::Verdicts,
     /// Vision-only: the last tick's time [µs].
     last_us: Option<u64>,
     /// Vision-only: whether the core has a pose.
@@ -177,6 +179,7 @@ impl<T: CoreTransport> Tracker<T> {
         let mut tracker = Self {
             gate: 0.0,
             rule: TrackedRule::default(),
+            verdicts: vision::Verdicts::default(),
             last_us: None,
             started: config.start != Start::Locate,
             tracked_since_start: false,
@@ -598,7 +601,8 @@ impl<T: CoreTransport> Tracker<T> {
             .collect();
         let a = self.worker.assess(pose, applied)?;
         self.record.assessments.insert(p.frame_id, a);
-        let tracked = self.rule.holds(&a);
+        let tracked = self.verdicts.judge(&self.rule, &a);
+        self.record.verdicts.insert(p.frame_id, tracked);
         self.record.tilt.judged(p.frame_id);
         Ok(Some(Judged {
             pose,
