@@ -49,6 +49,17 @@ pub enum TransportError {
         #[source]
         source: serialport::Error,
     },
+    /// Nothing took the connection: no board there, or one serving another host.
+    #[error(
+        "TCP connect to {addr}: {source}: is the board (firmware-sim --link tcp:{addr}) running, and free? It serves one host and exits, unless started with --forever"
+    )]
+    TcpRefused {
+        /// Address.
+        addr: String,
+        /// Cause.
+        #[source]
+        source: io::Error,
+    },
     /// A TCP connection failed.
     #[error("TCP {what} {addr}: {source}")]
     Tcp {
@@ -201,10 +212,20 @@ fn tcp_duplex(
 pub fn tcp_connect(addr: impl ToSocketAddrs + std::fmt::Debug) -> Result<Duplex, TransportError> {
     // Debug, as `ToSocketAddrs` has no Display; a plain address loses its quotes.
     let name = format!("{addr:?}").trim_matches('"').to_string();
-    let stream = TcpStream::connect(&addr).map_err(|source| TransportError::Tcp {
-        what: "connect to",
-        addr: name.clone(),
-        source,
+    let stream = TcpStream::connect(&addr).map_err(|source| {
+        // A board that is busy refuses as one that is not there: both are named.
+        if source.kind() == io::ErrorKind::ConnectionRefused {
+            TransportError::TcpRefused {
+                addr: name.clone(),
+                source,
+            }
+        } else {
+            TransportError::Tcp {
+                what: "connect to",
+                addr: name.clone(),
+                source,
+            }
+        }
     })?;
     tcp_duplex(stream, name, "connect to")
 }

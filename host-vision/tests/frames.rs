@@ -174,7 +174,7 @@ fn image_folders_in_name_order_at_fps_or_with_euroc_stamps() {
     write_png(&dir.join("f_003.png"), 10, 10, 3);
     let e = read_all(&input).unwrap_err().to_string();
     assert!(
-        e.contains("f_003.png: frame 3 is (10, 10) pixels, the first frame was (20, 10)"),
+        e.contains("f_003.png: frame 3 is 10x10 pixels, the first frame was 20x10"),
         "{e}"
     );
     std::fs::write(dir.join("f_003.png"), b"not a png").unwrap();

@@ -337,7 +337,7 @@ mod tests {
         let e = c.check(p, 2, (32, 48), 200).unwrap_err().to_string();
         assert_eq!(
             e,
-            "in.mp4: frame 2 is (32, 48) pixels, the first frame was (64, 48)"
+            "in.mp4: frame 2 is 32x48 pixels, the first frame was 64x48"
         );
         let e = c.check(p, 2, (64, 48), 100).unwrap_err().to_string();
         assert_eq!(

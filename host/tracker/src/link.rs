@@ -337,13 +337,7 @@ impl CoreLink {
                 return Ok(());
             }
             LinkSpec::Serial { path, baud } => open_serial(path, *baud)?,
-            LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str()).map_err(|e| {
-                // The board that is there, and busy, refuses the connection as one that is
-                // not: both are named.
-                TrackerError::Link(format!(
-                    "{e}: is the board (firmware-sim --link tcp:{addr}) running, and free? It serves one host and exits, unless started with --forever"
-                ))
-            })?,
+            LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str())?,
             LinkSpec::Qemu(image) => {
                 // A new connection to QEMU's UART is a new QEMU: the board boots again.
                 self.qemu = None;
