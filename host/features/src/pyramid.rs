@@ -533,6 +533,35 @@ impl TemplatePyramid {
         levels: usize,
         blur_sigma: f32,
     ) -> Result<Self, ImageError> {
+        Self::build_blurred(rendered, mask, levels, [blur_sigma, 0.0], false)
+    }
+
+    /// As [`TemplatePyramid::build`], blurred in two steps: the anti-aliasing `antialias`
+    /// (the camera's optics, before its clipping), then the registration's `smoothing` (the
+    /// live image's, after it). The image between them is kept: the KLT predicts a clipping
+    /// live camera from it (docs/VISION.md §5, eq. 5.6; [`Pyramid::build_keeping_unsmoothed`]).
+    pub fn build_keeping_unsmoothed(
+        rendered: GrayF32,
+        mask: Mask,
+        levels: usize,
+        antialias: f32,
+        smoothing: f32,
+    ) -> Result<Self, ImageError> {
+        Self::build_blurred(rendered, mask, levels, [antialias, smoothing], true)
+    }
+
+    /// The template blurred by `blurs` in turn (Gaussians add in variance), keeping the image
+    /// after the first where `keep` is set.
+    fn build_blurred(
+        rendered: GrayF32,
+        mask: Mask,
+        levels: usize,
+        blurs: [f32; 2],
+        keep: bool,
+    ) -> Result<Self, ImageError> {
+        let sigma = |s: f32| if s.is_finite() && s > 0.0 { s } else { 0.0 };
+        let [first, second] = blurs.map(sigma);
+        let blur_sigma = (first * first + second * second).sqrt();
         if (rendered.width(), rendered.height()) != (mask.width(), mask.height()) {
             return Err(ImageError::SizeMismatch {
                 a: (rendered.width(), rendered.height()),
@@ -554,8 +583,12 @@ impl TemplatePyramid {
             || {
                 let mut rendered = rendered;
                 let support = image_support(&rendered);
-                let support = blur_within(&mut rendered, blur_sigma, support);
-                Pyramid::build_within(rendered, levels, support)
+                let support = blur_within(&mut rendered, first, support);
+                let kept = keep.then(|| rendered.clone());
+                let support = blur_within(&mut rendered, second, support);
+                let mut pyramid = Pyramid::build_within(rendered, levels, support);
+                pyramid.unsmoothed = kept.zip(gaussian_kernel(second));
+                pyramid
             },
             || {
                 let support = mask_support(&mask);

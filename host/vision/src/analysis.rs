@@ -604,7 +604,7 @@ impl Vision {
         rendering: &render::Frame,
         model_coverage: f64,
         frame_index: u64,
-        blur: f32,
+        blur: TemplateBlur,
     ) -> Result<(usize, f64, Option<(TemplatePyramid, f64)>), VisionError> {
         let extract = self.map.needs_features(visible) && model_coverage > 0.0;
         let levels = self.options.klt.levels;
@@ -817,7 +817,10 @@ impl Vision {
         let t = Instant::now();
         let mut visible = self.map.predict_visible(&view, w, h, Some(rendering));
         let predicted = t.elapsed().as_secs_f64();
-        let blur = klt.template_sigma(self.options.blur_sigma);
+        let blur = TemplateBlur {
+            antialias: self.options.blur_sigma,
+            klt: *klt,
+        };
         let levels = klt.levels;
         let (added, extracting, template) =
             self.extract_beside_template(&visible, rendering, model_coverage, frame_index, blur)?;
@@ -936,19 +939,37 @@ fn register_until<'a>(
     attempts
 }
 
-/// The rendering `frame` prepared for registration: blurred by `blur` (σ, px), `levels`
-/// levels of image and mask.
+/// How a template is blurred: the rendering's anti-aliasing σ [px], and the registration's
+/// settings (its smoothing σ; with its clip levels, the image between the two is kept for
+/// the clipped prediction, docs/VISION.md eq. 5.6).
+#[derive(Debug, Clone, Copy)]
+struct TemplateBlur {
+    antialias: f32,
+    klt: KltConfig,
+}
+
+/// The rendering `frame` prepared for registration: blurred by `blur`, `levels` levels of
+/// image and mask.
 fn build_template(
     frame: &render::Frame,
     levels: usize,
-    blur: f32,
+    blur: TemplateBlur,
 ) -> Result<TemplatePyramid, VisionError> {
-    Ok(TemplatePyramid::build(
+    let (image, mask) = (
         GrayF32::from_gray8(&frame.gray)?,
         Mask::from_gray8(&frame.mask)?,
-        levels,
-        blur,
-    )?)
+    );
+    let klt = &blur.klt;
+    Ok(match klt.saturation {
+        Some(_) => TemplatePyramid::build_keeping_unsmoothed(
+            image,
+            mask,
+            levels,
+            blur.antialias,
+            klt.smoothing,
+        ),
+        None => TemplatePyramid::build(image, mask, levels, klt.template_sigma(blur.antialias)),
+    }?)
 }
 
 /// Mask pixels with a 4-neighbour outside the mask (or on the image border).

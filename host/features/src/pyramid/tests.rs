@@ -219,6 +219,32 @@ fn pyramids_equal_the_reference_at_full_size() {
     });
 }
 
+/// Issue 54, point 27: a template kept for the clipped prediction is blurred by the
+/// anti-aliasing, kept, then by the registration's smoothing, whose kernel it carries; its mask
+/// is eroded by the two blurs' reach together, as the one-step template's.
+#[test]
+fn a_template_kept_for_clipping_holds_its_image_between_the_blurs() {
+    let mut seed = 5;
+    let img = random_image(160, 120, &mut seed);
+    let mask = Mask::new(160, 120, vec![true; 160 * 120]).unwrap();
+    let (antialias, smoothing) = (1.0f32, 1.0f32);
+    let kept =
+        TemplatePyramid::build_keeping_unsmoothed(img.clone(), mask.clone(), 3, antialias, smoothing)
+            .unwrap();
+    let (i0, kernel) = kept.image.unsmoothed().expect("kept");
+    assert_same(i0, &reference::gaussian_blur(&img, antialias), "the kept image");
+    assert_eq!(kernel, gaussian_kernel(smoothing).unwrap().as_slice());
+    assert_same(
+        kept.image.level(0).unwrap(),
+        &reference::gaussian_blur(&reference::gaussian_blur(&img, antialias), smoothing),
+        "level 0",
+    );
+    let one = TemplatePyramid::build(img, mask, 3, (antialias.powi(2) + smoothing.powi(2)).sqrt())
+        .unwrap();
+    assert!(one.image.unsmoothed().is_none());
+    assert_eq!(one.mask.level(0).unwrap().data(), kept.mask.level(0).unwrap().data());
+}
+
 /// Erosion and the mask pyramid step against the reference for every size up to 24 × 24.
 #[test]
 fn masks_equal_the_reference() {
