@@ -105,7 +105,13 @@ fn main() -> anyhow::Result<()> {
         // This session's share: the board's totals run on from session to session, and its
         // core's counters from its last reset.
         let (c, c0) = (&report.counters, &before.counters);
-        let since = |now: u32, then: u32| if report.resets > before.resets { now } else { now.saturating_sub(then) };
+        let since = |now: u32, then: u32| {
+            if report.resets > before.resets {
+                now
+            } else {
+                now.saturating_sub(then)
+            }
+        };
         note!(
             "board: session on {name} ended: {} bytes in, {} out, {} {clock} applied, {} correspondences accepted, {} gated, {} divergences",
             report.bytes_in - before.bytes_in,

@@ -266,7 +266,14 @@ fn each_session_of_a_board_that_serves_forever_reports_its_own_counts() {
         );
     }
     let bytes = |r: &str| -> u64 {
-        r.split(" ended: ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap()
+        r.split(" ended: ")
+            .nth(1)
+            .unwrap()
+            .split(' ')
+            .next()
+            .unwrap()
+            .parse()
+            .unwrap()
     };
     assert_eq!(bytes(&reports[0]), bytes(&reports[1]), "{reports:?}");
 }

@@ -145,7 +145,10 @@ fn i54_p01_p03_p04_a_live_cold_start_keeps_the_frames_own_times_and_every_frame(
     assert_eq!(sum["t0_stamp_ns"], 0, "{sum}");
     let first_analysed = rows.iter().find(|r| r["outcome"] == "analysed").unwrap();
     let first_index: usize = first_analysed["index"].parse().unwrap();
-    assert!(first_index > 0, "the cube was found in frame 0 and analysed there");
+    assert!(
+        first_index > 0,
+        "the cube was found in frame 0 and analysed there"
+    );
     let streamed_from = sum["streamed_from_s"].as_f64().unwrap();
     assert!(
         (streamed_from - first_index as f64 / 30.0).abs() < 1e-3,
@@ -224,7 +227,14 @@ fn i54_p03_a_live_inertial_run_writes_a_row_for_every_frame() {
             &track_args(
                 &ds,
                 &out,
-                &["--pacing", "real-time", "--link", link, "--overlay-every", "0"],
+                &[
+                    "--pacing",
+                    "real-time",
+                    "--link",
+                    link,
+                    "--overlay-every",
+                    "0",
+                ],
             ),
             0,
         );
@@ -273,7 +283,14 @@ fn i54_p05_a_contour_frame_counted_as_tracked_is_near_the_truth() {
     let code = hv(&track_args(
         &ds,
         &out,
-        &["--filter", "vision", "--link", "inproc", "--overlay-every", "0"],
+        &[
+            "--filter",
+            "vision",
+            "--link",
+            "inproc",
+            "--overlay-every",
+            "0",
+        ],
     ))
     .status
     .code();
@@ -289,7 +306,11 @@ fn i54_p05_a_contour_frame_counted_as_tracked_is_near_the_truth() {
             .map(|e| (e.1, e.2))
             .unwrap();
         if pos > 0.05 || deg > 5.0 {
-            wrong.push(format!("frame {}: {:.1} cm, {deg:.1}°", r["index"], pos * 100.0));
+            wrong.push(format!(
+                "frame {}: {:.1} cm, {deg:.1}°",
+                r["index"],
+                pos * 100.0
+            ));
         }
     }
     let tracked = rows.iter().filter(|r| r["tracked"] == "1").count();
@@ -320,8 +341,11 @@ fn truth_errors(_ds: &Path, out: &Path) -> Vec<(f64, f64, f64)> {
                 .iter()
                 .min_by(|a, b| (a[0] - e[0]).abs().total_cmp(&(b[0] - e[0]).abs()))
                 .unwrap();
-            let pos = ((e[1] - g[1]).powi(2) + (e[2] - g[2]).powi(2) + (e[3] - g[3]).powi(2)).sqrt();
-            let dot = (e[4] * g[4] + e[5] * g[5] + e[6] * g[6] + e[7] * g[7]).abs().min(1.0);
+            let pos =
+                ((e[1] - g[1]).powi(2) + (e[2] - g[2]).powi(2) + (e[3] - g[3]).powi(2)).sqrt();
+            let dot = (e[4] * g[4] + e[5] * g[5] + e[6] * g[6] + e[7] * g[7])
+                .abs()
+                .min(1.0);
             (e[0] - t0, pos, 2.0 * dot.acos().to_degrees())
         })
         .collect()
@@ -380,7 +404,10 @@ fn i54_p06_p10_a_pipe_whose_writer_dies_fails_the_run() {
     let sum = summary(&out);
     assert_eq!(sum["stopped_early"], true);
     assert!(
-        sum["error"].as_str().unwrap().contains("the pipe was closed"),
+        sum["error"]
+            .as_str()
+            .unwrap()
+            .contains("the pipe was closed"),
         "{sum}"
     );
     // Live: how many frames it had time for depends on the machine's load.
@@ -389,7 +416,10 @@ fn i54_p06_p10_a_pipe_whose_writer_dies_fails_the_run() {
     assert_eq!(sum["latency"]["clock"], "arrival");
     // ffmpeg's default probe of an mpegts pipe waits 5 s of the feed before the first frame;
     // the writer ran 2.5 s. Not a speed bound: the run would last beyond the feed.
-    assert!(wall < 5.0, "{wall:.1} s for a 2.5 s feed: probed or re-paced");
+    assert!(
+        wall < 5.0,
+        "{wall:.1} s for a 2.5 s feed: probed or re-paced"
+    );
 }
 
 /// Point 7: SIGTERM and SIGHUP stop the run as Ctrl-C does: exit 130, everything written.
@@ -398,7 +428,11 @@ fn i54_p07_sigterm_and_sighup_write_what_was_tracked() {
     let ds = dataset();
     for signal in ["TERM", "HUP"] {
         let out = tmp(&format!("p07-{signal}"));
-        let args = track_args(&ds, &out, &["--pacing", "real-time", "--overlay-every", "0"]);
+        let args = track_args(
+            &ds,
+            &out,
+            &["--pacing", "real-time", "--overlay-every", "0"],
+        );
         // The signal lands a while after the run took its folder; one that lands before the
         // first sample (the renderer still starting) writes nothing, by design: later, then.
         let mut delay = Duration::from_millis(900);
@@ -680,7 +714,10 @@ fn i54_p14_synth_ranges_are_usage_errors_with_the_flag() {
         (vec!["--subframes", "0"], "--subframes"),
         (vec!["--supersample", "9"], "--supersample"),
         (vec!["--max-subframes", "0"], "--max-subframes"),
-        (vec!["--max-subframes", "2", "--subframes", "8"], "--max-subframes 2 is below --subframes 8"),
+        (
+            vec!["--max-subframes", "2", "--subframes", "8"],
+            "--max-subframes 2 is below --subframes 8",
+        ),
     ] {
         let mut a = vec!["synth", "--scenario", "desktop-slow", "--out", s(&out)];
         a.extend(args.iter().copied());
@@ -701,11 +738,19 @@ fn i54_p15_p16_unusable_and_ignored_options_are_refused() {
     let calib = cam0.join("sensor.yaml");
     for (args, says) in [
         (
-            track_args(&ds, &out, &["--start-yaw", "1e300", "--start-position", "0,0,0"]),
+            track_args(
+                &ds,
+                &out,
+                &["--start-yaw", "1e300", "--start-position", "0,0,0"],
+            ),
             "--start-yaw must be a finite angle within ±36000 degrees",
         ),
         (
-            track_args(&ds, &out, &["--start-position", "1e300,0,0", "--start-yaw", "0"]),
+            track_args(
+                &ds,
+                &out,
+                &["--start-position", "1e300,0,0", "--start-yaw", "0"],
+            ),
             "--start-position must be three finite numbers within ±100000 m",
         ),
         (
@@ -765,7 +810,10 @@ fn i54_p17_image_sizes_are_the_images_and_exit_alike() {
     for (kind, data) in [
         (b"IHDR", header.as_slice()),
         // An empty zlib stream: the header is read, the pixels never are.
-        (b"IDAT", &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01][..]),
+        (
+            b"IDAT",
+            &[0x78, 0x9c, 0x03, 0x00, 0x00, 0x00, 0x00, 0x01][..],
+        ),
         (b"IEND", &[][..]),
     ] {
         png.extend_from_slice(&(data.len() as u32).to_be_bytes());
@@ -839,7 +887,11 @@ fn crc32(bytes: &[u8]) -> u32 {
     for &b in bytes {
         c ^= u32::from(b);
         for _ in 0..8 {
-            c = if c & 1 != 0 { 0xedb8_8320 ^ (c >> 1) } else { c >> 1 };
+            c = if c & 1 != 0 {
+                0xedb8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
         }
     }
     !c
@@ -889,10 +941,7 @@ fn i54_p20_p21_messages_in_words() {
         0,
     );
     let attach = summary(&out)["attach"].as_str().unwrap().to_string();
-    assert_eq!(
-        attach,
-        "the core ran no session: configured anew"
-    );
+    assert_eq!(attach, "the core ran no session: configured anew");
     // The camera folder of a dataset with an IMU, as --images.
     let out = tmp("p21");
     let (_, se) = expect(

@@ -39,9 +39,8 @@ fn share(rows: &[&FrameRow]) -> f64 {
 
 /// The README as one line of words (its figures wrap across lines).
 fn readme() -> String {
-    let text =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
-            .unwrap();
+    let text = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../README.md"))
+        .unwrap();
     text.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
@@ -55,7 +54,10 @@ fn readme_says(adapter: &str, figures: &[String]) {
         return;
     }
     let readme = readme();
-    let stale: Vec<&String> = figures.iter().filter(|f| !readme.contains(f.as_str())).collect();
+    let stale: Vec<&String> = figures
+        .iter()
+        .filter(|f| !readme.contains(f.as_str()))
+        .collect();
     assert!(
         stale.is_empty(),
         "the README does not say what this run gives, {stale:?}: write these figures in it"
@@ -294,7 +296,8 @@ fn the_cube_videos_contour_and_both_modalities_give_the_readmes_figures() {
     let mut figures = Vec::new();
     let mut adapter = String::new();
     for modality in [vision::Modality::Contour, vision::Modality::Both] {
-        let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("visp-cube-{modality:?}"));
+        let out =
+            PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!("visp-cube-{modality:?}"));
         let mut o = cube::vision_only(&dir, out);
         o.start.pose = Some(read_start_pose(&dir.join("frame0_pose.json")).unwrap());
         o.modality = Some(modality);

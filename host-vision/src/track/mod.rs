@@ -392,7 +392,9 @@ impl TrackOptions {
         // The core takes single floats: beyond these a position or angle loses its precision
         // (an ulp of 8 mm at 100 km, of 0.03 mrad at a hundred turns), and far beyond, its value.
         if let Some(p) = self.start.position
-            && !p.iter().all(|c| c.is_finite() && c.abs() <= MAX_START_POSITION_M)
+            && !p
+                .iter()
+                .all(|c| c.is_finite() && c.abs() <= MAX_START_POSITION_M)
         {
             return bad(format!(
                 "--start-position must be three finite numbers within ±{MAX_START_POSITION_M} m, got {},{},{}",

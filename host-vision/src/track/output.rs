@@ -649,12 +649,16 @@ impl fmt::Display for Summary {
                 Some((frame, t)) => writeln!(
                     f,
                     "cold start   model found in frame {frame} ({t:.2} s) after {}, {:.0} ms per attempt (longest {:.0} ms), {:.1} frame periods each",
-                    counted(c.attempts, "attempt", "attempts"), c.mean_ms, c.max_ms, c.frames_per_attempt
+                    counted(c.attempts, "attempt", "attempts"),
+                    c.mean_ms,
+                    c.max_ms,
+                    c.frames_per_attempt
                 )?,
                 None => writeln!(
                     f,
                     "cold start   model not found in {} ({:.0} ms each): nothing tracked",
-                    counted(c.attempts, "attempt", "attempts"), c.mean_ms
+                    counted(c.attempts, "attempt", "attempts"),
+                    c.mean_ms
                 )?,
             }
         }
@@ -1106,11 +1110,7 @@ pub(super) fn write_all(
     {
         let mut w = create(&path)?;
         let e = io(&path);
-        writeln!(
-            w,
-            "{FRAMES_HEADER}"
-        )
-        .map_err(&e)?;
+        writeln!(w, "{FRAMES_HEADER}").map_err(&e)?;
         let empty = ",".repeat(FRAMES_HEADER.matches(',').count() - 2);
         let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
         let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
@@ -1250,9 +1250,8 @@ pub(super) fn write_all(
 
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
     let contour_px: Vec<f64> = rows.iter().filter_map(|r| r.contour_error_px).collect();
-    let since_stamp0 = |stamp: Option<&u64>| {
-        stamp.map_or(0.0, |&stamp| stamp.saturating_sub(stamp0) as f64 / 1e9)
-    };
+    let since_stamp0 =
+        |stamp: Option<&u64>| stamp.map_or(0.0, |&stamp| stamp.saturating_sub(stamp0) as f64 / 1e9);
     let duration_s = since_stamp0(record.clock.last());
     let summary = Summary {
         dataset: dataset.root.display().to_string(),

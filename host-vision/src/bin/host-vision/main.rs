@@ -159,11 +159,11 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
             }
         }
     };
-    let camera = camera_from(&a.camera, &a.calib, a.intrinsics, (path, size))?
-    .ok_or_else(|| Failure {
-        error: anyhow::anyhow!("give the camera: --camera, --calib or --intrinsics"),
-        code: exit::USAGE,
-    })?;
+    let camera =
+        camera_from(&a.camera, &a.calib, a.intrinsics, (path, size))?.ok_or_else(|| Failure {
+            error: anyhow::anyhow!("give the camera: --camera, --calib or --intrinsics"),
+            code: exit::USAGE,
+        })?;
     let options = LocateOptions {
         input,
         model: a.model.clone(),
@@ -280,9 +280,12 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
         None => {
             // Said of an input that is there: a missing one is named by its error alone.
             let with_imu = a.images.is_some()
-                && [dataset.join("mav0/imu0/data.csv"), dataset.join("../imu0/data.csv")]
-                    .iter()
-                    .any(|p| p.exists());
+                && [
+                    dataset.join("mav0/imu0/data.csv"),
+                    dataset.join("../imu0/data.csv"),
+                ]
+                .iter()
+                .any(|p| p.exists());
             if with_imu {
                 note!(
                     "{}: --images takes the frames alone, vision-only (--filter vision): the IMU beside them is not used; --dataset tracks them with it",
@@ -429,13 +432,21 @@ fn ignored_options(a: &TrackArgs, filter: protocol::ModelKind) -> Result<(), Fai
         .as_deref()
         .and_then(host_vision::frames::images::euroc_cam0);
     let why = if a.fps.is_some() && (a.images.is_none() || euroc.is_some()) {
-        Some("--fps is the frame rate of a plain --images folder: a video, a dataset and a EuRoC camera folder (data.csv) carry their own time stamps")
+        Some(
+            "--fps is the frame rate of a plain --images folder: a video, a dataset and a EuRoC camera folder (data.csv) carry their own time stamps",
+        )
     } else if a.max_frames.is_some() && !vision_only {
-        Some("--max-frames counts the frames of a vision-only run: with an IMU, --duration limits the run")
+        Some(
+            "--max-frames counts the frames of a vision-only run: with an IMU, --duration limits the run",
+        )
     } else if a.latency.is_some() && vision_only {
-        Some("--latency delays the correspondences after their IMU trigger: a vision-only run has no trigger to wait from")
+        Some(
+            "--latency delays the correspondences after their IMU trigger: a vision-only run has no trigger to wait from",
+        )
     } else if a.latency.is_some() && a.pacing == host_vision::track::Pacing::RealTime {
-        Some("--latency is the lock-step replay's delay: with --pacing real-time the correspondences go as soon as they are ready")
+        Some(
+            "--latency is the lock-step replay's delay: with --pacing real-time the correspondences go as soon as they are ready",
+        )
     } else {
         None
     };
@@ -535,7 +546,11 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
         }
         Err(e) => {
             return Err(anyhow::Error::from(e)
-                .context(format!("generating {} into {}", a.scenario, a.out.display()))
+                .context(format!(
+                    "generating {} into {}",
+                    a.scenario,
+                    a.out.display()
+                ))
                 .into());
         }
     };

@@ -228,11 +228,20 @@ fn a_template_kept_for_clipping_holds_its_image_between_the_blurs() {
     let img = random_image(160, 120, &mut seed);
     let mask = Mask::new(160, 120, vec![true; 160 * 120]).unwrap();
     let (antialias, smoothing) = (1.0f32, 1.0f32);
-    let kept =
-        TemplatePyramid::build_keeping_unsmoothed(img.clone(), mask.clone(), 3, antialias, smoothing)
-            .unwrap();
+    let kept = TemplatePyramid::build_keeping_unsmoothed(
+        img.clone(),
+        mask.clone(),
+        3,
+        antialias,
+        smoothing,
+    )
+    .unwrap();
     let (i0, kernel) = kept.image.unsmoothed().expect("kept");
-    assert_same(i0, &reference::gaussian_blur(&img, antialias), "the kept image");
+    assert_same(
+        i0,
+        &reference::gaussian_blur(&img, antialias),
+        "the kept image",
+    );
     assert_eq!(kernel, gaussian_kernel(smoothing).unwrap().as_slice());
     assert_same(
         kept.image.level(0).unwrap(),
@@ -242,7 +251,10 @@ fn a_template_kept_for_clipping_holds_its_image_between_the_blurs() {
     let one = TemplatePyramid::build(img, mask, 3, (antialias.powi(2) + smoothing.powi(2)).sqrt())
         .unwrap();
     assert!(one.image.unsmoothed().is_none());
-    assert_eq!(one.mask.level(0).unwrap().data(), kept.mask.level(0).unwrap().data());
+    assert_eq!(
+        one.mask.level(0).unwrap().data(),
+        kept.mask.level(0).unwrap().data()
+    );
 }
 
 /// Erosion and the mask pyramid step against the reference for every size up to 24 × 24.

@@ -235,8 +235,11 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// [`Self::push_imu`]'s steps for a sample in order.
     fn imu_step(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
-        let t0 = u64::try_from(self.record.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)))
-            .unwrap_or(0);
+        let t0 = u64::try_from(
+            self.record
+                .origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)),
+        )
+        .unwrap_or(0);
         let inertial = self.imu_mut()?;
         inertial.last_ns = Some(sample.t_ns);
         let t_us = (sample.t_ns - t0) / 1000;
