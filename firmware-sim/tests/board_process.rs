@@ -51,6 +51,14 @@ fn wait_for_exit(child: &mut Child) -> std::process::ExitStatus {
     }
 }
 
+/// The address a TCP board says it waits on, from its first line.
+fn tcp_address(line: &str) -> String {
+    line.trim()
+        .rsplit_once("tcp:")
+        .map(|(_, a)| a.to_string())
+        .unwrap_or_else(|| panic!("unexpected first line `{line}`"))
+}
+
 /// A short session: handshake, configuration, still IMU until the filter runs, one trigger.
 fn session(link: Duplex) {
     let mut w = FrameWriter::new(link.writer);
@@ -221,10 +229,7 @@ fn readme_names_only_real_flags() {
 #[test]
 fn a_host_talks_to_the_board_process_over_tcp() {
     let (mut child, line, _) = start("tcp:127.0.0.1:0");
-    let addr = line
-        .rsplit_once("tcp:")
-        .map(|(_, a)| a.to_string())
-        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let addr = tcp_address(&line);
     let link = transport::tcp_connect(addr.as_str()).expect("connect to the board");
     session(link);
     // The session ends when the host hangs up; the board then exits by itself.
@@ -245,11 +250,7 @@ fn each_session_of_a_board_that_serves_forever_reports_its_own_counts() {
     let mut err = BufReader::new(child.stderr.take().unwrap());
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
-    let addr = line
-        .trim()
-        .rsplit_once("tcp:")
-        .map(|(_, a)| a.to_string())
-        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let addr = tcp_address(&line);
     let mut reports = Vec::new();
     for _ in 0..2 {
         session(transport::tcp_connect(addr.as_str()).expect("connect to the board"));
@@ -283,10 +284,7 @@ fn each_session_of_a_board_that_serves_forever_reports_its_own_counts() {
 #[test]
 fn a_one_session_tcp_board_refuses_a_second_host_at_once() {
     let (mut child, line, _) = start("tcp:127.0.0.1:0");
-    let addr = line
-        .rsplit_once("tcp:")
-        .map(|(_, a)| a.to_string())
-        .unwrap_or_else(|| panic!("unexpected first line `{line}`"));
+    let addr = tcp_address(&line);
     let first = transport::tcp_connect(addr.as_str()).expect("connect to the board");
     let mut w = FrameWriter::new(first.writer);
     let mut r = FrameReader::new(first.reader);

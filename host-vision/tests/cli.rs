@@ -4,7 +4,6 @@
 //!
 //! The numbered tests follow issue 13's points.
 
-use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -456,52 +455,6 @@ fn p12_no_leftovers_and_a_file_is_not_a_dataset() {
     );
 }
 
-/// Starts `args` with stdout piped and sends SIGINT once a line containing `when` is printed;
-/// returns the exit code and everything printed.
-fn interrupt_when(args: &[&str], when: &str) -> (Option<i32>, String, String) {
-    let mut child = Command::new(HV)
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let err = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
-    let mut lines = BufReader::new(child.stdout.take().unwrap()).lines();
-    let mut printed = String::new();
-    for line in lines.by_ref() {
-        let line = line.unwrap();
-        printed += &line;
-        printed.push('\n');
-        if line.contains(when) {
-            let kill = Command::new("kill")
-                .args(["-INT", &child.id().to_string()])
-                .status()
-                .unwrap();
-            assert!(kill.success());
-            break;
-        }
-    }
-    for line in lines {
-        printed += &line.unwrap();
-        printed.push('\n');
-    }
-    // A guard against a hang, not a speed requirement.
-    let deadline = Instant::now() + Duration::from_secs(120);
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "no exit after Ctrl-C:\n{printed}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
-    (status.code(), printed, err.join().unwrap())
-}
-
 /// Point 13: Ctrl-C in `eval` and `demo` behaves as in `track`: a message, exit 130, what was done
 /// written, no empty folders; `eval` prints a line per finished run without a terminal.
 #[test]
@@ -509,7 +462,7 @@ fn p13_ctrl_c_in_eval_and_demo_writes_what_was_done() {
     let out = tmp("p13-eval");
     let cache = tmp("p13-cache");
     // The first run's line comes while room is still to be synthesised: Ctrl-C lands there.
-    let (code, printed, err) = interrupt_when(
+    let (code, printed, err) = signal_when(
         &[
             "eval",
             "--scenario",
@@ -527,6 +480,8 @@ fn p13_ctrl_c_in_eval_and_demo_writes_what_was_done() {
             s(&cache),
         ],
         "done: desktop-slow acc model",
+        "INT",
+        Duration::ZERO,
     );
     assert_eq!(code, Some(130), "{printed}\n{err}");
     assert!(
@@ -550,7 +505,7 @@ fn p13_ctrl_c_in_eval_and_demo_writes_what_was_done() {
     // Ctrl-C during the demo's synthesis: nothing was done, nothing stays.
     let out = tmp("p13-demo");
     let cache = tmp("p13-demo-cache");
-    let (code, printed, err) = interrupt_when(
+    let (code, printed, err) = signal_when(
         &[
             "demo",
             "--duration",
@@ -561,6 +516,8 @@ fn p13_ctrl_c_in_eval_and_demo_writes_what_was_done() {
             s(&cache),
         ],
         "demo: desktop-fast",
+        "INT",
+        Duration::ZERO,
     );
     assert_eq!(code, Some(130), "{printed}\n{err}");
     assert!(

@@ -3,9 +3,8 @@
 //! (time stamps, frame rows, pacing, one record per loss, exit codes). The tests on the shared
 //! cube video skip with a message where `../shared/data/visp-cube` is absent.
 
-use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -59,52 +58,6 @@ fn tum_stamps(out: &Path, name: &str) -> Vec<f64> {
         .filter(|l| !l.starts_with('#'))
         .map(|l| l.split(' ').next().unwrap().parse().unwrap())
         .collect()
-}
-
-/// Waits for `child` (a guard against a hang, not a speed requirement).
-fn wait(child: &mut Child, what: &str) -> std::process::ExitStatus {
-    let deadline = Instant::now() + Duration::from_secs(300);
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            return status;
-        }
-        assert!(Instant::now() < deadline, "{what}: no exit");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// Sends `signal` to `child` once it printed a line containing `when` on stdout; returns the
-/// exit code and everything it printed.
-fn signal_when(args: &[&str], when: &str, signal: &str, after: Duration) -> (Option<i32>, String) {
-    let mut child = Command::new(HV)
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let stderr = child.stderr.take().unwrap();
-    let err = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
-    let mut printed = String::new();
-    let mut sent = false;
-    for line in BufReader::new(child.stdout.take().unwrap()).lines() {
-        let line = line.unwrap();
-        if !sent && line.contains(when) {
-            std::thread::sleep(after);
-            let kill = Command::new("kill")
-                .args([&format!("-{signal}"), &child.id().to_string()])
-                .status()
-                .unwrap();
-            assert!(kill.success());
-            sent = true;
-        }
-        printed += &line;
-        printed.push('\n');
-    }
-    let status = wait(&mut child, &args.join(" "));
-    printed += &err.join().unwrap();
-    assert!(sent, "`{when}` never printed:\n{printed}");
-    (status.code(), printed)
 }
 
 /// Points 1, 3, 4 and 22, live on the cube video from a cold start: the first frame analysed
@@ -514,7 +467,7 @@ fn i54_p08_p09_overwrite_removes_the_runs_outputs_only() {
 fn i54_p11_an_interrupted_eval_marks_its_partial_run() {
     let out = tmp("p11");
     let cache = tmp("p11-cache");
-    let (code, printed) = signal_when(
+    let (code, printed, _) = signal_when(
         &[
             "eval",
             "--scenario",

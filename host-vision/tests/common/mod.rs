@@ -3,9 +3,11 @@
 
 #![allow(dead_code)]
 
+use std::io::{BufRead as _, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 pub const HV: &str = env!("CARGO_BIN_EXE_host-vision");
 
@@ -129,4 +131,54 @@ pub fn frame_rows(out: &Path) -> Vec<std::collections::BTreeMap<String, String>>
                 .collect()
         })
         .collect()
+}
+
+/// Waits for `child` (a guard against a hang, not a speed requirement).
+pub fn wait(child: &mut Child, what: &str) -> std::process::ExitStatus {
+    let deadline = Instant::now() + Duration::from_secs(300);
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        assert!(Instant::now() < deadline, "{what}: no exit");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Runs `args` and sends it `signal` (`INT`, `TERM`, …) `after` it printed a line containing
+/// `when` on stdout; returns its exit code, what it printed on stdout and on stderr.
+pub fn signal_when(
+    args: &[&str],
+    when: &str,
+    signal: &str,
+    after: Duration,
+) -> (Option<i32>, String, String) {
+    let mut child = Command::new(HV)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    let err = std::thread::spawn(move || std::io::read_to_string(stderr).unwrap_or_default());
+    let mut printed = String::new();
+    let mut sent = false;
+    for line in BufReader::new(child.stdout.take().unwrap()).lines() {
+        let line = line.unwrap();
+        if !sent && line.contains(when) {
+            std::thread::sleep(after);
+            let kill = Command::new("kill")
+                .args([&format!("-{signal}"), &child.id().to_string()])
+                .status()
+                .unwrap();
+            assert!(kill.success());
+            sent = true;
+        }
+        printed += &line;
+        printed.push('\n');
+    }
+    let status = wait(&mut child, &args.join(" "));
+    assert!(sent, "`{when}` never printed:\n{printed}");
+    (status.code(), printed, err.join().unwrap())
 }
