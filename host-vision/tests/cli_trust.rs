@@ -210,6 +210,30 @@ fn i54_p03_a_live_inertial_run_writes_a_row_for_every_frame() {
         let span = sum["duration_s"].as_f64().unwrap();
         assert!(wall >= span, "{link}: {span} s of data in {wall:.2} s");
     }
+    // A vision-only replay over a noisy line ("90 frames taken, 76 analysed"): a row each.
+    let no_imu = without_imu("p03-noisy-ds");
+    let out = tmp("p03-noisy");
+    expect(
+        &track_args(
+            &no_imu,
+            &out,
+            &["--line-errors", "0.002", "--overlay-every", "0"],
+        ),
+        0,
+    );
+    let rows = frame_rows(&out);
+    let sum = summary(&out);
+    assert_eq!(
+        rows.len(),
+        sum["latency"]["frames_taken"].as_u64().unwrap() as usize
+    );
+    let counted: u64 = sum["frame_outcomes"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|v| v.as_u64().unwrap())
+        .sum();
+    assert_eq!(counted as usize, rows.len(), "{sum}");
 }
 
 /// Point 5: the contour verdict against the ground truth: on the untextured synthetic scene, a

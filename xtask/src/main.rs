@@ -17,6 +17,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
+mod elf;
 mod layers;
 mod python;
 mod references;
@@ -404,7 +405,51 @@ fn build_firmware(steps: &mut Steps) -> Result<(), String> {
         "--target-dir",
         "target",
     ]);
-    steps.run("firmware images", build)
+    steps.run("firmware images", build)?;
+    for (image, part) in FIRMWARE_IMAGES {
+        let layout = firmware_layout(image)?;
+        let vectors = layout
+            .sections
+            .iter()
+            .find(|s| s.name == ".vector_table")
+            .map_or(0, |s| s.addr);
+        println!(
+            "firmware {image} on {}: vector table at {vectors:#010x}, stack from {} (RAM {:#010x}-{:#010x}), flash {:#010x}+{} KiB",
+            part.name,
+            layout
+                .stack_start
+                .map_or("?".into(), |s| format!("{s:#010x}")),
+            part.ram.0,
+            u64::from(part.ram.0) + u64::from(part.ram.1),
+            part.flash.0,
+            part.flash.1 >> 10
+        );
+        let wrong = layout.misfits(part);
+        if !wrong.is_empty() {
+            return Err(format!(
+                "firmware {image} does not fit {}: {} (is another memory.x found first on the linker's path?)",
+                part.name,
+                wrong.join("; ")
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The firmware images and the part each is linked for.
+const FIRMWARE_IMAGES: [(&str, &elf::Part); 3] = [
+    ("device", &elf::MPS2_AN386),
+    ("bench", &elf::MPS2_AN386),
+    ("speedybee-f405", &elf::STM32F405RG),
+];
+
+/// The layout of the firmware image `image` as built.
+fn firmware_layout(image: &str) -> Result<elf::Layout, String> {
+    let path = firmware_dir()
+        .join("target/thumbv7em-none-eabihf/release")
+        .join(image);
+    let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    elf::layout(&bytes).ok_or(format!("{}: not an ELF32 file", path.display()))
 }
 
 /// Most initialised static data a firmware image may hold [bytes].
@@ -429,18 +474,9 @@ fn firmware_report(steps: &mut Steps) -> Result<(), String> {
     .args(["-semihosting-config", "enable=on,target=native", "-kernel"])
     .arg(&bench);
     steps.run("firmware benchmark under QEMU", qemu)?;
-    for image in ["device", "bench", "speedybee-f405"] {
-        let path = dir.join(image);
-        let bytes = std::fs::read(&path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let sections =
-            elf32_sections(&bytes).ok_or(format!("{}: not an ELF32 file", path.display()))?;
-        let size = |name: &str| {
-            sections
-                .iter()
-                .filter(|(n, _)| n == name)
-                .map(|(_, s)| *s)
-                .sum::<u64>()
-        };
+    for (image, part) in FIRMWARE_IMAGES {
+        let layout = firmware_layout(image)?;
+        let size = |name: &str| layout.size(name);
         // The device is all zero bytes when built (`Device::new`), so its `static` lives in
         // `.bss`: a field whose initial value is not all zeros moves the whole device (18 KB)
         // into `.data`, and so into flash too (found in issue 36).
@@ -454,36 +490,15 @@ fn firmware_report(steps: &mut Steps) -> Result<(), String> {
         let flash = size(".vector_table") + size(".text") + size(".rodata") + size(".data");
         let ram = size(".data") + size(".bss") + size(".uninit");
         println!(
-            "firmware {image}: flash {flash} bytes (.vector_table + .text {} + .rodata {} + .data {}), \
-             static RAM {ram} bytes (.data + .bss); add the measured stack high-water above",
+            "firmware {image}: flash {flash} bytes of {}'s {} KiB (.vector_table + .text {} + .rodata {} + .data {}), \
+             static RAM {ram} bytes of {} KiB (.data + .bss); add the measured stack high-water above",
+            part.name,
+            part.flash.1 >> 10,
             size(".text"),
             size(".rodata"),
-            size(".data")
+            size(".data"),
+            part.ram.1 >> 10
         );
     }
     Ok(())
-}
-
-/// Section names and sizes of a little-endian ELF32 file.
-fn elf32_sections(d: &[u8]) -> Option<Vec<(String, u64)>> {
-    let u16_at = |o: usize| Some(u16::from_le_bytes(d.get(o..o + 2)?.try_into().ok()?));
-    let u32_at = |o: usize| Some(u32::from_le_bytes(d.get(o..o + 4)?.try_into().ok()?));
-    if d.get(..5)? != b"\x7fELF\x01" {
-        return None;
-    }
-    let shoff = u32_at(0x20)? as usize;
-    let shentsize = u16_at(0x2e)? as usize;
-    let shnum = u16_at(0x30)? as usize;
-    let shstrndx = u16_at(0x32)? as usize;
-    let header = |i: usize| shoff + i * shentsize;
-    let strtab = u32_at(header(shstrndx) + 16)? as usize;
-    (0..shnum)
-        .map(|i| {
-            let h = header(i);
-            let name_off = strtab + u32_at(h)? as usize;
-            let end = d.get(name_off..)?.iter().position(|&b| b == 0)?;
-            let name = String::from_utf8_lossy(&d[name_off..name_off + end]).into_owned();
-            Some((name, u32_at(h + 20)? as u64))
-        })
-        .collect()
 }

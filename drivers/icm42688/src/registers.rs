@@ -100,6 +100,12 @@ pub const INTF_CONFIG1: u8 = 0x4D;
 pub const INTF_CONFIG1_RTC_MODE: u8 = 1 << 2;
 /// INTF_CONFIG1 bits 1:0 CLKSEL = 01: PLL when available, else the RC oscillator.
 pub const INTF_CONFIG1_CLKSEL_PLL: u8 = 0b01;
+/// INTF_CONFIG1 bits 7:6: the adaptive full-scale range (AFSR) mode.
+pub const INTF_CONFIG1_AFSR_MASK: u8 = 0b1100_0000;
+/// INTF_CONFIG1 bits 7:6 = 01: AFSR off. At reset (10) it is on, and the part holds the gyro's
+/// output for 1-2 ms when it switches its range near 100 °/s (ArduPilot #25025, Betaflight
+/// #13132 and PX4 #22254 turn it off, TDK's driver likewise).
+pub const INTF_CONFIG1_AFSR_OFF: u8 = 0b0100_0000;
 
 /// PWR_MGMT0 (bank 0).
 pub const PWR_MGMT0: u8 = 0x4E;

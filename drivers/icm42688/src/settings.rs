@@ -506,7 +506,7 @@ impl Settings {
         );
 
         // Clock: PLL (the reset CLKSEL, with the reserved bits of the reset value 0x91); with
-        // CLKIN, RTC_MODE once pin 9 has become CLKIN.
+        // CLKIN, RTC_MODE once pin 9 has become CLKIN. AFSR off: the reset value has it on.
         let rtc = match self.clock {
             ClockSource::Internal => 0,
             ClockSource::Clkin => reg::INTF_CONFIG1_RTC_MODE,
@@ -514,7 +514,9 @@ impl Settings {
         push(
             b0,
             reg::INTF_CONFIG1,
-            reg::reset_value(b0, reg::INTF_CONFIG1) | rtc,
+            (reg::reset_value(b0, reg::INTF_CONFIG1) & !reg::INTF_CONFIG1_AFSR_MASK)
+                | reg::INTF_CONFIG1_AFSR_OFF
+                | rtc,
         );
         // Last: gyro and accelerometer in low-noise mode, temperature sensor on.
         push(

@@ -182,17 +182,27 @@ impl CoreLog {
         reason: protocol::StatusReason,
         timeout: Duration,
     ) -> Result<(), TrackerError> {
+        let lossy = link.lossy();
         for _ in 0..CONFIRM_TRIES {
-            let seen = self.statuses.len();
+            let (seen, errors) = (self.statuses.len(), self.errors.len());
             link.send(msg)?;
             self.barrier(link, timeout)?;
             let confirmed = self.statuses[seen..].iter().any(|s| s.reason == reason);
-            if !link.lossy() || confirmed || !self.errors.is_empty() {
+            // A refusal ends it (the caller names it); the line's noise does not.
+            let refused = self.errors[errors..]
+                .iter()
+                .any(|e| !(lossy && is_line_noise(&e.code)));
+            if !lossy || confirmed || refused {
                 return Ok(());
             }
         }
+        let what = match msg {
+            HostToCore::Configure(_) => "the Configure",
+            HostToCore::Init(_) => "the Init",
+            _ => "the message",
+        };
         Err(TrackerError::Core(format!(
-            "no confirmation of {msg:?} in {CONFIRM_TRIES} tries over the noisy line"
+            "no confirmation of {what} in {CONFIRM_TRIES} tries over the noisy line"
         )))
     }
 
@@ -203,6 +213,14 @@ impl CoreLog {
         }
         Ok(())
     }
+}
+
+/// Whether the core's error `code` is what a lossy line causes rather than a refusal: a frame
+/// the line damaged (`Decode`), or a message that arrived while the damaged `Hello` or
+/// `Configure` before it was being sent again (`NoHandshake`, `NotConfigured`).
+pub fn is_line_noise(code: &protocol::ErrorCode) -> bool {
+    use protocol::ErrorCode::{Decode, NoHandshake, NotConfigured};
+    matches!(code, Decode(_) | NoHandshake | NotConfigured)
 }
 
 /// The `Hello` of this protocol version.

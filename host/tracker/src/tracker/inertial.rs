@@ -167,10 +167,9 @@ impl<T: CoreTransport> Tracker<T> {
                 self.send_confirmed(&init, StatusReason::HostRequest)?;
             }
         }
-        if let Some(e) = self.record.log.errors.first() {
+        if let Some(e) = self.refusal(0) {
             return Err(TrackerError::Core(format!(
-                "refused the configuration: {}",
-                e.code
+                "refused the configuration: {e}"
             )));
         }
         self.state = match (cold, attached) {

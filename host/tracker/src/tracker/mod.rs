@@ -227,10 +227,9 @@ impl<T: CoreTransport> Tracker<T> {
             let init = HostToCore::Init(init_at(pose));
             self.send_confirmed(&init, StatusReason::HostRequest)?;
         }
-        if let Some(e) = self.record.log.errors.first() {
+        if let Some(e) = self.refusal(0) {
             return Err(TrackerError::Core(format!(
-                "refused the configuration: {}",
-                e.code
+                "refused the configuration: {e}"
             )));
         }
         self.state = if self.started {
@@ -255,6 +254,20 @@ impl<T: CoreTransport> Tracker<T> {
         self.record
             .log
             .send_confirmed(&mut self.core, msg, reason, self.config.timeout)
+    }
+
+    /// The first refusal of the core logged from error `from` on: on a lossy line, its noise
+    /// ([`crate::log::is_line_noise`]), which [`Self::send_confirmed`] resends past, is none
+    /// (issue 54: `--line-errors 0.002` failed a run as "refused the configuration").
+    pub(crate) fn refusal(&self, from: usize) -> Option<String> {
+        let lossy = self.core.lossy();
+        self.record
+            .log
+            .errors
+            .iter()
+            .skip(from)
+            .find(|e| !(lossy && crate::log::is_line_noise(&e.code)))
+            .map(|e| e.code.to_string())
     }
 
     /// The transport, for what the program does to it directly (fault injection, say).

@@ -245,10 +245,9 @@ impl<T: CoreTransport> Tracker<T> {
             None => HostToCore::Init(self.init_message()?),
         };
         self.send_confirmed(&start, StatusReason::HostRequest)?;
-        if let Some(e) = self.record.log.errors.get(errors) {
+        if let Some(e) = self.refusal(errors) {
             return Err(TrackerError::Core(format!(
-                "refused the configuration again: {}",
-                e.code
+                "refused the configuration again: {e}"
             )));
         }
         Ok(())
