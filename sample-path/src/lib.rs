@@ -1,6 +1,7 @@
 //! The on-board sample path of a sensor board (issue 36): the core reads its own IMU, fires
 //! the camera and time-stamps both on one clock. Portable `no_std` code, without allocation,
-//! run by the firmware at the IMU's interrupt and tested on the PC against the simulated part
+//! run by the firmware's main loop with the time its IMU interrupt captured, and tested on the
+//! PC against the simulated part
 //! ([`icm42688::SimIcm42688`]).
 //!
 //! - [`clock`]: the core's 1 MHz 32-bit timer extended to 64-bit µs;
