@@ -131,10 +131,25 @@ impl Read for PtyReader {
     }
 }
 
+/// Marks `ports` close-on-exec. serialport opens a pty pair without it, so a program the
+/// process starts later (ffmpeg for a video, another test's) held both ends open, and the
+/// board never saw its host hang up until that program ended (issue 54: "the simulated board
+/// did not end its session").
+fn close_on_exec(ports: &[&TTYPort]) -> Result<(), TransportError> {
+    use nix::fcntl::{FcntlArg, FdFlag, fcntl};
+    use std::os::fd::AsRawFd as _;
+    for port in ports {
+        fcntl(port.as_raw_fd(), FcntlArg::F_SETFD(FdFlag::FD_CLOEXEC))
+            .map_err(|e| TransportError::Pty(io::Error::from(e).into()))?;
+    }
+    Ok(())
+}
+
 /// Opens a pty pair: `(host end, board end)`. Bytes cross the kernel's tty layer in raw mode,
 /// exactly as over a USB serial adaptor.
 pub fn pty_pair() -> Result<(Duplex, Duplex), TransportError> {
     let (master, slave) = TTYPort::pair().map_err(TransportError::Pty)?;
+    close_on_exec(&[&master, &slave])?;
     let slave_name = slave.name().unwrap_or_else(|| "pty".into());
     let host =
         tty_duplex(master, format!("pty master of {slave_name}")).map_err(TransportError::Pty)?;
@@ -149,6 +164,7 @@ pub fn pty_pair() -> Result<(Duplex, Duplex), TransportError> {
 /// the host's close is then the end of the stream, and a second host finds no device.
 pub fn pty_for_peer() -> Result<(Duplex, String), TransportError> {
     let (master, slave) = TTYPort::pair().map_err(TransportError::Pty)?;
+    close_on_exec(&[&master, &slave])?;
     let path = slave.name().unwrap_or_else(|| "pty".into());
     let mut board = tty_duplex(master, path.clone()).map_err(TransportError::Pty)?;
     board.reader = Box::new(HoldUntilData {
@@ -271,6 +287,35 @@ mod tests {
         drop(host);
         let mut buf = [0u8; 8];
         assert_eq!(board.reader.read(&mut buf).unwrap(), 0);
+    }
+
+    /// Issue 54: a program started while the pair is open (ffmpeg for a video) no longer
+    /// holds it: the host's close reaches the board while that program still runs.
+    #[test]
+    fn a_child_process_does_not_hold_the_pty_open() {
+        let (host, mut board) = pty_pair().unwrap();
+        let mut child = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .expect("start sleep");
+        drop(host);
+        let mut buf = [0u8; 8];
+        // Reads time out every poll interval until the hang-up, which comes at once.
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+        let eof = loop {
+            match board.reader.read(&mut buf) {
+                Ok(0) => break true,
+                Err(e) if is_poll_timeout(&e) && std::time::Instant::now() < deadline => {}
+                _ => break false,
+            }
+        };
+        let running = child.try_wait().unwrap().is_none();
+        let _ = child.kill();
+        let _ = child.wait();
+        assert!(
+            eof && running,
+            "the hang-up waited for the child (eof {eof})"
+        );
     }
 
     #[test]
