@@ -19,6 +19,17 @@ pub const MAX_GYRO_RAD_S: f32 = 100.0;
 /// Largest specific force an IMU sample may report [m/s²] (about 200 g).
 pub const MAX_ACCEL_M_S2: f32 = 2000.0;
 
+/// Largest position a host may give the core, per axis [m] (`Init`, `Resume`): 100 km, where
+/// an f32 still resolves 8 mm. Far beyond, the state leaves f32's range and the core's reports
+/// would carry infinities (issue 55).
+pub const MAX_POSITION_M: f32 = 1e5;
+
+/// Largest speed a `Resume` may give [m/s] (Mach 3: no hand-held camera or robot).
+pub const MAX_SPEED_M_S: f32 = 1000.0;
+
+/// Largest distance of the camera from the IMU in a `HandEye` [m].
+pub const MAX_MOUNT_M: f32 = 10.0;
+
 /// Largest `SampleSource::Core::trigger_every`: one frame per 1000 samples (a 1 Hz camera on a
 /// 1 kHz IMU). More is a corrupted request.
 pub const MAX_TRIGGER_EVERY: u16 = 1000;
@@ -76,9 +87,19 @@ fn host_message(msg: &HostToCore) -> Result<(), InvalidField> {
             }
             _ => Ok(()),
         },
+        // A state the core could have reported: bounded as its inputs are (issue 55: a rate
+        // of −1e6 rad/s and a bias of 3e38 gave a quaternion of norm 2e36, reported as
+        // dead reckoning).
         HostToCore::Resume(r) => {
-            let vectors = [r.s_w, r.v_w, r.a_w, r.omega_s, r.gyro_bias, r.accel_bias];
-            if vectors.iter().all(|v| all_finite(v)) && is_unit_quaternion(&r.q_sw) {
+            let bounded = [
+                (r.s_w, MAX_POSITION_M),
+                (r.v_w, MAX_SPEED_M_S),
+                (r.a_w, MAX_ACCEL_M_S2),
+                (r.omega_s, MAX_GYRO_RAD_S),
+                (r.gyro_bias, MAX_GYRO_RAD_S),
+                (r.accel_bias, MAX_ACCEL_M_S2),
+            ];
+            if bounded.iter().all(|(v, max)| within(v, *max)) && is_unit_quaternion(&r.q_sw) {
                 Ok(())
             } else {
                 Err(InvalidField::Resume)
@@ -93,6 +114,11 @@ fn norm2(v: &[f32; 3]) -> f32 {
 
 fn all_finite(v: &[f32]) -> bool {
     v.iter().all(|x| x.is_finite())
+}
+
+/// Finite, and each component within `±max`.
+fn within(v: &[f32], max: f32) -> bool {
+    v.iter().all(|x| x.is_finite() && x.abs() <= max)
 }
 
 fn positive(x: f32) -> bool {
@@ -170,7 +196,7 @@ fn config(c: &Config) -> Result<(), InvalidField> {
     if !sigmas.iter().all(|&x| square_normal(x)) {
         return Err(InvalidField::InitSigma);
     }
-    if !is_unit_quaternion(&c.hand_eye.q_cs) || !all_finite(&c.hand_eye.c_s) {
+    if !is_unit_quaternion(&c.hand_eye.q_cs) || !within(&c.hand_eye.c_s, MAX_MOUNT_M) {
         return Err(InvalidField::HandEye);
     }
     if !positive(c.gate) {
@@ -204,7 +230,7 @@ fn config(c: &Config) -> Result<(), InvalidField> {
 }
 
 fn init(i: &Init) -> Result<(), InvalidField> {
-    if !all_finite(&i.position) {
+    if !within(&i.position, MAX_POSITION_M) {
         return Err(InvalidField::InitPosition);
     }
     let ok = match &i.attitude {
@@ -373,6 +399,21 @@ mod tests {
         };
         assert_eq!(resume(|_| {}), Ok(()));
         assert_eq!(resume(|r| r.v_w[1] = f32::NAN), Err(InvalidField::Resume));
+        // Issue 55, point 10: finite but far beyond what a core could have reported.
+        for edit in [
+            (|r: &mut crate::Resume| r.omega_s[2] = -1e6) as fn(&mut crate::Resume),
+            |r| r.accel_bias[0] = 3e38,
+            |r| r.gyro_bias[1] = 101.0,
+            |r| r.s_w[0] = 3.4e38,
+            |r| r.v_w[2] = 2000.0,
+            |r| r.a_w[0] = -3000.0,
+        ] {
+            assert_eq!(resume(edit), Err(InvalidField::Resume));
+        }
+        assert_eq!(
+            configure(|c| c.hand_eye.c_s = [1e20, 0.0, 0.0]),
+            Err(InvalidField::HandEye)
+        );
         assert_eq!(
             resume(|r| r.q_sw = [0.9, 0.0, 0.0, 0.0]),
             Err(InvalidField::Resume)
@@ -445,6 +486,10 @@ mod tests {
         let init = |position, attitude| HostToCore::Init(Init { position, attitude }).validate();
         assert_eq!(
             init([f32::NAN, 0.0, 0.0], InitAttitude::Gravity),
+            Err(InvalidField::InitPosition)
+        );
+        assert_eq!(
+            init([0.0, 2e5, 0.0], InitAttitude::Gravity),
             Err(InvalidField::InitPosition)
         );
         assert_eq!(

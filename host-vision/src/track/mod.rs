@@ -159,8 +159,8 @@ impl From<TrackerError> for TrackError {
     }
 }
 
-/// The largest start position a run takes, per axis [m].
-pub const MAX_START_POSITION_M: f64 = 1e5;
+/// The largest start position a run takes, per axis [m]: the core's bound.
+pub const MAX_START_POSITION_M: f64 = protocol::validate::MAX_POSITION_M as f64;
 /// The largest start yaw a run takes [deg] (a hundred turns).
 pub const MAX_START_YAW_DEG: f64 = 36_000.0;
 
