@@ -62,6 +62,12 @@ impl Stamper {
         self.window = None;
     }
 
+    /// Core µs to part µs at the measured drift, either sign (a slow IMU counts fewer).
+    fn part_us(&self, core_us: u64) -> u64 {
+        let num = (1_000_000 + i64::from(self.ppm)).max(1) as u128;
+        u64::try_from((u128::from(core_us) * num + 500_000) / 1_000_000).unwrap_or(u64::MAX)
+    }
+
     /// Part µs to core µs at the measured drift.
     fn core_us(&self, part_us: u64) -> u64 {
         let den = (1_000_000 + i64::from(self.ppm)).max(1) as u64;
@@ -95,7 +101,7 @@ impl Stamper {
                 // core's clock says passed.
                 Some(ls) => {
                     let d16 = u64::from(first.wrapping_sub(ls));
-                    let est = since_us + since_us * self.ppm.max(0) as u64 / 1_000_000;
+                    let est = self.part_us(since_us);
                     let wraps = (est.saturating_sub(d16) + WRAP / 2) / WRAP;
                     d16 + wraps * WRAP
                 }
@@ -207,5 +213,35 @@ mod tests {
             measured.is_some_and(|p| (p - 300).abs() <= 1),
             "{measured:?}"
         );
+    }
+
+    /// Issue 55, point 8: the 16-bit stamps were unwrapped with a slow IMU taken as on time
+    /// (`ppm.max(0)`): at −20 000 ppm a 3 s gap counted 307 samples lost for 300, 5 s 513 for
+    /// 500. Exact now, at either sign of drift, over gaps of 0.1-10 s.
+    #[test]
+    fn lost_samples_are_counted_exactly_across_long_gaps_at_any_drift() {
+        for ppm in [-20_000i64, -300, 0, 300, 20_000] {
+            for gap in [10u64, 299, 300, 500, 1000] {
+                let mut s = Stamper::new(10_000);
+                // Part µs of sample `k` last `1e6 / (1e6 + ppm)` core µs each.
+                let core = |k: u64| 1_000_000 + k * 10_000 * 1_000_000 / (1_000_000 + ppm) as u64;
+                let stamp = |k: u64| (k * 10_000 % WRAP) as u16;
+                let mut out = [0u64; 10];
+                // 5 s of batches: the drift is measured (a 4 s window).
+                for batch in 0..50u64 {
+                    let stamps: [u16; 10] = core::array::from_fn(|i| stamp(batch * 10 + i as u64));
+                    s.stamp(&stamps, core(batch * 10 + 9), &mut out);
+                }
+                assert!(
+                    (i64::from(s.drift_ppm()) - ppm).abs() <= 2,
+                    "{ppm}: {}",
+                    s.drift_ppm()
+                );
+                // Then `gap` samples never read.
+                let k = 499 + gap + 1;
+                let found = s.stamp(&[stamp(k)], core(k), &mut out[..1]);
+                assert_eq!(found.lost as u64, gap, "{ppm} ppm, {gap} samples");
+            }
+        }
     }
 }
