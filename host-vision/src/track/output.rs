@@ -704,7 +704,7 @@ impl fmt::Display for Summary {
         for o in &self.outages {
             writeln!(
                 f,
-                "outage       {:.3} s: {:?} ({}); noticed at {:.3} s{}, back at {}, {} attempts, {} samples caught up, tracking again at {}",
+                "outage       {:.3} s: {:?} ({}); noticed at {:.3} s{}, back at {}, {}, {} samples caught up, tracking again at {}",
                 o.injected_s.unwrap_or(o.noticed_s),
                 o.kind,
                 o.cause,
@@ -716,7 +716,7 @@ impl fmt::Display for Summary {
                     "{t:.3} s (a gap of {:.3} s)",
                     t - o.injected_s.unwrap_or(o.noticed_s)
                 )),
-                o.attempts,
+                counted(o.attempts as usize, "attempt", "attempts"),
                 o.backlog,
                 opt(o.tracking_s, "s"),
             )?;
@@ -743,8 +743,11 @@ impl fmt::Display for Summary {
                 .collect();
             writeln!(
                 f,
-                "lost track   {} times (model in view, features not registering or far off): {}",
-                self.track_losses.len(),
+                "lost track   {} (model in view, features not registering or far off): {}",
+                match self.track_losses.len() {
+                    1 => "once".to_string(),
+                    n => format!("{n} times"),
+                },
                 shown.join(", ")
             )?;
         }
