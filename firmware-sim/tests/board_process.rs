@@ -3,17 +3,18 @@
 //! talks the protocol to the fusion core behind it. Also over TCP.
 
 use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStderr, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
 use protocol::{CoreToHost, Hello, HostToCore, Init, InitAttitude, Mode, PROTOCOL_VERSION};
 
-/// Starts the board and returns it with the first line it prints on stderr, and the rest.
-fn start(link: &str) -> (Child, String, std::thread::JoinHandle<String>) {
+/// Starts the board with `args` and returns it with the first line it prints on stderr, and
+/// its stderr to read on.
+fn start_with(args: &[&str]) -> (Child, String, BufReader<ChildStderr>) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
-        .args(["--link", link])
+        .args(args)
         .stderr(Stdio::piped())
         .stdout(Stdio::null())
         .spawn()
@@ -21,9 +22,15 @@ fn start(link: &str) -> (Child, String, std::thread::JoinHandle<String>) {
     let mut err = BufReader::new(child.stderr.take().unwrap());
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
+    (child, line.trim().to_string(), err)
+}
+
+/// Starts the board and returns it with the first line it prints on stderr, and the rest.
+fn start(link: &str) -> (Child, String, std::thread::JoinHandle<String>) {
+    let (child, line, mut err) = start_with(&["--link", link]);
     // Keep reading, so that the board's last words do not meet a closed pipe.
     let rest = std::thread::spawn(move || std::io::read_to_string(&mut err).unwrap_or_default());
-    (child, line.trim().to_string(), rest)
+    (child, line, rest)
 }
 
 /// Starts the board on a pty: the process, the pty's path, and the rest of what it prints.
@@ -241,15 +248,7 @@ fn a_host_talks_to_the_board_process_over_tcp() {
 /// session's (the second said twice the first's samples). Each session's report is its own.
 #[test]
 fn each_session_of_a_board_that_serves_forever_reports_its_own_counts() {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_firmware-sim"))
-        .args(["--link", "tcp:127.0.0.1:0", "--forever"])
-        .stderr(Stdio::piped())
-        .stdout(Stdio::null())
-        .spawn()
-        .expect("start firmware-sim");
-    let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    err.read_line(&mut line).unwrap();
+    let (mut child, line, mut err) = start_with(&["--link", "tcp:127.0.0.1:0", "--forever"]);
     let addr = tcp_address(&line);
     let mut reports = Vec::new();
     for _ in 0..2 {
