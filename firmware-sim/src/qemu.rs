@@ -60,18 +60,35 @@ pub struct QemuBoard {
 impl QemuBoard {
     /// Starts `image` on `mps2-an386` with its UART on a local TCP port and connects to it.
     /// `-icount shift=0` makes virtual time count instructions (1 ns each).
+    ///
+    /// The ports are picked free and then handed to QEMU, so another process can take one in
+    /// between (CI runs suites side by side): QEMU then exits with "Address already in use",
+    /// and the start is tried again on fresh ports, a few times.
     pub fn start(image: &Path, connect_within: Duration) -> Result<(QemuBoard, Duplex), QemuError> {
         if !image.is_file() {
             return Err(QemuError::MissingImage(image.to_owned()));
         }
-        let free_port = || {
-            TcpListener::bind("127.0.0.1:0")
-                .and_then(|l| l.local_addr())
-                .map(|a| a.port())
-                .map_err(QemuError::Port)
-        };
-        let port = free_port()?;
-        let qmp_port = free_port()?;
+        const TRIES: usize = 5;
+        let mut tries = 0;
+        loop {
+            tries += 1;
+            match Self::start_once(image, connect_within) {
+                Err(QemuError::Exited(why)) if tries < TRIES && why.contains("already in use") => {}
+                other => return other,
+            }
+        }
+    }
+
+    fn start_once(
+        image: &Path,
+        connect_within: Duration,
+    ) -> Result<(QemuBoard, Duplex), QemuError> {
+        // Both listeners are held until QEMU is spawned, so the two ports differ.
+        let bind = || TcpListener::bind("127.0.0.1:0").map_err(QemuError::Port);
+        let port_of = |l: &TcpListener| l.local_addr().map(|a| a.port()).map_err(QemuError::Port);
+        let (serial_l, qmp_l) = (bind()?, bind()?);
+        let (port, qmp_port) = (port_of(&serial_l)?, port_of(&qmp_l)?);
+        drop((serial_l, qmp_l));
         let qmp = format!("tcp:127.0.0.1:{qmp_port},server=on,wait=off");
         let serial = format!("tcp:127.0.0.1:{port},server=on,wait=on,nodelay=on");
         let child = Command::new("qemu-system-arm")
