@@ -613,6 +613,9 @@ pub enum GapCause {
     PartReset,
     /// The IMU's time stamps jumped with no fault seen.
     Unexplained,
+    /// The IMU marked samples invalid (−32768 in an axis: a sensor starting up); they keep
+    /// their place in time but carry no reading (since 3.3).
+    InvalidSample,
 }
 
 /// What the core can hold.

@@ -17,6 +17,62 @@ use protocol::{GapCause, ImuSample, SampleGap, SampleSource};
 use crate::stamp::Stamper;
 use crate::trigger::TriggerCount;
 
+/// How many of the latest IMU interrupts' times [`Timing::interrupts`] gives.
+pub const INTERRUPTS_KEPT: usize = 4;
+
+/// The core's clock and the IMU interrupt's captured times, as the firmware's main loop holds
+/// them: the interrupt handler notes the time of each interrupt, the path reads them after the
+/// FIFO, so that an interrupt landing during the read is among them ([`crate::stamp`] decides
+/// which sample each stamps).
+pub trait Timing {
+    /// The core's time now [µs].
+    fn now_us(&mut self) -> u64;
+    /// The core times [µs] of the latest IMU interrupts, oldest first, into `out` (at most
+    /// [`INTERRUPTS_KEPT`]); how many were written.
+    fn interrupts(&mut self, out: &mut [u64; INTERRUPTS_KEPT]) -> usize;
+}
+
+/// A read at `now_us` after the interrupts at `interrupts` (oldest first; the latest
+/// [`INTERRUPTS_KEPT`] count). For simulations of the main loop's timing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Served<'a> {
+    /// The core's time at the read [µs].
+    pub now_us: u64,
+    /// The interrupts' times [µs].
+    pub interrupts: &'a [u64],
+}
+
+impl Timing for Served<'_> {
+    fn now_us(&mut self) -> u64 {
+        self.now_us
+    }
+    fn interrupts(&mut self, out: &mut [u64; INTERRUPTS_KEPT]) -> usize {
+        let latest = self
+            .interrupts
+            .get(self.interrupts.len().saturating_sub(INTERRUPTS_KEPT)..)
+            .unwrap_or_default();
+        for (o, &t) in out.iter_mut().zip(latest) {
+            *o = t;
+        }
+        latest.len()
+    }
+}
+
+/// A moment at which an interrupt is served at once: now is the interrupt's time, the only one
+/// known. For simulations that step the part and the loop together.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct At(pub u64);
+
+impl Timing for At {
+    fn now_us(&mut self) -> u64 {
+        self.0
+    }
+    fn interrupts(&mut self, out: &mut [u64; INTERRUPTS_KEPT]) -> usize {
+        out[0] = self.0;
+        1
+    }
+}
+
 /// How often the part's configuration is read back [µs] (PX4 checks a register per cycle;
 /// 100 ms finds a reset part within ten samples at 100 Hz, for a few hundred SPI bytes).
 pub const CHECK_EVERY_US: u64 = 100_000;
@@ -67,6 +123,8 @@ pub struct SamplePath<SPI, PIN> {
     trigger: TriggerCount,
     /// A fault seen that explains the next gap.
     cause: Option<GapCause>,
+    /// Samples marked invalid since the last valid one handed on, and that one's time.
+    invalid: (u32, u64),
     last_read_us: Option<u64>,
     last_check_us: u64,
     packets: [Packet; FIFO_CAPACITY],
@@ -77,13 +135,15 @@ pub struct SamplePath<SPI, PIN> {
 impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
     /// A path over a driver (not yet initialised) and the camera's trigger line.
     pub fn new(imu: Icm42688<SPI>, trigger_pin: PIN) -> Self {
-        let period = imu.settings().period_us();
+        let settings = imu.settings();
+        let stamper = Stamper::new(settings.period_us(), settings.stamp_tick());
         SamplePath {
             imu,
             trigger_pin,
-            stamper: Stamper::new(period),
+            stamper,
             trigger: TriggerCount::default(),
             cause: None,
+            invalid: (0, 0),
             last_read_us: None,
             last_check_us: 0,
             packets: [Packet::default(); FIFO_CAPACITY],
@@ -114,10 +174,24 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         Ok(())
     }
 
-    /// The IMU's interrupt, at core time `t_irq_us`: reads, stamps and hands on every sample.
+    /// The IMU's interrupt was taken: reads the FIFO, stamps every sample (with the interrupts'
+    /// times that `timing` holds after the read) and hands each on.
     pub fn on_interrupt<T: Kernels>(
         &mut self,
-        t_irq_us: u64,
+        timing: &mut impl Timing,
+        device: &mut Device<T>,
+        delay: &mut impl DelayNs,
+        out: Out,
+    ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
+        self.read(timing, true, device, delay, out)
+    }
+
+    /// Reads the FIFO and hands its samples on; `interrupts`: whether the interrupts' times
+    /// stamp them (else the time of the read does: polling).
+    fn read<T: Kernels>(
+        &mut self,
+        timing: &mut impl Timing,
+        interrupts: bool,
         device: &mut Device<T>,
         delay: &mut impl DelayNs,
         out: Out,
@@ -126,14 +200,40 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             .imu
             .read_fifo(&mut self.packets)
             .map_err(PathError::Imu)?;
-        self.last_read_us = Some(t_irq_us);
+        let read_us = timing.now_us();
+        let mut irqs = [0u64; INTERRUPTS_KEPT];
+        let k = if interrupts {
+            timing.interrupts(&mut irqs).min(INTERRUPTS_KEPT)
+        } else {
+            0
+        };
+        self.last_read_us = Some(read_us);
         if read.overflowed {
             self.cause = Some(GapCause::FifoOverflow);
         }
         let n = read.packets.min(FIFO_CAPACITY);
         let mut summary = ReadSummary::default();
         if n > 0 {
-            summary = self.hand_on(n, t_irq_us, device, delay, out)?;
+            for (s, p) in self.stamps.iter_mut().zip(&self.packets[..n]) {
+                *s = p.timestamp;
+            }
+            let stamped =
+                self.stamper
+                    .stamp(&self.stamps[..n], &irqs[..k], read_us, &mut self.times[..n]);
+            if let Some(ppm) = stamped.drift_ppm {
+                device.onboard(&OnboardEvent::Drift(ppm as f32), out);
+            }
+            if stamped.lost > 0 {
+                let gap = SampleGap {
+                    from_us: stamped.gap_from_us,
+                    to_us: self.times[0],
+                    lost: stamped.lost,
+                    cause: self.cause.unwrap_or(GapCause::Unexplained),
+                };
+                device.onboard(&OnboardEvent::Gap(gap), out);
+            }
+            self.cause = None;
+            summary = self.hand_on(n, stamped.lost, device, delay, out)?;
         }
         // A corrupt packet ended the read (the FIFO was flushed): the gap shows at the next.
         if read.corrupt {
@@ -142,34 +242,16 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         Ok(summary)
     }
 
-    /// Stamps, scales and hands on the `n` packets read.
+    /// Scales and hands on the `n` packets read and stamped (`lost` before them), the ones
+    /// the part marked invalid as gaps; fires the camera with the newest valid one when due.
     fn hand_on<T: Kernels>(
         &mut self,
         n: usize,
-        t_irq_us: u64,
+        lost: u32,
         device: &mut Device<T>,
         delay: &mut impl DelayNs,
         out: Out,
     ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
-        for (s, p) in self.stamps.iter_mut().zip(&self.packets[..n]) {
-            *s = p.timestamp;
-        }
-        let stamped = self
-            .stamper
-            .stamp(&self.stamps[..n], t_irq_us, &mut self.times[..n]);
-        if let Some(ppm) = stamped.drift_ppm {
-            device.onboard(&OnboardEvent::Drift(ppm as f32), out);
-        }
-        if stamped.lost > 0 {
-            let gap = SampleGap {
-                from_us: stamped.gap_from_us,
-                to_us: self.times[0],
-                lost: stamped.lost,
-                cause: self.cause.unwrap_or(GapCause::Unexplained),
-            };
-            device.onboard(&OnboardEvent::Gap(gap), out);
-        }
-        self.cause = None;
         let watermark = usize::from(self.imu.settings().watermark.max(1));
         if n > watermark {
             device.onboard(&OnboardEvent::LateRead, out);
@@ -178,7 +260,9 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             SampleSource::Core { trigger_every } => trigger_every,
             SampleSource::Host => 0,
         };
-        let triggered = self.trigger.due(every, n as u32);
+        let newest_valid = self.packets[..n].iter().rposition(Packet::has_valid_data);
+        // A read of invalid samples alone has nothing for a trigger to go with.
+        let triggered = newest_valid.is_some() && self.trigger.due(every, n as u32);
         if triggered {
             // Fired now, at the newest sample's interrupt: the camera exposes at its time.
             self.trigger_pin.set_high().map_err(PathError::TriggerPin)?;
@@ -186,34 +270,56 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             self.trigger_pin.set_low().map_err(PathError::TriggerPin)?;
         }
         let settings = *self.imu.settings();
+        let mut samples = 0;
         for i in 0..n {
-            let p = &self.packets[i];
+            let (p, t_us) = (&self.packets[i], self.times[i]);
+            if !p.has_valid_data() {
+                if self.invalid.0 == 0 && i > 0 {
+                    self.invalid.1 = self.times[i - 1];
+                }
+                self.invalid.0 = self.invalid.0.saturating_add(1);
+                continue;
+            }
+            if self.invalid.0 > 0 {
+                let gap = SampleGap {
+                    from_us: self.invalid.1,
+                    to_us: t_us,
+                    lost: self.invalid.0,
+                    cause: GapCause::InvalidSample,
+                };
+                device.onboard(&OnboardEvent::Gap(gap), out);
+                self.invalid.0 = 0;
+            }
             let sample = ImuSample {
-                t_us: self.times[i],
+                t_us,
                 gyro: p.gyro_rad_s(&settings),
                 accel: p.accel_m_s2(&settings),
-                trigger: triggered && i + 1 == n,
+                trigger: triggered && Some(i) == newest_valid,
             };
             device.onboard(&OnboardEvent::Sample(sample), out);
+            self.invalid.1 = t_us;
+            samples += 1;
         }
         Ok(ReadSummary {
-            samples: n,
-            lost: stamped.lost,
+            samples,
+            lost,
             triggered,
         })
     }
 
-    /// The main loop's turn, at core time `now_us`: every [`CHECK_EVERY_US`] the part's
-    /// configuration is read back and repaired if it was lost (a brown-out or glitch reset
-    /// the part; its samples restart, and the gap is reported as `PartReset`); and if no
-    /// interrupt came for [`MISSED_INTERRUPTS_BEFORE_POLLING`] intervals, the FIFO is read here.
+    /// The main loop's turn: every [`CHECK_EVERY_US`] the part's configuration is read back
+    /// and repaired if it was lost (a brown-out or glitch reset the part; its samples restart,
+    /// and the gap is reported as `PartReset`); and if no interrupt came for
+    /// [`MISSED_INTERRUPTS_BEFORE_POLLING`] intervals, the FIFO is read here, its newest sample
+    /// stamped with the time of the read.
     pub fn poll<T: Kernels>(
         &mut self,
-        now_us: u64,
+        timing: &mut impl Timing,
         device: &mut Device<T>,
         delay: &mut impl DelayNs,
         out: Out,
     ) -> Result<Option<ReadSummary>, PathError<SPI::Error, PIN::Error>> {
+        let now_us = timing.now_us();
         if now_us.saturating_sub(self.last_check_us) >= CHECK_EVERY_US {
             self.last_check_us = now_us;
             if let Check::Repaired { .. } = self.imu.check(delay).map_err(PathError::Imu)? {
@@ -228,7 +334,7 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             now_us.saturating_sub(t) >= MISSED_INTERRUPTS_BEFORE_POLLING * interval
         });
         if silent {
-            return self.on_interrupt(now_us, device, delay, out).map(Some);
+            return self.read(timing, false, device, delay, out).map(Some);
         }
         Ok(None)
     }

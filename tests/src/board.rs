@@ -7,7 +7,7 @@ use firmware_sim::sim::sensor_board::{NoDelay, SharedPart, TriggerLine};
 use fusion_core::Kernels;
 use icm42688::{Icm42688, Settings};
 use protocol::{CoreToHost, HostToCore, ImuSample, SampleSource, Sampling};
-use sample_path::SamplePath;
+use sample_path::{At, SamplePath, Served};
 
 use crate::harness::Driver;
 
@@ -20,6 +20,13 @@ pub enum Serve {
     MissedInterrupt,
     /// The MCU is busy: neither runs.
     Nothing,
+    /// The previous sample's interrupt is served only now, and this sample arrived (and
+    /// interrupted) after the loop took the interrupt and before it read the FIFO's count: the
+    /// read holds both, and both interrupts' times are known after it (issue 55, point 4).
+    ArrivedDuringRead,
+    /// This sample's interrupt is served, and the next sample interrupts after the FIFO's
+    /// count was read but before the interrupts' times are read: it is not in the read.
+    NextArrivesAfterRead,
 }
 
 /// The board: the simulated part and the sample path.
@@ -69,6 +76,11 @@ impl Board {
         self.part.part().power_on_reset();
     }
 
+    /// The next `n` packets the part stores are marked invalid (a sensor starting up).
+    pub fn invalid_next(&self, n: u32) {
+        self.part.part().invalid_next(n);
+    }
+
     /// The next packet the part stores gets a corrupt header.
     pub fn corrupt_next(&self) {
         self.part.part().corrupt_next_header();
@@ -86,14 +98,25 @@ impl Board {
             .sample(s.t_us, f(reading.gyro), f(reading.accel), 25.0);
         let mut answers = Vec::new();
         let mut out = |m| answers.push(m);
-        if serve == Serve::Interrupt && self.part.part().interrupt_pending() {
+        let period = u64::from(self.path.imu().settings().period_us());
+        let interrupts = match serve {
+            Serve::Interrupt => vec![s.t_us],
+            Serve::ArrivedDuringRead => vec![s.t_us - period, s.t_us],
+            Serve::NextArrivesAfterRead => vec![s.t_us, s.t_us + period],
+            Serve::MissedInterrupt | Serve::Nothing => vec![],
+        };
+        if !interrupts.is_empty() && self.part.part().interrupt_pending() {
+            let mut timing = Served {
+                now_us: s.t_us,
+                interrupts: &interrupts,
+            };
             self.path
-                .on_interrupt(s.t_us, &mut driver.device, &mut NoDelay, &mut out)
+                .on_interrupt(&mut timing, &mut driver.device, &mut NoDelay, &mut out)
                 .expect("the simulated part answers");
         }
         if serve != Serve::Nothing {
             self.path
-                .poll(s.t_us, &mut driver.device, &mut NoDelay, &mut out)
+                .poll(&mut At(s.t_us), &mut driver.device, &mut NoDelay, &mut out)
                 .expect("the simulated part answers");
         }
         for m in &answers {

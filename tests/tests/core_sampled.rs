@@ -92,10 +92,21 @@ fn faults_of_the_part_are_reported_and_the_filter_tracks_through_them() {
         if k == at(11.0) {
             board.corrupt_next();
         }
+        // Two samples marked invalid, the first the newest of a read (issue 55, point 6).
+        if k == at(16.0) + 1 {
+            board.invalid_next(2);
+        }
         let serve = if (at(5.0)..at(5.8)).contains(&k) {
             Serve::Nothing // 160 samples: the FIFO (128) overflows
-        } else if [at(13.0), at(13.0) + 1, at(14.0)].contains(&k) {
+        } else if [at(13.0), at(13.0) + 1, at(14.0), at(16.0)].contains(&k) {
             Serve::MissedInterrupt
+        } else if k == at(15.0) {
+            Serve::Nothing
+        } else if k == at(15.0) + 1 {
+            // Issue 55, point 4: an interrupt inside the read, its sample in it or not.
+            Serve::ArrivedDuringRead
+        } else if k == at(15.5) {
+            Serve::NextArrivesAfterRead
         } else {
             Serve::Interrupt
         };
@@ -128,14 +139,36 @@ fn faults_of_the_part_are_reported_and_the_filter_tracks_through_them() {
         [
             GapCause::FifoOverflow,
             GapCause::PartReset,
-            GapCause::CorruptPacket
+            GapCause::CorruptPacket,
+            GapCause::InvalidSample
         ]
     );
+    let invalid = gaps[3];
+    let t = |k: usize| board.raw[0].t_us + 5_000 * k as u64;
+    assert_eq!(invalid.lost, 2);
+    assert!(invalid.from_us.abs_diff(t(at(16.0))) <= 1, "{invalid:?}");
+    assert!(invalid.to_us.abs_diff(t(at(16.0) + 3)) <= 1, "{invalid:?}");
+    // Every sample at its own time (to the stamps' 1.07 µs tick), whatever the loop's timing:
+    // an interrupt inside a read, a missed one, an invalid newest sample, polling.
+    // Consecutive samples are whole periods apart, one unless samples were lost between.
+    let mut missing = 0;
+    for (i, pair) in board.raw.windows(2).enumerate() {
+        let d = pair[1].t_us - pair[0].t_us;
+        let n = (d + 2_500) / 5_000;
+        assert!(
+            n >= 1 && d.abs_diff(n * 5_000) <= 2,
+            "samples {i} and {} stamped {d} µs apart",
+            i + 1
+        );
+        missing += n - 1;
+    }
+    assert_eq!(missing, u64::from(report.lost));
     // Nothing lost silently: every sample is either taken or counted lost.
     assert_eq!(report.lost as usize + board.raw.len(), d.samples());
     assert_eq!(report.lost, gaps.iter().map(|g| g.lost).sum::<u32>());
-    // Late reads: the two missed interrupts, and the read after the busy stretch.
-    assert_eq!((report.part_resets, report.late_reads), (1, 3));
+    // Late reads: the three missed interrupts, the read after the busy stretch, and the one
+    // served late with an interrupt inside it.
+    assert_eq!((report.part_resets, report.late_reads), (1, 5));
     assert!(d.out.errors.is_empty(), "{:?}", d.out.errors);
     assert!(
         !d.out.statuses.iter().any(|s| s.mode == Mode::Diverged),

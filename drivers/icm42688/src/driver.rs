@@ -27,7 +27,8 @@ const FIFO_STATUS: u8 =
 /// What one [`Icm42688::read_fifo`] found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct FifoRead {
-    /// Valid packets written to the start of `out`, in FIFO order (oldest first).
+    /// Packets written to the start of `out`, in FIFO order (oldest first), the ones the
+    /// part marked invalid among them: each has its time stamp, which places the others.
     pub packets: usize,
     /// FIFO_FULL_INT was set since the last read: the FIFO filled up, and in stream mode the
     /// part then overwrites its oldest packets, so samples were (or, if it filled exactly,
@@ -36,8 +37,8 @@ pub struct FifoRead {
     /// A packet with a bad header was met: it and everything after it are not trusted, and
     /// the FIFO was flushed.
     pub corrupt: bool,
-    /// Packets the part marked invalid (−32768 in an axis: a sensor starting up). They are
-    /// read out of the FIFO but not written to `out`.
+    /// How many of the `packets` the part marked invalid (−32768 in an axis: a sensor
+    /// starting up); [`Packet::has_valid_data`] tells which.
     pub invalid: usize,
     /// Records left in the FIFO after this read (0 after a flush).
     pub remaining: u16,
@@ -167,8 +168,9 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
     }
 
     /// Reads the FIFO: one 3-byte read of INT_STATUS, FIFO_COUNTH, FIFO_COUNTL (count in
-    /// records), then `min(count, out.len())` packets in one burst from FIFO_DATA. Valid packets
-    /// are written to `out` in FIFO order. A bad header stops decoding and flushes the FIFO.
+    /// records), then `min(count, out.len())` packets in one burst from FIFO_DATA. The packets
+    /// are written to `out` in FIFO order, invalid ones too (counted in
+    /// [`FifoRead::invalid`]). A bad header stops decoding and flushes the FIFO.
     pub fn read_fifo(&mut self, out: &mut [Packet]) -> Result<FifoRead, Error<SPI::Error>> {
         let mut head = [0u8; 3];
         self.read_registers(bank::BANK0, reg::INT_STATUS, &mut head)?;
@@ -204,13 +206,13 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
                 .ok()
                 .and_then(|bytes| Packet::decode(bytes).ok());
             match decoded {
-                Some(packet) if packet.has_valid_data() => {
+                Some(packet) => {
                     if let Some(slot) = slots.next() {
                         *slot = packet;
                         result.packets += 1;
+                        result.invalid += usize::from(!packet.has_valid_data());
                     }
                 }
-                Some(_) => result.invalid += 1,
                 None => {
                     result.corrupt = true;
                     break;

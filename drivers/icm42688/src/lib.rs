@@ -5,7 +5,8 @@
 //! # Design
 //!
 //! - **Batched FIFO reads with time stamps.** The part runs in stream-to-FIFO mode with
-//!   packet 3 (accel, gyro, temperature, 16-bit 1 µs time stamp on the part's clock, data sheet §6.1).
+//!   packet 3 (accel, gyro, temperature, 16-bit time stamp on the part's clock, data sheet §6.1;
+//!   its tick is 32/30 µs, [`Settings::stamp_tick`]).
 //!   [`Icm42688::read_fifo`] reads INT_STATUS and FIFO_COUNT in one 3-byte transaction, then
 //!   every packet it has room for in one burst, so the MCU can sleep through many samples
 //!   (watermark interrupt) and still get each sample's time.
@@ -46,7 +47,7 @@ pub use error::Error;
 pub use packet::{Packet, PacketError};
 pub use registers::FIFO_CAPACITY;
 pub use settings::{
-    Aaf, AccelRange, ClockSource, GyroRange, Interrupt, MAX_REGISTER_WRITES, Odr, RegisterWrite,
-    STANDARD_GRAVITY, Settings, SettingsError,
+    Aaf, AccelRange, CLKIN_HZ, ClockSource, GyroRange, Interrupt, MAX_REGISTER_WRITES, Odr,
+    RegisterWrite, STANDARD_GRAVITY, Settings, SettingsError, StampTick,
 };
 pub use sim::{SIM_FIFO_CAPACITY, SimIcm42688};

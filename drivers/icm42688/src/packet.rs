@@ -17,8 +17,9 @@ pub struct Packet {
     pub gyro: [i16; 3],
     /// Temperature in counts: °C = raw / 2.07 + 25.
     pub temperature: i8,
-    /// Low 16 bits of the part's 1 µs time-stamp counter at the sample (TMST_EN,
-    /// TMST_DELTA_EN = 0, TMST_RES = 0), on the part's clock: it wraps every 65.536 ms.
+    /// Low 16 bits of the part's time-stamp counter at the sample (TMST_EN, TMST_DELTA_EN = 0,
+    /// TMST_RES = 0), on the part's clock. Its tick is nominally 1 µs but 32/30 µs on the
+    /// internal clock ([`Settings::stamp_tick`]): it wraps every 69.9 ms.
     pub timestamp: u16,
 }
 

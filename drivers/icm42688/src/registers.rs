@@ -137,7 +137,8 @@ pub const ACCEL_CONFIG1_UI_FILT_ORD_MASK: u8 = 0b11 << 3;
 
 /// TMST_CONFIG (bank 0).
 pub const TMST_CONFIG: u8 = 0x54;
-/// TMST_CONFIG bit 3 TMST_RES: 0 = 1 µs; 1 = 16 µs, or one RTC period with RTC_MODE.
+/// TMST_CONFIG bit 3 TMST_RES: 0 = "1 µs"; 1 = "16 µs", or one RTC period with RTC_MODE.
+/// On the internal clock both are 32/30 of that ([`crate::Settings::stamp_tick`]).
 pub const TMST_CONFIG_RES: u8 = 1 << 3;
 /// TMST_CONFIG bit 2 TMST_DELTA_EN: time since the last ODR instead of an absolute count.
 pub const TMST_CONFIG_DELTA_EN: u8 = 1 << 2;

@@ -241,7 +241,22 @@ pub enum ClockSource {
     Internal,
     /// A 31–50 kHz clock on pin 9 (CLKIN, RTC mode): the ODR and the time stamps follow the
     /// MCU's crystal instead of the part's own oscillator.
-    Clkin,
+    Clkin {
+        /// The clock's frequency [Hz] (32 768 nominally): the time stamps' tick scales with it.
+        hz: u32,
+    },
+}
+
+/// The CLKIN frequencies the part takes [Hz] (data sheet §4.2, RTC mode).
+pub const CLKIN_HZ: core::ops::RangeInclusive<u32> = 31_000..=50_000;
+
+/// The FIFO time stamp's tick, `num / den` µs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct StampTick {
+    /// Numerator [µs].
+    pub num: u32,
+    /// Denominator (never 0).
+    pub den: u32,
 }
 
 /// A settings value that the part cannot be given.
@@ -254,6 +269,11 @@ pub enum SettingsError {
         /// The largest watermark allowed (the FIFO capacity in packets).
         max: u16,
     },
+    /// The CLKIN frequency is outside what the part takes ([`CLKIN_HZ`]).
+    ClkinOutOfRange {
+        /// The frequency given [Hz].
+        hz: u32,
+    },
 }
 
 impl fmt::Display for SettingsError {
@@ -262,6 +282,12 @@ impl fmt::Display for SettingsError {
             SettingsError::WatermarkOutOfRange { watermark, max } => write!(
                 f,
                 "FIFO watermark of {watermark} packets is outside 1..={max} (the FIFO holds {max} packets)"
+            ),
+            SettingsError::ClkinOutOfRange { hz } => write!(
+                f,
+                "CLKIN at {hz} Hz is outside the {}-{} Hz the part takes",
+                CLKIN_HZ.start(),
+                CLKIN_HZ.end()
             ),
         }
     }
@@ -317,8 +343,14 @@ impl Settings {
         }
     }
 
-    /// Checks what the types cannot: the watermark is within the FIFO.
+    /// Checks what the types cannot: the watermark is within the FIFO, and a CLKIN within
+    /// [`CLKIN_HZ`].
     pub fn validate(&self) -> Result<(), SettingsError> {
+        if let ClockSource::Clkin { hz } = self.clock
+            && !CLKIN_HZ.contains(&hz)
+        {
+            return Err(SettingsError::ClkinOutOfRange { hz });
+        }
         // FIFO_CAPACITY is 128: the cast cannot truncate.
         let max = reg::FIFO_CAPACITY as u16;
         if self.watermark == 0 || self.watermark > max {
@@ -347,6 +379,21 @@ impl Settings {
     /// part's clock (±a few % on the internal oscillator): measure it from the time stamps.
     pub fn period_us(&self) -> u32 {
         self.odr.period_us()
+    }
+
+    /// The FIFO time stamp's tick (TMST_RES = 0, "1 µs"). On the internal clock the part's PLL
+    /// runs at 19.2 MHz where the counter assumes 20.48 MHz, so a tick lasts 32/30 µs of the
+    /// part's clock (TDK's `inv_icm426xx_get_fifo_timestamp_resolution_us_q24`, PX4's
+    /// `FIFO_TIMESTAMP_SCALING`). With CLKIN (RTC mode) that factor does not apply and the
+    /// tick is one µs of a 32 768 Hz clock: `32768 / hz` µs.
+    pub const fn stamp_tick(&self) -> StampTick {
+        match self.clock {
+            ClockSource::Internal => StampTick { num: 16, den: 15 },
+            ClockSource::Clkin { hz } => StampTick {
+                num: 32_768,
+                den: if hz == 0 { 32_768 } else { hz },
+            },
+        }
     }
 
     /// The exact configuration sequence, written after a soft reset (every register at its
@@ -488,7 +535,7 @@ impl Settings {
             reg::GYRO_CONFIG_STATIC5,
             (bitshift << 4) | (sqr_high & 0x0F),
         );
-        if self.clock == ClockSource::Clkin {
+        if let ClockSource::Clkin { .. } = self.clock {
             // INTF_CONFIG5 resets to 0x00 (pin 9 = INT2).
             push(b1, reg::INTF_CONFIG5, reg::INTF_CONFIG5_PIN9_CLKIN);
         }
@@ -509,7 +556,7 @@ impl Settings {
         // CLKIN, RTC_MODE once pin 9 has become CLKIN. AFSR off: the reset value has it on.
         let rtc = match self.clock {
             ClockSource::Internal => 0,
-            ClockSource::Clkin => reg::INTF_CONFIG1_RTC_MODE,
+            ClockSource::Clkin { .. } => reg::INTF_CONFIG1_RTC_MODE,
         };
         push(
             b0,

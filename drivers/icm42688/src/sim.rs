@@ -38,7 +38,8 @@ enum Phase {
 }
 
 /// The simulated part. Feed it with [`SimIcm42688::sample`]; inject faults with
-/// [`SimIcm42688::corrupt_next_header`], [`SimIcm42688::power_on_reset`] and
+/// [`SimIcm42688::corrupt_next_header`], [`SimIcm42688::invalid_next`],
+/// [`SimIcm42688::power_on_reset`] and
 /// [`SimIcm42688::poke`].
 #[derive(Debug, Clone)]
 pub struct SimIcm42688 {
@@ -54,6 +55,7 @@ pub struct SimIcm42688 {
     /// FIFO_COUNTL's value latched by reading FIFO_COUNTH.
     count_latch: Option<u8>,
     corrupt_next: bool,
+    invalid_next: u32,
     pushed: u64,
     dropped_on_overflow: u64,
     ignored_samples: u64,
@@ -81,6 +83,7 @@ impl SimIcm42688 {
             fifo_head_read: 0,
             count_latch: None,
             corrupt_next: false,
+            invalid_next: 0,
             pushed: 0,
             dropped_on_overflow: 0,
             ignored_samples: 0,
@@ -97,7 +100,8 @@ impl SimIcm42688 {
     /// nearest, saturated to ±32767 as −32768 marks invalid data), it updates the data
     /// registers and DATA_RDY and, when the FIFO is in stream (or stop-on-full) mode with
     /// accel, gyro and temperature enabled, is pushed as a packet 3 whose time stamp is the low
-    /// 16 bits of `t_part_us`. Ignored (and counted) while the sensors are not both in
+    /// 16 bits of the part's time-stamp counter at `t_part_us` (a tick of 32/30 µs on the
+    /// internal clock, as the silicon's). Ignored (and counted) while the sensors are not both in
     /// low-noise mode.
     pub fn sample(
         &mut self,
@@ -146,16 +150,18 @@ impl SimIcm42688 {
         if self.fifo_fed() {
             let tmst = self.reg(bank::BANK0, reg::TMST_CONFIG);
             let (header, timestamp) = if tmst & reg::TMST_CONFIG_EN != 0 {
-                let ticks = if tmst & reg::TMST_CONFIG_RES != 0 {
-                    t_part_us / 16
-                } else {
-                    t_part_us
-                };
+                let ticks = self.stamp_ticks(t_part_us, tmst & reg::TMST_CONFIG_RES != 0);
                 // Low 16 bits of the counter, by construction.
                 (reg::HEADER_PACKET3, (ticks & 0xFFFF) as u16)
             } else {
                 (reg::HEADER_ACCEL | reg::HEADER_GYRO, 0)
             };
+            let mut accel = accel.map(saturate_i16);
+            if self.invalid_next > 0 {
+                // A sensor starting up: the part marks the sample invalid (data sheet §6.1).
+                self.invalid_next -= 1;
+                accel[0] = reg::INVALID_SAMPLE;
+            }
             let packet = Packet {
                 header: if self.corrupt_next {
                     self.corrupt_next = false;
@@ -164,7 +170,7 @@ impl SimIcm42688 {
                 } else {
                     header
                 },
-                accel: accel.map(saturate_i16),
+                accel,
                 gyro: gyro.map(saturate_i16),
                 // temp_fifo is within ±127.
                 temperature: i8::try_from(temp_fifo).unwrap_or(0),
@@ -203,6 +209,12 @@ impl SimIcm42688 {
     /// The next packet pushed gets an invalid header (HEADER_20 flipped).
     pub fn corrupt_next_header(&mut self) {
         self.corrupt_next = true;
+    }
+
+    /// The next `n` packets pushed are marked invalid (−32768 in accel X), as the part marks
+    /// samples of a sensor starting up.
+    pub fn invalid_next(&mut self, n: u32) {
+        self.invalid_next = n;
     }
 
     /// A brown-out: registers back to their reset values, FIFO emptied, sensors off, bank 0,
@@ -267,6 +279,7 @@ impl SimIcm42688 {
         self.bank = bank::BANK0;
         self.clear_fifo();
         self.corrupt_next = false;
+        self.invalid_next = 0;
     }
 
     fn clear_fifo(&mut self) {
@@ -309,6 +322,23 @@ impl SimIcm42688 {
         let code = self.reg(bank::BANK0, reg::ACCEL_CONFIG0) >> reg::FS_SEL_SHIFT;
         // 000 = ±16 g … 011 = ±2 g; 1xx is reserved, read here as ±2 g.
         16.0 / f64::from(1u8 << (code.min(3)))
+    }
+
+    /// The time-stamp counter at part time `t_part_us`, as the silicon counts it. On the
+    /// internal clock the counter assumes a 20.48 MHz PLL that runs at 19.2 MHz, so its "1 µs"
+    /// tick lasts 32/30 µs (and "16 µs", 16 × 32/30). In RTC mode the counter runs on CLKIN,
+    /// the part's clock then (the caller's `t_part_us` follows it): one tick per µs of it, or
+    /// per 32 768 Hz period at the coarse resolution.
+    fn stamp_ticks(&self, t_part_us: u64, coarse: bool) -> u64 {
+        let rtc = self.reg(bank::BANK0, reg::INTF_CONFIG1) & reg::INTF_CONFIG1_RTC_MODE != 0;
+        let t = u128::from(t_part_us);
+        let ticks = match (rtc, coarse) {
+            (false, false) => t * 30 / 32,
+            (false, true) => t * 30 / (32 * 16),
+            (true, false) => t,
+            (true, true) => t * 32_768 / 1_000_000,
+        };
+        u64::try_from(ticks).unwrap_or(u64::MAX)
     }
 
     fn big_endian_data(&self) -> bool {

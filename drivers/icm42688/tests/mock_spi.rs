@@ -115,7 +115,7 @@ fn init_watermark_clkin_writes_exact_sequence() {
         accel_range: AccelRange::G4,
         watermark: 100,
         interrupt: Interrupt::Watermark,
-        clock: ClockSource::Clkin,
+        clock: ClockSource::Clkin { hz: 32_768 },
         ..Settings::new(Odr::Hz4000)
     };
     let expected = script(vec![
@@ -310,7 +310,7 @@ fn read_fifo_bad_header_flushes() {
 }
 
 #[test]
-fn read_fifo_empty_marker_is_corrupt_and_invalid_samples_are_skipped() {
+fn read_fifo_empty_marker_is_corrupt_and_invalid_samples_are_kept_marked() {
     let mut bytes = THREE_PACKETS.to_vec();
     bytes[1] = 0x80; // first packet: accel X = -32768, the invalid-sample mark
     bytes[2] = 0x00;
@@ -326,10 +326,12 @@ fn read_fifo_empty_marker_is_corrupt_and_invalid_samples_are_skipped() {
     let mut imu = Icm42688::new(spi.clone(), Settings::new(Odr::Hz100));
     let mut out = [Packet::default(); 4];
     let r = imu.read_fifo(&mut out).unwrap();
-    assert_eq!(r.packets, 1);
+    // The invalid packet keeps its place and its time stamp (issue 55, point 6).
+    assert_eq!(r.packets, 2);
     assert_eq!(r.invalid, 1);
     assert!(r.corrupt);
-    assert_eq!(out[0].timestamp, 0x3944);
+    assert!(!out[0].has_valid_data() && out[1].has_valid_data());
+    assert_eq!(out[1].timestamp, 0x3944);
     spi.done();
 }
 

@@ -13,7 +13,7 @@ use fusion_core::{Device, Kernels};
 use icm42688::sim::SharedSim;
 use icm42688::{Icm42688, Odr, Settings, SimIcm42688};
 use protocol::CoreToHost;
-use sample_path::SamplePath;
+use sample_path::{At, SamplePath};
 
 use super::scenario::ImuSample as Reading;
 
@@ -136,11 +136,21 @@ pub fn run(
         let irq = !faults.missed_interrupts.contains(&k) && part.borrow().interrupt_pending();
         let mut out = |m| sent.push(m);
         if irq {
-            path.on_interrupt(t + faults.irq_latency_us, device, &mut delay, &mut out)
-                .map_err(|e| e.to_string())?;
-        }
-        path.poll(t + faults.irq_latency_us + 1, device, &mut delay, &mut out)
+            path.on_interrupt(
+                &mut At(t + faults.irq_latency_us),
+                device,
+                &mut delay,
+                &mut out,
+            )
             .map_err(|e| e.to_string())?;
+        }
+        path.poll(
+            &mut At(t + faults.irq_latency_us + 1),
+            device,
+            &mut delay,
+            &mut out,
+        )
+        .map_err(|e| e.to_string())?;
         run.sent.append(&mut sent);
     }
     run.dropped_on_overflow = part.borrow().dropped_on_overflow();
@@ -224,11 +234,11 @@ impl SimulatedImu {
         let pending = self.part.part().interrupt_pending();
         if pending {
             self.path
-                .on_interrupt(t_us, device, &mut NoDelay, out)
+                .on_interrupt(&mut At(t_us), device, &mut NoDelay, out)
                 .map_err(|e| e.to_string())?;
         }
         self.path
-            .poll(t_us, device, &mut NoDelay, out)
+            .poll(&mut At(t_us), device, &mut NoDelay, out)
             .map_err(|e| e.to_string())?;
         Ok(self.path.trigger_pin().pulses != pulses)
     }

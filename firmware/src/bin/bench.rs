@@ -363,7 +363,7 @@ fn bench_sample_path(timer: &Timer) {
     use fusion_core::onboard::OnboardEvent;
     use icm42688::{Icm42688, Odr, Settings, SimIcm42688, sim::SharedSim};
     use protocol::{CoreToHost, SampleSource, Sampling};
-    use sample_path::SamplePath;
+    use sample_path::{At, SamplePath};
 
     // SAFETY: the only reference to DEVICE; all zero bytes is a valid `DeviceIo` (see
     // `session`).
@@ -408,7 +408,7 @@ fn bench_sample_path(timer: &Timer) {
             let t = 1_000_000 + k * 5000;
             let (ins, _) = if through_path {
                 timed(timer, mark_message, || {
-                    path.on_interrupt(t, d, &mut NoDelay, &mut sink)
+                    path.on_interrupt(&mut At(t), d, &mut NoDelay, &mut sink)
                 })
             } else {
                 // A sample like the path's (the filter's cost does not depend on the values).

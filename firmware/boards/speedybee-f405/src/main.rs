@@ -3,7 +3,7 @@
 //! (1 MHz), and talks to the host over USB CDC (protocol/PROTOCOL.md §7).
 //!
 //! One main loop, no executor: the IMU's interrupt (INT1 on PC4, EXTI4) only captures TIM2's
-//! count, the time stamp of the newest sample, and the loop reads the FIFO
+//! count, the time stamp of the sample that raised it, and the loop reads the FIFO
 //! (`sample_path::SamplePath`), serves USB and runs the device loop. The FIFO's own time stamps
 //! place every sample, so the loop's latency moves no time stamp; it only delays the camera
 //! pulse, by at most one correspondence part's processing (see the guide).
@@ -17,7 +17,7 @@ use embedded_hal_bus::spi::ExclusiveDevice;
 use fusion_core::DeviceIo;
 use icm42688::{Icm42688, Odr, Settings};
 use protocol::{CoreToHost, MAX_FRAME_LEN, encode_frame};
-use sample_path::{Clock64, SamplePath};
+use sample_path::{Clock64, INTERRUPTS_KEPT, SamplePath, Timing};
 use stm32f4xx_hal::gpio::Edge;
 use stm32f4xx_hal::otg_fs::{USB, UsbBus};
 use stm32f4xx_hal::pac::{self, interrupt};
@@ -36,19 +36,53 @@ const SPI_HZ: u32 = 10_000_000;
 /// The device and its decoder: built at compile time (all zeros, `.bss`), never on the stack.
 static mut DEVICE: DeviceIo<f32> = DeviceIo::new();
 
-/// TIM2's count at the IMU's last interrupt, and whether the loop has yet to take it.
-static IRQ_AT: AtomicU32 = AtomicU32::new(0);
+/// TIM2's count at the IMU's latest interrupts (a ring indexed by `IRQ_COUNT`), how many
+/// interrupts there were, and whether the loop has yet to take the latest.
+static IRQ_AT: [AtomicU32; INTERRUPTS_KEPT] = [const { AtomicU32::new(0) }; INTERRUPTS_KEPT];
+static IRQ_COUNT: AtomicU32 = AtomicU32::new(0);
 static IRQ_PENDING: AtomicBool = AtomicBool::new(false);
 
 #[interrupt]
 fn EXTI4() {
-    // The time first: it stamps the newest sample in the FIFO.
+    // The time first: it stamps the sample that raised the interrupt.
     // SAFETY: a read of TIM2's counter register, which nothing else writes after start.
     let t = unsafe { (*pac::TIM2::ptr()).cnt().read().bits() };
-    IRQ_AT.store(t, Ordering::Relaxed);
+    let n = IRQ_COUNT.load(Ordering::Relaxed);
+    if let Some(slot) = IRQ_AT.get(n as usize % INTERRUPTS_KEPT) {
+        slot.store(t, Ordering::Relaxed);
+    }
+    IRQ_COUNT.store(n.wrapping_add(1), Ordering::Release);
     IRQ_PENDING.store(true, Ordering::Release);
     // SAFETY: writing 1 clears line 4's pending bit and touches no other line.
     unsafe { (*pac::EXTI::ptr()).pr().write(|w| w.bits(1 << 4)) };
+}
+
+/// The core's clock (TIM2 extended to 64 bits) and the interrupt handler's times, read by the
+/// sample path after each FIFO read.
+struct LoopTiming<'a> {
+    tim2: &'a stm32f4xx_hal::timer::CounterUs<pac::TIM2>,
+    clock: &'a mut Clock64,
+}
+
+impl Timing for LoopTiming<'_> {
+    fn now_us(&mut self) -> u64 {
+        self.clock.extend(self.tim2.now().ticks())
+    }
+
+    fn interrupts(&mut self, out: &mut [u64; INTERRUPTS_KEPT]) -> usize {
+        // The ring and its count copied with the handler held off, so that they agree.
+        let (count, raw) = cortex_m::interrupt::free(|_| {
+            let count = IRQ_COUNT.load(Ordering::Acquire);
+            (count, IRQ_AT.each_ref().map(|a| a.load(Ordering::Relaxed)))
+        });
+        let k = (count as usize).min(INTERRUPTS_KEPT);
+        for (i, o) in out.iter_mut().take(k).enumerate() {
+            // Oldest first: interrupt number count - k + i.
+            let n = count.wrapping_sub((k - i) as u32) as usize % INTERRUPTS_KEPT;
+            *o = self.clock.extend(raw.get(n).copied().unwrap_or(0));
+        }
+        k
+    }
 }
 
 #[entry]
@@ -143,21 +177,23 @@ fn main() -> ! {
         {
             device.receive(&rx[..n], &mut |bytes| send(&mut serial, bytes));
         }
-        // The loop's time before the interrupt's: an interrupt taken after this reading is
-        // later than it, one taken before it maps to its past (`Clock64`).
-        let now = clock.extend(tim2.now().ticks());
+        // Readings of the clock may come out of order with the interrupt's (one taken before
+        // a reading maps to its past: `Clock64`).
+        let mut timing = LoopTiming {
+            tim2: &tim2,
+            clock: &mut clock,
+        };
         let mut out = |msg: CoreToHost| {
             if let Ok(bytes) = encode_frame(&msg, &mut frame) {
                 send(&mut serial, bytes);
             }
         };
         if IRQ_PENDING.swap(false, Ordering::Acquire) {
-            let t_irq = clock.extend(IRQ_AT.load(Ordering::Relaxed));
             // A failed SPI transfer loses this read's samples; the next read's time stamps
             // count them and the core reports the gap.
-            let _ = path.on_interrupt(t_irq, &mut device.device, &mut delay, &mut out);
+            let _ = path.on_interrupt(&mut timing, &mut device.device, &mut delay, &mut out);
         }
-        let _ = path.poll(now, &mut device.device, &mut delay, &mut out);
+        let _ = path.poll(&mut timing, &mut device.device, &mut delay, &mut out);
     }
 }
 
