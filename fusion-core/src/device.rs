@@ -94,6 +94,9 @@ pub struct Counters {
     /// Time-update steps run, re-propagation included: the work the samples cost (at most
     /// [`MAX_TIME_UPDATES_PER_MESSAGE`] per message).
     pub time_updates: u32,
+    /// Answers held back because a number in them was not finite (the filter is then declared
+    /// diverged).
+    pub non_finite_held: u32,
 }
 
 impl Counters {
@@ -114,6 +117,7 @@ impl Counters {
         divergences: 0,
         clock_jumps: 0,
         time_updates: 0,
+        non_finite_held: 0,
     };
 
     /// Counts one event: saturating, so that no input can overflow a counter (a host can
@@ -298,8 +302,29 @@ impl<T: Kernels> Device<T> {
         out(CoreToHost::error(ErrorCode::Decode(e)));
     }
 
-    /// Handles one message.
+    /// Handles one message. Nothing non-finite leaves the core: an answer that would carry an
+    /// infinity or a NaN (a state beyond f32's range) is held back and the filter declared
+    /// diverged.
     pub fn handle(&mut self, msg: &HostToCore, out: Out) {
+        let mut held = false;
+        self.handle_checked(msg, &mut |m| hold_non_finite(m, &mut held, out));
+        if held {
+            self.non_finite_output(out);
+        }
+    }
+
+    /// Holds back an answer that is not finite.
+    fn non_finite_output(&mut self, out: Out) {
+        Counters::bump(&mut self.counters.non_finite_held);
+        if let Some(prm) = self.prm {
+            let mut again = false;
+            self.diverged(StatusReason::NonFiniteState, &prm, &mut |m| {
+                hold_non_finite(m, &mut again, out)
+            });
+        }
+    }
+
+    fn handle_checked(&mut self, msg: &HostToCore, out: Out) {
         if let Err(field) = msg.validate() {
             Counters::bump(&mut self.counters.invalid_messages);
             out(CoreToHost::error(ErrorCode::Invalid(field)));
@@ -368,6 +393,14 @@ impl<T: Kernels> Device<T> {
     /// on an `Imu` message from the host (a `Tick` in the vision-only model): validated, with
     /// the same time-stamp rules. While the host samples, the board's samples are dropped.
     pub fn onboard(&mut self, event: &OnboardEvent, out: Out) {
+        let mut held = false;
+        self.onboard_checked(event, &mut |m| hold_non_finite(m, &mut held, out));
+        if held {
+            self.non_finite_output(out);
+        }
+    }
+
+    fn onboard_checked(&mut self, event: &OnboardEvent, out: Out) {
         let sent = self.onboard.take(event);
         if let Some(raw) = sent.raw {
             out(CoreToHost::RawImu(raw));
@@ -1030,6 +1063,15 @@ impl<T: Kernels> Device<T> {
     }
 }
 
+/// Passes `m` on if it is finite, else notes that one was held back.
+fn hold_non_finite(m: CoreToHost, held: &mut bool, out: Out) {
+    if m.is_finite() {
+        out(m);
+    } else {
+        *held = true;
+    }
+}
+
 /// [`NO_VISION_FRAMES`] camera periods [µs]: the end of tracking, and a gap between frames.
 fn no_vision_us<T: Scalar>(prm: &Params<T>) -> u64 {
     prm.camera_period_us
@@ -1170,6 +1212,63 @@ mod tests {
             d.decode_error(DecodeError::Crc, &mut |_| errors += 1);
         }
         assert_eq!((d.counters.decode_errors, errors), (u32::MAX, 3));
+    }
+
+    /// Issue 55, point 11: a state beyond f32's range (an f64 core) went out as ±inf. Now
+    /// the answer is held back, counted, and the filter restarts from its anchor; and ‖q‖ far
+    /// from 1 with a zero update step is caught by the norm itself.
+    #[test]
+    fn nothing_non_finite_leaves_the_core_and_the_quaternion_norm_is_tested() {
+        use std::vec::Vec;
+        let send = |d: &mut Device<f64>, m: HostToCore| {
+            let mut got = Vec::new();
+            d.handle(&m, &mut |a| got.push(a));
+            got
+        };
+        let config = protocol::Config {
+            state_every: 1,
+            ..protocol::samples::config()
+        };
+        let imu = |t_us| {
+            HostToCore::Imu(protocol::ImuSample {
+                t_us,
+                gyro: [0.0; 3],
+                accel: [0.0, 0.0, 9.81],
+                trigger: false,
+            })
+        };
+        let dt = (1e6 / f64::from(config.imu_rate_hz)) as u64;
+        let n = u64::from(config.still_samples) + 20;
+        for poison in [(0, 1e39), (crate::state::QUAT + 1, 3.0)] {
+            let mut d = Device::<f64>::new();
+            send(
+                &mut d,
+                HostToCore::Hello(protocol::Hello {
+                    version: protocol::PROTOCOL_VERSION,
+                }),
+            );
+            send(&mut d, HostToCore::Configure(config));
+            send(
+                &mut d,
+                HostToCore::Init(Init {
+                    position: [0.5, 0.0, 1.0],
+                    attitude: InitAttitude::GravityAndYaw(0.3),
+                }),
+            );
+            for k in 1..=n {
+                send(&mut d, imu(k * dt));
+            }
+            assert_eq!(d.mode(), Mode::DeadReckoning);
+            d.filter.st.x[poison.0] = poison.1;
+            let got = send(&mut d, imu((n + 1) * dt));
+            assert!(got.iter().all(CoreToHost::is_finite), "{got:?}");
+            assert!(
+                got.iter().any(|m| matches!(m, CoreToHost::Status(s)
+                    if s.mode == Mode::Diverged)),
+                "{got:?}"
+            );
+            assert_eq!(d.mode(), Mode::Reinitialising, "{poison:?}");
+        }
     }
 
     /// Issue 17 (long runs): µs time stamps up to their limit, `u64::MAX`. The core runs to it

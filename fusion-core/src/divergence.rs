@@ -25,7 +25,7 @@ use protocol::StatusReason;
 
 use crate::params::Params;
 use crate::scalar::Scalar;
-use crate::state::{N, State, StateKernels, all_finite_generic};
+use crate::state::{N, QUAT, State, StateKernels, all_finite_generic};
 
 /// State of the monitor.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -103,9 +103,15 @@ impl<T: Scalar> Monitor<T> {
         let diag = st.p.as_slice().iter().step_by(N + 1).take(prm.n);
         let diag_finite = diag.fold(zero, |acc, &v| acc + v * zero) == zero;
         // Inside the IMU step's kernel: the generic body, inlined there.
+        // ‖q‖ itself, beside the update's radial step: a tangential step can move the norm
+        // as far (issue 55: rates of 10⁶ rad/s gave ‖q‖ ≈ 2·10³⁶ with a norm error of 0).
+        // |‖q‖² − 1| ≈ 2 |‖q‖ − 1|.
+        let q = st.x.as_slice().get(QUAT..QUAT + 4).unwrap_or_default();
+        let norm2 = q.iter().fold(zero, |acc, &v| acc + v * v);
+        let norm_off = (norm2 - T::one()).abs() > T::c(2.0) * prm.quat_norm_threshold;
         if !diag_finite || !all_finite_generic(st.x.as_slice()) {
             Some(StatusReason::NonFiniteState)
-        } else if quat_norm_error > prm.quat_norm_threshold {
+        } else if quat_norm_error > prm.quat_norm_threshold || norm_off {
             Some(StatusReason::QuaternionNorm)
         } else {
             None

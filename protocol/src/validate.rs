@@ -4,8 +4,8 @@
 use crate::error::InvalidField;
 use crate::limits::MAX_PARTS_PER_FRAME;
 use crate::messages::{
-    Config, ContourPoint, Correspondence, HostToCore, Init, InitAttitude, InitSigma, ModelKind,
-    SampleSource, Sym2, Sym3,
+    Config, ContourPoint, CoreToHost, Correspondence, HostToCore, Init, InitAttitude, InitSigma,
+    ModelKind, SampleSource, Sym2, Sym3,
 };
 
 /// How far a quaternion's norm may be from 1 and still count as a unit quaternion. Generous
@@ -41,6 +41,42 @@ const PSD_TOLERANCE: f32 = 1e-5;
 /// filter dead-reckons from the initial covariance until vision snaps on, and the test must
 /// leave it room to do so.
 pub const COVARIANCE_THRESHOLD_MARGIN: f32 = 2.0;
+
+impl CoreToHost {
+    /// Whether every number in the message is finite. The core sends nothing else: a message
+    /// that is not is held back and the filter declared diverged (issue 55).
+    pub fn is_finite(&self) -> bool {
+        let all = |v: &[f32]| v.iter().all(|x| x.is_finite());
+        match self {
+            CoreToHost::PosePrediction(p) => all(&p.c_w) && all(&p.q_cw) && all(&p.cov),
+            CoreToHost::State(s) => {
+                [
+                    &s.s_w[..],
+                    &s.q_sw,
+                    &s.v_w,
+                    &s.a_w,
+                    &s.omega_s,
+                    &s.gyro_bias,
+                    &s.accel_bias,
+                ]
+                .into_iter()
+                .all(all)
+                    && all(&[
+                        s.health.covariance_frobenius,
+                        s.health.residual_lowpass,
+                        s.health.quaternion_norm_error,
+                    ])
+            }
+            CoreToHost::UpdateReport(u) => all(&u.residuals) && u.prediction_error.is_finite(),
+            CoreToHost::RawImu(s) => all(&s.gyro) && all(&s.accel),
+            CoreToHost::Sampling(r) => r.drift_ppm.is_finite(),
+            CoreToHost::HelloAck(_)
+            | CoreToHost::Error(_)
+            | CoreToHost::Status(_)
+            | CoreToHost::Trigger(_) => true,
+        }
+    }
+}
 
 // Here with the checks rather than with the messages, which the checks use.
 impl HostToCore {
