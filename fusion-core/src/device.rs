@@ -931,8 +931,13 @@ impl<T: Kernels> Device<T> {
                 error_count += 1;
             }
             let s_i = applied.nis;
-            // Capacity equals the message's, so this cannot fail.
-            let _ = report.residuals.push(s_i.to_wire());
+            // Capacity equals the message's, so this cannot fail. A residual that cannot be
+            // computed (behind the camera, singular) is infinite here and f32::MAX on the
+            // wire: nothing non-finite leaves the core.
+            let wire = s_i.to_wire();
+            let _ = report
+                .residuals
+                .push(if wire.is_finite() { wire } else { f32::MAX });
             match applied.result {
                 Ok(()) => {
                     report.accepted += 1;

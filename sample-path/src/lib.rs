@@ -20,6 +20,8 @@ pub mod stamp;
 pub mod trigger;
 
 pub use clock::Clock64;
-pub use path::{At, INTERRUPTS_KEPT, PathError, ReadSummary, SamplePath, Served, Timing};
+pub use path::{
+    At, INTERRUPTS_KEPT, PathError, ReadSummary, START_RETRY_US, SamplePath, Served, Timing,
+};
 pub use stamp::{Anchor, Stamped, Stamper};
 pub use trigger::TriggerCount;

@@ -3,7 +3,8 @@
 //! scales them to SI units with the part's sensitivity, fires the camera trigger at the newest
 //! sample when one is due ([`crate::trigger`]), and hands every sample, gap and fault to the
 //! device unchanged. [`SamplePath::poll`], called from the main loop, re-checks the part's
-//! configuration (PX4's way) and reads the FIFO if the interrupts stopped.
+//! configuration (PX4's way), reads the FIFO if the interrupts stopped, and starts again a
+//! part that failed to start.
 
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::OutputPin;
@@ -81,6 +82,10 @@ pub const CHECK_EVERY_US: u64 = 100_000;
 /// itself (the interrupt line or its configuration was lost).
 pub const MISSED_INTERRUPTS_BEFORE_POLLING: u64 = 3;
 
+/// How often a part that failed to start is tried again [µs] (a board powered before its IMU,
+/// a loose connector): the core serves without it meanwhile (`NoOnboardImu`).
+pub const START_RETRY_US: u64 = 1_000_000;
+
 /// Width of the camera trigger pulse [µs] (global-shutter cameras want a few µs to a few tens).
 pub const TRIGGER_PULSE_US: u32 = 20;
 
@@ -127,6 +132,9 @@ pub struct SamplePath<SPI, PIN> {
     invalid: (u32, u64),
     last_read_us: Option<u64>,
     last_check_us: u64,
+    /// Whether the part was configured, and when that was last tried.
+    started: bool,
+    last_start_us: u64,
     packets: [Packet; FIFO_CAPACITY],
     stamps: [u16; FIFO_CAPACITY],
     times: [u64; FIFO_CAPACITY],
@@ -146,6 +154,8 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             invalid: (0, 0),
             last_read_us: None,
             last_check_us: 0,
+            started: false,
+            last_start_us: 0,
             packets: [Packet::default(); FIFO_CAPACITY],
             stamps: [0; FIFO_CAPACITY],
             times: [0; FIFO_CAPACITY],
@@ -169,9 +179,17 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         delay: &mut impl DelayNs,
     ) -> Result<(), PathError<SPI::Error, PIN::Error>> {
         self.trigger_pin.set_low().map_err(PathError::TriggerPin)?;
+        self.last_start_us = now_us;
         self.imu.init(delay).map_err(PathError::Imu)?;
+        self.started = true;
         self.last_check_us = now_us;
         Ok(())
+    }
+
+    /// Whether the part is configured (by [`SamplePath::start`], or by [`SamplePath::poll`]
+    /// trying again after a failed start).
+    pub fn started(&self) -> bool {
+        self.started
     }
 
     /// The IMU's interrupt was taken: reads the FIFO, stamps every sample (with the interrupts'
@@ -183,6 +201,9 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         delay: &mut impl DelayNs,
         out: Out,
     ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
+        if !self.started {
+            return Ok(ReadSummary::default());
+        }
         self.read(timing, true, device, delay, out)
     }
 
@@ -217,9 +238,13 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             for (s, p) in self.stamps.iter_mut().zip(&self.packets[..n]) {
                 *s = p.timestamp;
             }
-            let stamped =
-                self.stamper
-                    .stamp(&self.stamps[..n], &irqs[..k], read_us, &mut self.times[..n]);
+            let stamped = self.stamper.stamp(
+                &self.stamps[..n],
+                &irqs[..k],
+                read_us,
+                read.overflowed,
+                &mut self.times[..n],
+            );
             if let Some(ppm) = stamped.drift_ppm {
                 device.onboard(&OnboardEvent::Drift(ppm as f32), out);
             }
@@ -232,7 +257,10 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
                 };
                 device.onboard(&OnboardEvent::Gap(gap), out);
             }
-            self.cause = None;
+            // A full FIFO stopped: what it dropped shows at the next read, and the cause with it.
+            if stamped.lost > 0 || !read.overflowed {
+                self.cause = None;
+            }
             summary = self.hand_on(n, stamped.lost, device, delay, out)?;
         }
         // A corrupt packet ended the read (the FIFO was flushed): the gap shows at the next.
@@ -320,6 +348,16 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         out: Out,
     ) -> Result<Option<ReadSummary>, PathError<SPI::Error, PIN::Error>> {
         let now_us = timing.now_us();
+        if !self.started {
+            // A part that failed to start is tried again every second; once it answers, the
+            // core has its IMU (issue 55: it answered NoOnboardImu for good).
+            if now_us.saturating_sub(self.last_start_us) >= START_RETRY_US {
+                self.start(now_us, delay)?;
+                self.stamper.part_restarted();
+                device.set_onboard_imu(true);
+            }
+            return Ok(None);
+        }
         if now_us.saturating_sub(self.last_check_us) >= CHECK_EVERY_US {
             self.last_check_us = now_us;
             if let Check::Repaired { .. } = self.imu.check(delay).map_err(PathError::Imu)? {

@@ -62,6 +62,10 @@ pub enum Anchor {
     },
     /// No prediction: the newest interrupt stamps the newest sample.
     Newest,
+    /// The FIFO had filled and stopped, so its newest sample raised no interrupt of those
+    /// known: the read's first sample is placed after the last stamped one by the part's
+    /// ticks.
+    Predicted,
     /// No interrupt: the newest sample is stamped with the time of the read (polling).
     Read,
 }
@@ -165,11 +169,15 @@ impl Stamper {
     /// after the read, which stamps the newest sample when there is no interrupt (polling).
     /// Writes each sample's core time to `out` (as many as `stamps`; strictly after the
     /// previous read's last).
+    ///
+    /// `full`: the FIFO filled (and, in stop-on-full mode, kept its oldest samples), so that the
+    /// newest sample read is not the latest interrupt's.
     pub fn stamp(
         &mut self,
         stamps: &[u16],
         interrupts: &[u64],
         read_us: u64,
+        full: bool,
         out: &mut [u64],
     ) -> Stamped {
         let n = stamps.len().min(out.len());
@@ -188,7 +196,7 @@ impl Stamper {
             *o = rel;
         }
         let span = rel;
-        let (index, t_anchor, anchor) = self.anchor(stamps[0], out, interrupts, read_us);
+        let (index, t_anchor, anchor) = self.anchor(stamps[0], out, interrupts, read_us, full);
         let rel_anchor = out[index];
         for o in out.iter_mut() {
             *o = if *o <= rel_anchor {
@@ -253,7 +261,7 @@ impl Stamper {
         let usable = match anchor {
             Anchor::Matched { .. } => true,
             Anchor::Newest => !self.measured,
-            Anchor::None | Anchor::Read => false,
+            Anchor::None | Anchor::Read | Anchor::Predicted => false,
         };
         if usable {
             found.drift_ppm = self.measure(ticks_first + rel_anchor, out[index]);
@@ -274,8 +282,21 @@ impl Stamper {
         rel: &[u64],
         interrupts: &[u64],
         read_us: u64,
+        full: bool,
     ) -> (usize, u64, Anchor) {
         let newest = rel.len() - 1;
+        if full
+            && let Some(Last {
+                stamp: Some(ls),
+                t_us,
+                ..
+            }) = self.last
+        {
+            // Nothing was lost before the oldest sample of a stopped FIFO: it follows the last
+            // one read, within a wrap.
+            let d16 = u64::from(first.wrapping_sub(ls));
+            return (0, t_us.saturating_add(self.core_us(d16)), Anchor::Predicted);
+        }
         let Some(&latest) = interrupts.last() else {
             return (newest, read_us, Anchor::Read);
         };

@@ -178,3 +178,50 @@ fn faults_of_the_part_are_reported_and_the_filter_tracks_through_them() {
     assert!(tests::harness::tracking_at_end(&d.device));
     assert!(worst < 0.03, "{worst}");
 }
+
+/// Issue 55, point 9: an IMU that failed to start at boot (off the bus: WHO_AM_I reads 0xFF) left
+/// the core answering `NoOnboardImu` for good. The path tries it again every second: once the
+/// part answers, the core samples it.
+#[test]
+fn an_imu_that_failed_to_start_is_tried_again() {
+    use firmware_sim::sim::sensor_board::{NoDelay, SharedPart, TriggerLine};
+    use icm42688::Icm42688;
+    use protocol::{ErrorCode, HostToCore, SampleSource, Sampling};
+    use sample_path::{At, START_RETRY_US, SamplePath};
+    let sc = scenes::standard(ModelKind::Acc, 2.0, 2.0, 3);
+    let mut d = Driver::<f32>::new(&sc);
+    let part = SharedPart::default();
+    part.part().set_unplugged(true);
+    let mut path = SamplePath::new(
+        Icm42688::new(part.clone(), Settings::new(Odr::Hz200)),
+        TriggerLine::default(),
+    );
+    assert!(path.start(0, &mut NoDelay).is_err());
+    d.device.set_onboard_imu(path.started());
+    let sampling = HostToCore::Sampling(Sampling {
+        source: SampleSource::Core { trigger_every: 8 },
+        raw_imu: true,
+    });
+    let refused = |answers: &[protocol::CoreToHost]| {
+        answers.iter().any(
+            |a| matches!(a, protocol::CoreToHost::Error(e) if e.code == ErrorCode::NoOnboardImu),
+        )
+    };
+    assert!(refused(&d.send(&sampling)));
+    let mut sent = Vec::new();
+    // Still wrong a second later: tried, refused again.
+    let poll = |path: &mut SamplePath<_, _>, d: &mut Driver<'_, f32>, t, sent: &mut Vec<_>| {
+        path.poll(&mut At(t), &mut d.device, &mut NoDelay, &mut |m| {
+            sent.push(m)
+        })
+    };
+    assert!(poll(&mut path, &mut d, START_RETRY_US, &mut sent).is_err());
+    assert!(!path.started());
+    // The part answers (it was powered late): within a second the core has its IMU.
+    part.part().set_unplugged(false);
+    assert!(poll(&mut path, &mut d, START_RETRY_US + 500_000, &mut sent).is_ok());
+    assert!(!path.started());
+    assert!(poll(&mut path, &mut d, 2 * START_RETRY_US, &mut sent).is_ok());
+    assert!(path.started());
+    assert!(!refused(&d.send(&sampling)));
+}

@@ -133,13 +133,15 @@ impl Packet {
     }
 
     /// False when any axis holds −32768, the part's mark for an invalid sample (a sensor
-    /// still starting up, or off).
+    /// still starting up, or off), or when the header says the ODR changed at this packet
+    /// (HEADER_ODR_ACCEL/GYRO: a rate change settling; PX4 drops such packets too).
     pub fn has_valid_data(&self) -> bool {
-        !self
-            .accel
-            .iter()
-            .chain(self.gyro.iter())
-            .any(|&v| v == reg::INVALID_SAMPLE)
+        self.header & reg::HEADER_ODR_CHANGED == 0
+            && !self
+                .accel
+                .iter()
+                .chain(self.gyro.iter())
+                .any(|&v| v == reg::INVALID_SAMPLE)
     }
 
     /// Angular rate in rad/s with the settings' gyro range.

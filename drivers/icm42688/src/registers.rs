@@ -45,6 +45,9 @@ pub const FIFO_CONFIG_MODE_MASK: u8 = 0b11 << 6;
 pub const FIFO_CONFIG_MODE_BYPASS: u8 = 0b00 << 6;
 /// FIFO_MODE 01: stream-to-FIFO (when full, new packets replace the oldest).
 pub const FIFO_CONFIG_MODE_STREAM: u8 = 0b01 << 6;
+/// FIFO_CONFIG FIFO_MODE = 10: stop-on-full (a full FIFO drops new packets and keeps its
+/// contents aligned while it is read).
+pub const FIFO_CONFIG_MODE_STOP_ON_FULL: u8 = 0b10 << 6;
 
 /// TEMP_DATA1 (bank 0): first of the sensor data registers (temperature, accel, gyro).
 pub const TEMP_DATA1: u8 = 0x1D;
@@ -297,6 +300,9 @@ pub const HEADER_GYRO: u8 = 1 << 5;
 pub const HEADER_20: u8 = 1 << 4;
 /// FIFO header bits 3:2 HEADER_TIMESTAMP_FSYNC = 10: the packet holds an ODR time stamp.
 pub const HEADER_TIMESTAMP_ODR: u8 = 0b10 << 2;
+/// FIFO header bits 1:0 HEADER_ODR_ACCEL, HEADER_ODR_GYRO: the sensor's ODR differs from the
+/// previous packet's (a rate change): the packet's spacing is not the period.
+pub const HEADER_ODR_CHANGED: u8 = 0b11;
 /// Mask of the header bits that identify a packet 3 (bits 1:0 flag ODR changes and may be set).
 pub const HEADER_PACKET3_MASK: u8 = 0xFC;
 /// A packet-3 header with an ODR time stamp, under [`HEADER_PACKET3_MASK`]: 0x68.

@@ -504,7 +504,10 @@ impl Settings {
         let [wm_high, wm_low] = self.watermark.to_be_bytes();
         push(b0, reg::FIFO_CONFIG2, wm_low);
         push(b0, reg::FIFO_CONFIG3, wm_high & 0x0F);
-        push(b0, reg::FIFO_CONFIG, reg::FIFO_CONFIG_MODE_STREAM);
+        // Stop-on-full, as PX4, ArduPilot and `icm426xx` use: a full FIFO keeps what it has,
+        // so a read never meets packets overwritten under it; the time stamps count what the
+        // part dropped meanwhile.
+        push(b0, reg::FIFO_CONFIG, reg::FIFO_CONFIG_MODE_STOP_ON_FULL);
         // Clearing RESET_DONE_INT1_EN (it resets to 1) also makes INT_SOURCE0 a register that
         // a reset visibly changes.
         push(

@@ -56,6 +56,8 @@ pub struct SimIcm42688 {
     count_latch: Option<u8>,
     corrupt_next: bool,
     invalid_next: u32,
+    /// Off the bus: reads 0xFF, writes lost (a part not powered, a loose connector).
+    unplugged: bool,
     pushed: u64,
     dropped_on_overflow: u64,
     ignored_samples: u64,
@@ -84,6 +86,7 @@ impl SimIcm42688 {
             count_latch: None,
             corrupt_next: false,
             invalid_next: 0,
+            unplugged: false,
             pushed: 0,
             dropped_on_overflow: 0,
             ignored_samples: 0,
@@ -215,6 +218,12 @@ impl SimIcm42688 {
     /// samples of a sensor starting up.
     pub fn invalid_next(&mut self, n: u32) {
         self.invalid_next = n;
+    }
+
+    /// Takes the part off the bus (`true`: every read gives 0xFF, writes are lost) or puts it
+    /// back, as it was.
+    pub fn set_unplugged(&mut self, unplugged: bool) {
+        self.unplugged = unplugged;
     }
 
     /// A brown-out: registers back to their reset values, FIFO emptied, sensors off, bank 0,
@@ -547,6 +556,17 @@ impl ErrorType for SimIcm42688 {
 impl SpiDevice for SimIcm42688 {
     /// One chip-select assertion: the first byte clocked is the address.
     fn transaction(&mut self, operations: &mut [Operation<'_, u8>]) -> Result<(), Infallible> {
+        if self.unplugged {
+            // MISO floats high.
+            for op in operations {
+                match op {
+                    Operation::Read(buf) | Operation::TransferInPlace(buf) => buf.fill(0xFF),
+                    Operation::Transfer(read, _) => read.fill(0xFF),
+                    Operation::Write(_) | Operation::DelayNs(_) => {}
+                }
+            }
+            return Ok(());
+        }
         let mut phase = Phase::Address;
         for op in operations {
             match op {

@@ -57,10 +57,11 @@ fn decode_rejects_bad_headers() {
         b[0] = header;
         assert_eq!(Packet::decode(&b).map(|p| p.header), want, "0x{header:02X}");
     }
-    // Bits 1:0 (ODR changed) are allowed.
+    // Bits 1:0 (ODR changed) decode, and mark the sample not to be used (issue 55, point 9).
     for header in 0x68..=0x6B {
         b[0] = header;
-        assert!(Packet::decode(&b).is_ok(), "0x{header:02X}");
+        let p = Packet::decode(&b).unwrap();
+        assert_eq!(p.has_valid_data(), header == 0x68, "0x{header:02X}");
     }
     assert!(PacketError::BadHeader(0x78).to_string().contains("0x78"));
 }

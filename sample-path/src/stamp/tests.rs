@@ -40,14 +40,14 @@ fn the_interrupted_sample_gets_the_interrupts_time_and_the_others_the_fifos_inte
     };
     let mut s = Stamper::new(10_000, US);
     let mut out = [0; 3];
-    let found = s.stamp(&p.stamps::<3>(0), &[p.core(2)], 0, &mut out);
+    let found = s.stamp(&p.stamps::<3>(0), &[p.core(2)], 0, false, &mut out);
     assert_eq!(out, [p.core(0), p.core(1), p.core(2)]);
     assert_eq!((found.lost, found.anchor), (0, Anchor::Newest));
-    let found = s.stamp(&p.stamps::<1>(3), &[p.core(3)], 0, &mut out[..1]);
+    let found = s.stamp(&p.stamps::<1>(3), &[p.core(3)], 0, false, &mut out[..1]);
     assert_eq!((out[0], found.lost), (p.core(3), 0));
     assert_eq!(found.anchor, Anchor::Matched { index: 0 });
     // Three samples never read, across the 16-bit wrap.
-    let found = s.stamp(&p.stamps::<1>(7), &[p.core(7)], 0, &mut out[..1]);
+    let found = s.stamp(&p.stamps::<1>(7), &[p.core(7)], 0, false, &mut out[..1]);
     assert_eq!(
         (out[0], found.lost, found.gap_from_us),
         (p.core(7), 3, p.core(3))
@@ -63,13 +63,13 @@ fn a_gap_longer_than_the_16_bit_wrap_is_counted_from_the_cores_clock() {
     };
     let mut s = Stamper::new(10_000, PLL);
     let mut out = [0; 1];
-    s.stamp(&p.stamps::<1>(0), &[p.core(0)], 0, &mut out);
+    s.stamp(&p.stamps::<1>(0), &[p.core(0)], 0, false, &mut out);
     // 1.28 s later (128 samples): the stamps wrapped 18 times.
-    let found = s.stamp(&p.stamps::<1>(128), &[p.core(128)], 0, &mut out);
+    let found = s.stamp(&p.stamps::<1>(128), &[p.core(128)], 0, false, &mut out);
     assert_eq!(found.lost, 127);
     // After a part reset the stamps restart: the core's clock alone measures the gap.
     s.part_restarted();
-    let found = s.stamp(&[7], &[p.core(133)], 0, &mut out);
+    let found = s.stamp(&[7], &[p.core(133)], 0, false, &mut out);
     assert_eq!(found.lost, 4);
 }
 
@@ -88,7 +88,7 @@ fn the_pll_tick_gives_true_back_stamps_drift_and_lost_counts() {
             let mut s = Stamper::new(5_000, PLL);
             let mut out = [0u64; 10];
             // A first batch of ten: back-stamped from the newest before any drift estimate.
-            s.stamp(&p.stamps::<10>(0), &[p.core(9)], 0, &mut out);
+            s.stamp(&p.stamps::<10>(0), &[p.core(9)], 0, false, &mut out);
             for (k, t) in out.iter().enumerate() {
                 let tol = 2 + (p.core(9) - p.core(k as u64)) * ppm.unsigned_abs() / 1_000_000;
                 assert!(t.abs_diff(p.core(k as u64)) <= tol, "{ppm}: {k} {t}");
@@ -100,6 +100,7 @@ fn the_pll_tick_gives_true_back_stamps_drift_and_lost_counts() {
                     &p.stamps::<10>(batch * 10),
                     &[p.core(batch * 10 + 9)],
                     0,
+                    false,
                     &mut out,
                 );
                 assert_eq!(found.lost, 0);
@@ -108,7 +109,7 @@ fn the_pll_tick_gives_true_back_stamps_drift_and_lost_counts() {
             let m = i64::from(measured.expect("measured"));
             assert!((m - ppm).abs() <= 2, "{ppm} ppm measured as {m}");
             let k = 999 + lost + 1;
-            let found = s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, &mut out[..1]);
+            let found = s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, false, &mut out[..1]);
             assert_eq!(u64::from(found.lost), lost, "{ppm} ppm");
         }
     }
@@ -133,6 +134,7 @@ fn lost_samples_are_counted_exactly_across_long_gaps_at_any_drift() {
                     &p.stamps::<10>(batch * 10),
                     &[p.core(batch * 10 + 9)],
                     0,
+                    false,
                     &mut out,
                 );
             }
@@ -142,7 +144,7 @@ fn lost_samples_are_counted_exactly_across_long_gaps_at_any_drift() {
                 s.drift_ppm()
             );
             let k = 499 + gap + 1;
-            let found = s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, &mut out[..1]);
+            let found = s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, false, &mut out[..1]);
             assert_eq!(found.lost as u64, gap, "{ppm} ppm, {gap} samples");
         }
     }
@@ -167,6 +169,7 @@ fn a_clkin_tick_scales_with_the_input_clock() {
             &p.stamps::<4>(batch * 4),
             &[p.core(batch * 4 + 3)],
             0,
+            false,
             &mut out,
         );
     }
@@ -176,6 +179,7 @@ fn a_clkin_tick_scales_with_the_input_clock() {
         &p.stamps::<1>(1199 + 64),
         &[p.core(1199 + 64)],
         0,
+        false,
         &mut out[..1],
     );
     assert_eq!(found.lost, 63);
@@ -196,13 +200,13 @@ fn an_interrupt_landing_inside_a_read_stamps_its_own_sample() {
         let mut s = Stamper::new(5_000, PLL);
         let mut out = [0u64; 2];
         for k in 0..100u64 {
-            s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, &mut out[..1]);
+            s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, false, &mut out[..1]);
         }
         // Sample 100's interrupt is served; sample 101 arrives while the FIFO is read, and its
         // interrupt (taken after the read) is the newest.
         let irqs = [p.core(99), p.core(100), p.core(101)];
         if in_read {
-            let found = s.stamp(&p.stamps::<2>(100), &irqs, 0, &mut out);
+            let found = s.stamp(&p.stamps::<2>(100), &irqs, 0, false, &mut out);
             // To the stamps' tick (1.07 µs).
             assert!(
                 out[0].abs_diff(p.core(100)) <= 1 && out[1] == p.core(101),
@@ -210,11 +214,11 @@ fn an_interrupt_landing_inside_a_read_stamps_its_own_sample() {
             );
             assert_eq!(found.anchor, Anchor::Matched { index: 1 });
         } else {
-            let found = s.stamp(&p.stamps::<1>(100), &irqs, 0, &mut out[..1]);
+            let found = s.stamp(&p.stamps::<1>(100), &irqs, 0, false, &mut out[..1]);
             assert_eq!(out[0], p.core(100));
             assert_eq!(found.anchor, Anchor::Matched { index: 0 });
             // The next read has sample 101 alone, its interrupt among the latest.
-            let found = s.stamp(&p.stamps::<1>(101), &irqs, 0, &mut out[..1]);
+            let found = s.stamp(&p.stamps::<1>(101), &irqs, 0, false, &mut out[..1]);
             assert_eq!(out[0], p.core(101));
             assert_eq!(
                 (found.anchor, found.lost),
@@ -230,8 +234,34 @@ fn an_interrupt_landing_inside_a_read_stamps_its_own_sample() {
 fn a_read_without_interrupts_is_stamped_at_the_read() {
     let mut s = Stamper::new(5_000, PLL);
     let mut out = [0u64; 2];
-    let found = s.stamp(&[0, 4_688], &[], 1_234_567, &mut out);
+    let found = s.stamp(&[0, 4_688], &[], 1_234_567, false, &mut out);
     assert_eq!(found.anchor, Anchor::Read);
     assert_eq!(out[1], 1_234_567);
     assert_eq!(out[1] - out[0], 5_001); // 4 688 ticks of 32/30 µs
+}
+
+/// Issue 55, point 9: in stop-on-full mode a full FIFO keeps its oldest samples, so the newest
+/// one read raised none of the interrupts known: the read follows the last one by the ticks,
+/// and the loss shows at the next read.
+#[test]
+fn a_stopped_full_fifo_is_placed_after_the_last_read() {
+    let p = Part {
+        period_us: 5_000,
+        tick: PLL,
+        ppm: 0,
+    };
+    let mut s = Stamper::new(5_000, PLL);
+    let mut out = [0u64; 128];
+    for k in 0..10u64 {
+        s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, false, &mut out[..1]);
+    }
+    // Samples 10..138 fill the FIFO; 138..160 are dropped; the loop reads at sample 160.
+    let irqs = [p.core(157), p.core(158), p.core(159), p.core(160)];
+    let found = s.stamp(&p.stamps::<128>(10), &irqs, 0, true, &mut out);
+    assert_eq!((found.anchor, found.lost), (Anchor::Predicted, 0));
+    for (i, t) in out.iter().enumerate() {
+        assert!(t.abs_diff(p.core(10 + i as u64)) <= 1, "{i}: {t}");
+    }
+    let found = s.stamp(&p.stamps::<1>(161), &[p.core(161)], 0, false, &mut out[..1]);
+    assert_eq!((out[0], found.lost), (p.core(161), 23));
 }

@@ -138,7 +138,7 @@ fn main() -> ! {
     let device = unsafe { &mut *(&raw mut DEVICE) };
     let mut clock = Clock64::new();
     // Without a working IMU the core still serves a host that samples (it refuses `Sampling`
-    // from the core with `NoOnboardImu`).
+    // from the core with `NoOnboardImu`); the path tries the part again every second.
     let imu_ok = path
         .start(clock.extend(tim2.now().ticks()), &mut delay)
         .is_ok();
