@@ -147,8 +147,7 @@ impl Stamper {
 
     /// Core µs to ticks at the rate.
     fn ticks(&self, core_us: u64) -> u64 {
-        let t = (u128::from(core_us) << Q) / u128::from(self.rate_q32.max(1));
-        u64::try_from(t).unwrap_or(u64::MAX)
+        q_div(core_us, self.rate_q32)
     }
 
     /// The period in core µs.
@@ -159,8 +158,7 @@ impl Stamper {
 
     /// Whole periods in `ticks`, rounded.
     fn periods_in(&self, ticks: u64) -> u64 {
-        let p = u128::from(self.period_q32.max(1));
-        u64::try_from(((u128::from(ticks) << Q) + p / 2) / p).unwrap_or(u64::MAX)
+        q_div(ticks, self.period_q32)
     }
 
     /// Stamps one read. `stamps` are the part time stamps of its samples, oldest first;
@@ -382,6 +380,18 @@ impl Stamper {
         self.window = Some((t_us, ticks));
         self.periods = (0, 0);
         Some(self.ppm)
+    }
+}
+
+/// `x · 2^32 / d` rounded, for a Q32 `d` (0 taken as 1): in 64-bit arithmetic while `x` is
+/// below 2^31 (35 minutes of µs), since the Cortex-M4 divides 128-bit numbers in software.
+fn q_div(x: u64, d: u64) -> u64 {
+    let d = d.max(1);
+    if x < 1 << 31 {
+        ((x << (Q + 1)) / d).div_ceil(2)
+    } else {
+        let d = u128::from(d);
+        u64::try_from(((u128::from(x) << Q) + d / 2) / d).unwrap_or(u64::MAX)
     }
 }
 
