@@ -15,8 +15,11 @@ use crate::packet::Packet;
 use crate::registers::{self as reg, bank};
 use crate::settings::{MAX_REGISTER_WRITES, RegisterWrite, Settings};
 
-/// Soft reset to first register access (DEVICE_CONFIG description, data sheet §14: ≥ 1 ms).
+/// Soft reset to first register access (DEVICE_CONFIG description, data sheet §14: ≥ 1 ms),
+/// and the interval at which the reset's end is then polled.
 const SOFT_RESET_WAIT_US: u32 = 1_000;
+/// Polls of a soft reset's end before giving up: 1 s (PX4's bound).
+const RESET_TRIES: u32 = 1_000;
 /// After the sensors are turned on, no register writes for 200 µs (PWR_MGMT0 description).
 const SENSORS_ON_WAIT_US: u32 = 200;
 
@@ -103,9 +106,10 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
         self.spi
     }
 
-    /// Configures the part: validate the settings; select bank 0; soft reset; wait 1 ms; check
-    /// WHO_AM_I; read INT_STATUS (clearing RESET_DONE); write [`Settings::register_writes`]
-    /// (the last write starts the sensors); wait 200 µs; flush the FIFO.
+    /// Configures the part: validate the settings; select bank 0; soft reset; poll every 1 ms
+    /// (up to 1 s) for WHO_AM_I, DEVICE_CONFIG's reset bit clear and RESET_DONE (clearing it);
+    /// write [`Settings::register_writes`] (read-modify-write where a write owns only some
+    /// bits; the last write starts the sensors); wait 200 µs; flush the FIFO.
     pub fn init(&mut self, delay: &mut impl DelayNs) -> Result<(), Error<SPI::Error>> {
         self.settings.validate()?;
         self.configure(delay)
@@ -145,7 +149,8 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
                 break; // A run never exceeds the list; unreachable.
             };
             self.read_registers(first.bank, first.address, read)?;
-            if let Some((w, &found)) = run.iter().zip(read.iter()).find(|(w, f)| w.value != **f) {
+            let differs = |(w, f): &(&RegisterWrite, &u8)| w.value != **f & w.mask;
+            if let Some((w, &found)) = run.iter().zip(read.iter()).find(differs) {
                 mismatch = Some(Check::Repaired {
                     bank: w.bank,
                     address: w.address,
@@ -247,26 +252,54 @@ impl<SPI: SpiDevice> Icm42688<SPI> {
             reg::DEVICE_CONFIG,
             reg::DEVICE_CONFIG_SOFT_RESET,
         )?;
-        delay.delay_us(SOFT_RESET_WAIT_US);
         // The reset returns the part to bank 0.
         self.bank = Some(bank::BANK0);
-
-        let mut id = [0u8];
-        self.read_registers(bank::BANK0, reg::WHO_AM_I, &mut id)?;
-        if id[0] != reg::WHO_AM_I_VALUE {
-            return Err(Error::WrongId(id[0]));
-        }
-        // Clear RESET_DONE (set by the soft reset) so that the next check sees only a new one.
-        let mut status = [0u8];
-        self.read_registers(bank::BANK0, reg::INT_STATUS, &mut status)?;
+        self.await_reset(delay)?;
         self.status = 0;
 
         for w in self.settings.register_writes() {
-            self.write_register(w.bank, w.address, w.value)?;
+            let value = if w.mask == 0xFF {
+                w.value
+            } else {
+                let mut now = [0u8];
+                self.read_registers(w.bank, w.address, &mut now)?;
+                (now[0] & !w.mask) | w.value
+            };
+            self.write_register(w.bank, w.address, value)?;
         }
         self.select_bank(bank::BANK0)?;
         delay.delay_us(SENSORS_ON_WAIT_US);
         self.flush_fifo()
+    }
+
+    /// Waits for a soft reset to finish, PX4's way: every 1 ms, for up to 1 s, WHO_AM_I must
+    /// name the part, DEVICE_CONFIG's reset bit must have cleared, and INT_STATUS must show
+    /// RESET_DONE (the read clears it, so that the next check sees only a new one). A fixed
+    /// 1 ms wait trusted a part still starting up.
+    fn await_reset(&mut self, delay: &mut impl DelayNs) -> Result<(), Error<SPI::Error>> {
+        let mut id = 0;
+        for _ in 0..RESET_TRIES {
+            delay.delay_us(SOFT_RESET_WAIT_US);
+            let mut b = [0u8];
+            self.read_registers(bank::BANK0, reg::WHO_AM_I, &mut b)?;
+            id = b[0];
+            if id != reg::WHO_AM_I_VALUE {
+                continue;
+            }
+            self.read_registers(bank::BANK0, reg::DEVICE_CONFIG, &mut b)?;
+            if b[0] & reg::DEVICE_CONFIG_SOFT_RESET != 0 {
+                continue;
+            }
+            self.read_registers(bank::BANK0, reg::INT_STATUS, &mut b)?;
+            if b[0] & reg::INT_STATUS_RESET_DONE != 0 {
+                return Ok(());
+            }
+        }
+        Err(if id == reg::WHO_AM_I_VALUE {
+            Error::ResetTimeout
+        } else {
+            Error::WrongId(id)
+        })
     }
 
     fn select_bank(&mut self, bank: u8) -> Result<(), Error<SPI::Error>> {

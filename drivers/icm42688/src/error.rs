@@ -13,6 +13,9 @@ pub enum Error<E> {
     /// WHO_AM_I did not read 0x47: another part, or no part (a floating MISO reads 0x00 or
     /// 0xFF), or a wrong SPI mode.
     WrongId(u8),
+    /// The part answered but did not finish its soft reset within 1 s (DEVICE_CONFIG's reset
+    /// bit stayed set, or RESET_DONE never came).
+    ResetTimeout,
     /// The settings cannot be given to the part.
     Settings(SettingsError),
 }
@@ -32,6 +35,9 @@ impl<E: fmt::Debug> fmt::Display for Error<E> {
                 "ICM-42688-P WHO_AM_I read 0x{got:02X}, expected 0x{WHO_AM_I_VALUE:02X} \
                  (another part, no part, or a wrong SPI mode)"
             ),
+            Error::ResetTimeout => {
+                f.write_str("ICM-42688-P did not finish its soft reset within 1 s (no RESET_DONE)")
+            }
             Error::Settings(e) => write!(f, "invalid ICM-42688-P settings: {e}"),
         }
     }

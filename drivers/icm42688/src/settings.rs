@@ -302,8 +302,23 @@ pub struct RegisterWrite {
     pub bank: u8,
     /// Register address within the bank.
     pub address: u8,
-    /// Value written, and expected on reading back.
+    /// Value written, and expected on reading back, in the bits of `mask`.
     pub value: u8,
+    /// The bits this configuration sets: 0xFF for a whole register; otherwise the register is
+    /// read, and only these bits changed and checked (read-modify-write, as Betaflight does
+    /// for INTF_CONFIG5, whose other bits are reserved).
+    pub mask: u8,
+}
+
+/// The bits of a register the configuration sets (the rest it leaves as read): all, except
+/// in INTF_CONFIG5, whose bits other than PIN9_FUNCTION are reserved (Betaflight writes it by
+/// read-modify-write).
+pub const fn owned_bits(bank: u8, address: u8) -> u8 {
+    if bank == bank::BANK1 && address == reg::INTF_CONFIG5 {
+        reg::INTF_CONFIG5_PIN9_MASK
+    } else {
+        0xFF
+    }
 }
 
 /// How the part is configured.
@@ -410,10 +425,12 @@ impl Settings {
         let mut push = |bank: u8, address: u8, value: u8| {
             // The longest sequence is 26 writes, below the capacity of 32 (a test walks every
             // setting combination): the push cannot fail.
+            let mask = owned_bits(bank, address);
             let _ = writes.push(RegisterWrite {
                 bank,
                 address,
-                value,
+                value: value & mask,
+                mask,
             });
         };
         let b0 = bank::BANK0;
@@ -539,7 +556,7 @@ impl Settings {
             (bitshift << 4) | (sqr_high & 0x0F),
         );
         if let ClockSource::Clkin { .. } = self.clock {
-            // INTF_CONFIG5 resets to 0x00 (pin 9 = INT2).
+            // PIN9_FUNCTION only (`owned_bits`).
             push(b1, reg::INTF_CONFIG5, reg::INTF_CONFIG5_PIN9_CLKIN);
         }
 

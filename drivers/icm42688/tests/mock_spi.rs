@@ -39,6 +39,7 @@ fn init_typical() -> Vec<Script> {
         write(0x76, 0x00),   // REG_BANK_SEL = 0 (bank unknown before init)
         write(0x11, 0x01),   // DEVICE_CONFIG: soft reset
         read(0x75, &[0x47]), // WHO_AM_I
+        read(0x11, &[0x00]), // DEVICE_CONFIG: the reset bit has cleared
         read(0x2D, &[0x10]), // INT_STATUS: RESET_DONE, cleared by the read
         write(0x4C, 0x73),   // INTF_CONFIG0: count in records, big-endian, I2C off
         write(0x14, 0x03),   // INT_CONFIG: INT1 pulsed, push-pull, active high
@@ -122,6 +123,7 @@ fn init_watermark_clkin_writes_exact_sequence() {
         write(0x76, 0x00),
         write(0x11, 0x01),
         read(0x75, &[0x47]),
+        read(0x11, &[0x00]),
         read(0x2D, &[0x10]),
         write(0x4C, 0x73),
         write(0x14, 0x03),
@@ -144,7 +146,9 @@ fn init_watermark_clkin_writes_exact_sequence() {
         write(0x0C, 0x15), // AAF 997 Hz: DELT 21
         write(0x0D, 0xB8), // DELTSQR 440 = 0x1B8
         write(0x0E, 0x61), // BITSHIFT 6, DELTSQR[11:8] 1
-        write(0x7B, 0x04), // INTF_CONFIG5: pin 9 = CLKIN
+        // INTF_CONFIG5: pin 9 = CLKIN, read-modify-write (reserved bits 0x09 kept).
+        read(0x7B, &[0x09]),
+        write(0x7B, 0x0D),
         write(0x76, 0x02),
         write(0x03, 0x2A), // DELT 21 << 1
         write(0x04, 0xB8),
@@ -162,16 +166,45 @@ fn init_watermark_clkin_writes_exact_sequence() {
 
 #[test]
 fn init_wrong_who_am_i() {
-    let mut spi = Mock::new(&script(vec![
-        write(0x76, 0x00),
-        write(0x11, 0x01),
-        read(0x75, &[0x98]),
-    ]));
+    // Polled every 1 ms for 1 s after the soft reset (issue 55, point 9), then refused.
+    let mut parts = vec![write(0x76, 0x00), write(0x11, 0x01)];
+    parts.extend((0..1000).map(|_| read(0x75, &[0x98])));
+    let mut spi = Mock::new(&script(parts));
     let mut imu = Icm42688::new(spi.clone(), Settings::new(Odr::Hz100));
     let err = imu.init(&mut NoopDelay::new()).unwrap_err();
     assert_eq!(err, Error::WrongId(0x98));
     assert!(err.to_string().contains("0x98"), "{err}");
     spi.done();
+}
+
+/// Issue 55, point 9: a fixed 1 ms after the soft reset trusted a part still starting up. The
+/// driver polls WHO_AM_I, DEVICE_CONFIG and RESET_DONE every 1 ms until all three say the
+/// reset is over.
+#[test]
+fn init_waits_for_the_soft_reset_to_finish() {
+    let mut parts = vec![
+        write(0x76, 0x00),
+        write(0x11, 0x01),
+        read(0x75, &[0x00]), // not answering yet
+        read(0x75, &[0x47]),
+        read(0x11, &[0x01]), // still resetting
+        read(0x75, &[0x47]),
+        read(0x11, &[0x00]),
+        read(0x2D, &[0x00]), // no RESET_DONE yet
+    ];
+    parts.extend(init_typical().into_iter().skip(2));
+    let mut spi = Mock::new(&script(parts));
+    let mut delay = CheckedDelay::new(&[
+        DelayTransaction::delay_us(1000),
+        DelayTransaction::delay_us(1000),
+        DelayTransaction::delay_us(1000),
+        DelayTransaction::delay_us(1000),
+        DelayTransaction::delay_us(200),
+    ]);
+    let mut imu = Icm42688::new(spi.clone(), Settings::new(Odr::Hz100));
+    imu.init(&mut delay).unwrap();
+    spi.done();
+    delay.done();
 }
 
 #[test]
