@@ -173,9 +173,14 @@ impl Board {
         }
     }
 
-    /// A new session begins (a connection, or a host in the same process attaching).
+    /// A new session begins (a connection, or a host in the same process attaching): its
+    /// host must shake hands before it drives the core, which keeps its state.
     pub fn open_session(&mut self) {
         self.report.sessions += 1;
+        match &mut self.core {
+            Core::F32(io) => io.link_opened(),
+            Core::F64(io) => io.link_opened(),
+        }
     }
 
     /// Takes `bytes` from the host: a reset requested on the pin first (what the core held is
@@ -317,6 +322,59 @@ mod tests {
         let report = handle.join().unwrap().unwrap();
         assert_eq!(report.counters.decode_errors, 1);
         assert!(report.bytes_in > 0 && report.bytes_out > 0);
+    }
+
+    /// Issue 55, point 12: who drives the core. The host that holds the link does: a serial
+    /// device is opened exclusively, so a second host cannot open it while the first has it;
+    /// and a later link must shake hands before it drives the core (a core stayed greeted until
+    /// it rebooted, so a second host's `Configure` without a `Hello` was taken).
+    #[test]
+    fn a_second_host_is_refused_while_the_first_holds_the_core() {
+        use crate::transport::{TransportError, pty_for_peer, serial};
+        let (board, path) = pty_for_peer().unwrap();
+        let handle = spawn(board, Precision::F32).unwrap();
+        let first = serial(&path, 115_200).unwrap();
+        let mut w = FrameWriter::new(first.writer);
+        let mut r = FrameReader::new(first.reader);
+        w.send(&HostToCore::Hello(Hello {
+            version: PROTOCOL_VERSION,
+        }))
+        .unwrap();
+        assert!(matches!(next_answer(&mut r), CoreToHost::HelloAck(_)));
+        let second = serial(&path, 115_200);
+        let Err(e @ TransportError::Serial { .. }) = &second else {
+            panic!("a second host opened the core's device: {second:?}")
+        };
+        assert!(e.to_string().contains("another host"), "{e}");
+        drop((w, r));
+        handle.join().unwrap().unwrap();
+
+        // Over TCP (firmware-sim --forever): the next connection must say `Hello` first.
+        let (connect, connections) = std::sync::mpsc::channel();
+        let handle = spawn_serving(connections, Precision::F32, ResetPin::default()).unwrap();
+        let session = |hello: bool| {
+            let (host, board) = pty_pair().unwrap();
+            connect.send(board).unwrap();
+            let mut w = FrameWriter::new(host.writer);
+            let mut r = FrameReader::new(host.reader);
+            if hello {
+                w.send(&HostToCore::Hello(Hello {
+                    version: PROTOCOL_VERSION,
+                }))
+                .unwrap();
+                assert!(matches!(next_answer(&mut r), CoreToHost::HelloAck(_)));
+            }
+            w.send(&HostToCore::Configure(protocol::samples::config()))
+                .unwrap();
+            next_answer(&mut r)
+        };
+        assert!(matches!(session(true), CoreToHost::Status(_)));
+        match session(false) {
+            CoreToHost::Error(e) => assert_eq!(e.code, protocol::ErrorCode::NoHandshake),
+            other => panic!("a host that did not shake hands drove the core: {other:?}"),
+        }
+        drop(connect);
+        handle.join().unwrap().unwrap();
     }
 
     /// A board keeps its core from one connection to the next (the second host finds the

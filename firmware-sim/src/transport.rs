@@ -39,7 +39,10 @@ pub enum TransportError {
     #[error("cannot open a pty pair: {0}")]
     Pty(#[source] serialport::Error),
     /// The serial device could not be opened.
-    #[error("cannot open serial device {path} at {baud} baud: {source}")]
+    #[error(
+        "cannot open serial device {path} at {baud} baud: {source}{}",
+        busy_hint(source)
+    )]
     Serial {
         /// Device path.
         path: String,
@@ -143,6 +146,22 @@ fn close_on_exec(ports: &[&TTYPort]) -> Result<(), TransportError> {
             .map_err(|e| TransportError::Pty(io::Error::from(e).into()))?;
     }
     Ok(())
+}
+
+/// What a refused open of a serial device means when another process holds it: hosts open
+/// the core's device exclusively, so that one host drives it at a time (protocol/PROTOCOL.md §8).
+fn busy_hint(e: &serialport::Error) -> &'static str {
+    let busy = matches!(
+        e.kind,
+        serialport::ErrorKind::Io(io::ErrorKind::ResourceBusy)
+    ) || e.description.contains("busy")
+        || e.description.contains("would block")
+        || e.description.contains("exclusive");
+    if busy {
+        " (another host holds it: the core is driven by one host at a time)"
+    } else {
+        ""
+    }
 }
 
 /// Opens a pty pair: `(host end, board end)`. Bytes cross the kernel's tty layer in raw mode,

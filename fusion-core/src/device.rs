@@ -302,6 +302,15 @@ impl<T: Kernels> Device<T> {
         out(CoreToHost::error(ErrorCode::Decode(e)));
     }
 
+    /// A host link was opened (a connection accepted, a port opened, USB's DTR raised): whoever
+    /// is on it must shake hands before it drives the core (issue 55: a core stayed greeted
+    /// until it rebooted, so bytes from a later peer were taken without a `Hello`). The session
+    /// itself (configuration, filter) is kept for a host that comes back (protocol/PROTOCOL.md
+    /// §8).
+    pub fn link_opened(&mut self) {
+        self.greeted = false;
+    }
+
     /// Handles one message. Nothing non-finite leaves the core: an answer that would carry an
     /// infinity or a NaN (a state beyond f32's range) is held back and the filter declared
     /// diverged.
@@ -414,7 +423,9 @@ impl<T: Kernels> Device<T> {
         let OnboardEvent::Sample(s) = event else {
             return;
         };
-        if !self.onboard.core_samples() || !self.greeted || self.config.is_none() {
+        // A greeted host chose core sampling; the filter runs on through a new link's
+        // handshake (`link_opened`), as through the host's absence.
+        if !self.onboard.core_samples() || self.config.is_none() {
             return;
         }
         let msg = if self.prm.as_ref().is_some_and(|p| !p.model.has_imu()) {
@@ -1129,6 +1140,13 @@ impl<T: Scalar> DeviceIo<T> {
             decoder: Decoder::new(),
             answer: AnswerBuf([0; MAX_FRAME_LEN]),
         }
+    }
+
+    /// A host link was opened: a frame begun on the previous link is dropped, and the new
+    /// peer must shake hands ([`Device::link_opened`]).
+    pub fn link_opened(&mut self) {
+        self.decoder = Decoder::new();
+        self.device.greeted = false;
     }
 }
 

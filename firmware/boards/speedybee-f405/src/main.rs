@@ -170,8 +170,18 @@ fn main() -> ! {
 
     let mut frame = [0u8; MAX_FRAME_LEN];
     let mut rx = [0u8; 64];
+    // Whether a host has the port open (DTR): a host that opens it must shake hands before it
+    // drives the core (protocol/PROTOCOL.md §8).
+    let mut host_dtr = false;
     loop {
-        if usb_dev.poll(&mut [&mut serial])
+        let polled = usb_dev.poll(&mut [&mut serial]);
+        if serial.dtr() != host_dtr {
+            host_dtr = !host_dtr;
+            if host_dtr {
+                device.link_opened();
+            }
+        }
+        if polled
             && let Ok(n) = serial.read(&mut rx)
             && n > 0
         {
