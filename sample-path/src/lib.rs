@@ -8,9 +8,10 @@
 //! - [`stamp`]: the FIFO's samples time-stamped PX4's way (each interrupt's sample at its time,
 //!   the others by the part's own time stamps), lost samples counted, the IMU's clock drift and
 //!   its time stamps' tick measured;
-//! - [`trigger`]: when to fire the camera;
-//! - [`path`]: [`SamplePath`], which reads the part, scales to SI units, pulses the trigger pin
-//!   and hands every sample, gap and fault to [`fusion_core::Device::onboard`]
+//! - [`trigger`]: when to fire the camera: a timer armed for the predicted time of the sample
+//!   the trigger is due on, and the trigger paired with that sample;
+//! - [`path`]: [`SamplePath`], which reads the part, scales to SI units, arms the camera's
+//!   trigger and hands every sample, gap and fault to [`fusion_core::Device::onboard`]
 //!   (protocol/PROTOCOL.md §7).
 #![no_std]
 
@@ -21,7 +22,8 @@ pub mod trigger;
 
 pub use clock::Clock64;
 pub use path::{
-    At, INTERRUPTS_KEPT, PathError, ReadSummary, START_RETRY_US, SamplePath, Served, Timing,
+    At, INTERRUPTS_KEPT, PathError, ReadSummary, START_RETRY_US, SamplePath, Served,
+    TRIGGER_PULSE_US, Timing,
 };
 pub use stamp::{Anchor, Stamped, Stamper};
-pub use trigger::TriggerCount;
+pub use trigger::{ARM_LEAD_US, Paired, TriggerOutput, TriggerPlan};

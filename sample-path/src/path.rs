@@ -7,7 +7,6 @@
 //! part that failed to start.
 
 use embedded_hal::delay::DelayNs;
-use embedded_hal::digital::OutputPin;
 use embedded_hal::spi::SpiDevice;
 use fusion_core::Kernels;
 use fusion_core::device::{Device, Out};
@@ -16,7 +15,7 @@ use icm42688::{Check, FIFO_CAPACITY, Icm42688, Packet};
 use protocol::{GapCause, ImuSample, SampleGap, SampleSource};
 
 use crate::stamp::Stamper;
-use crate::trigger::TriggerCount;
+use crate::trigger::{TriggerOutput, TriggerPlan};
 
 /// How many of the latest IMU interrupts' times [`Timing::interrupts`] gives.
 pub const INTERRUPTS_KEPT: usize = 4;
@@ -86,7 +85,8 @@ pub const MISSED_INTERRUPTS_BEFORE_POLLING: u64 = 3;
 /// a loose connector): the core serves without it meanwhile (`NoOnboardImu`).
 pub const START_RETRY_US: u64 = 1_000_000;
 
-/// Width of the camera trigger pulse [µs] (global-shutter cameras want a few µs to a few tens).
+/// Width of the camera trigger pulse [µs] (global-shutter cameras want a few µs to a few tens),
+/// for the [`TriggerOutput`] implementations.
 pub const TRIGGER_PULSE_US: u32 = 20;
 
 /// A failure of the path's hardware.
@@ -94,15 +94,15 @@ pub const TRIGGER_PULSE_US: u32 = 20;
 pub enum PathError<S, P> {
     /// The IMU's driver failed (the SPI bus, or a wrong part).
     Imu(icm42688::Error<S>),
-    /// The trigger pin could not be driven.
-    TriggerPin(P),
+    /// The camera's trigger line could not be driven.
+    Trigger(P),
 }
 
 impl<S: core::fmt::Debug, P: core::fmt::Debug> core::fmt::Display for PathError<S, P> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             PathError::Imu(e) => write!(f, "IMU: {e}"),
-            PathError::TriggerPin(e) => write!(f, "camera trigger pin: {e:?}"),
+            PathError::Trigger(e) => write!(f, "camera trigger line: {e:?}"),
         }
     }
 }
@@ -116,16 +116,16 @@ pub struct ReadSummary {
     pub samples: usize,
     /// Samples lost before them.
     pub lost: u32,
-    /// The camera was triggered at the newest sample.
+    /// A trigger went with a sample of this read.
     pub triggered: bool,
 }
 
 /// The sample path of one IMU and one camera trigger line.
-pub struct SamplePath<SPI, PIN> {
+pub struct SamplePath<SPI, TRG> {
     imu: Icm42688<SPI>,
-    trigger_pin: PIN,
+    trigger_output: TRG,
     stamper: Stamper,
-    trigger: TriggerCount,
+    trigger: TriggerPlan,
     /// A fault seen that explains the next gap.
     cause: Option<GapCause>,
     /// Samples marked invalid since the last valid one handed on, and that one's time.
@@ -140,16 +140,16 @@ pub struct SamplePath<SPI, PIN> {
     times: [u64; FIFO_CAPACITY],
 }
 
-impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
+impl<SPI: SpiDevice, TRG: TriggerOutput> SamplePath<SPI, TRG> {
     /// A path over a driver (not yet initialised) and the camera's trigger line.
-    pub fn new(imu: Icm42688<SPI>, trigger_pin: PIN) -> Self {
+    pub fn new(imu: Icm42688<SPI>, trigger_output: TRG) -> Self {
         let settings = imu.settings();
         let stamper = Stamper::new(settings.period_us(), settings.stamp_tick());
         SamplePath {
             imu,
-            trigger_pin,
+            trigger_output,
             stamper,
-            trigger: TriggerCount::default(),
+            trigger: TriggerPlan::default(),
             cause: None,
             invalid: (0, 0),
             last_read_us: None,
@@ -168,8 +168,18 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
     }
 
     /// The camera's trigger line.
-    pub fn trigger_pin(&self) -> &PIN {
-        &self.trigger_pin
+    pub fn trigger_output(&self) -> &TRG {
+        &self.trigger_output
+    }
+
+    /// The camera's trigger line, to drive it (a simulation tells it the time).
+    pub fn trigger_output_mut(&mut self) -> &mut TRG {
+        &mut self.trigger_output
+    }
+
+    /// The trigger plan (the pulse armed, if any).
+    pub fn trigger_plan(&self) -> &TriggerPlan {
+        &self.trigger
     }
 
     /// Configures the part; `now_us` starts the configuration checks' clock.
@@ -177,8 +187,7 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         &mut self,
         now_us: u64,
         delay: &mut impl DelayNs,
-    ) -> Result<(), PathError<SPI::Error, PIN::Error>> {
-        self.trigger_pin.set_low().map_err(PathError::TriggerPin)?;
+    ) -> Result<(), PathError<SPI::Error, TRG::Error>> {
         self.last_start_us = now_us;
         self.imu.init(delay).map_err(PathError::Imu)?;
         self.started = true;
@@ -198,13 +207,12 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         &mut self,
         timing: &mut impl Timing,
         device: &mut Device<T>,
-        delay: &mut impl DelayNs,
         out: Out,
-    ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
+    ) -> Result<ReadSummary, PathError<SPI::Error, TRG::Error>> {
         if !self.started {
             return Ok(ReadSummary::default());
         }
-        self.read(timing, true, device, delay, out)
+        self.read(timing, true, device, out)
     }
 
     /// Reads the FIFO and hands its samples on; `interrupts`: whether the interrupts' times
@@ -214,9 +222,8 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         timing: &mut impl Timing,
         interrupts: bool,
         device: &mut Device<T>,
-        delay: &mut impl DelayNs,
         out: Out,
-    ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
+    ) -> Result<ReadSummary, PathError<SPI::Error, TRG::Error>> {
         let read = self
             .imu
             .read_fifo(&mut self.packets)
@@ -261,7 +268,7 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             if stamped.lost > 0 || !read.overflowed {
                 self.cause = None;
             }
-            summary = self.hand_on(n, stamped.lost, device, delay, out)?;
+            summary = self.hand_on(n, stamped.lost, read_us, device, out)?;
         }
         // A corrupt packet ended the read (the FIFO was flushed): the gap shows at the next.
         if read.corrupt {
@@ -271,32 +278,33 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
     }
 
     /// Scales and hands on the `n` packets read and stamped (`lost` before them), the ones
-    /// the part marked invalid as gaps; fires the camera with the newest valid one when due.
+    /// the part marked invalid as gaps, the trigger with the sample it went with
+    /// ([`crate::trigger`]); then arms the next pulse if it is due before the next read.
     fn hand_on<T: Kernels>(
         &mut self,
         n: usize,
         lost: u32,
+        read_us: u64,
         device: &mut Device<T>,
-        delay: &mut impl DelayNs,
         out: Out,
-    ) -> Result<ReadSummary, PathError<SPI::Error, PIN::Error>> {
+    ) -> Result<ReadSummary, PathError<SPI::Error, TRG::Error>> {
         let watermark = usize::from(self.imu.settings().watermark.max(1));
         if n > watermark {
             device.onboard(&OnboardEvent::LateRead, out);
         }
-        let every = match device.onboard_state().sampling().source {
-            SampleSource::Core { trigger_every } => trigger_every,
-            SampleSource::Host => 0,
-        };
-        let newest_valid = self.packets[..n].iter().rposition(Packet::has_valid_data);
-        // A read of invalid samples alone has nothing for a trigger to go with.
-        let triggered = newest_valid.is_some() && self.trigger.due(every, n as u32);
-        if triggered {
-            // Fired now, at the newest sample's interrupt: the camera exposes at its time.
-            self.trigger_pin.set_high().map_err(PathError::TriggerPin)?;
-            delay.delay_us(TRIGGER_PULSE_US);
-            self.trigger_pin.set_low().map_err(PathError::TriggerPin)?;
-        }
+        let every = trigger_every(device);
+        let period = self.stamper.period_us();
+        let packets = &self.packets[..n];
+        let paired = self
+            .trigger
+            .take(
+                every,
+                &self.times[..n],
+                |i| packets[i].has_valid_data(),
+                period,
+                &mut self.trigger_output,
+            )
+            .map_err(PathError::Trigger)?;
         let settings = *self.imu.settings();
         let mut samples = 0;
         for i in 0..n {
@@ -322,16 +330,25 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
                 t_us,
                 gyro: p.gyro_rad_s(&settings),
                 accel: p.accel_m_s2(&settings),
-                trigger: triggered && Some(i) == newest_valid,
+                trigger: paired.index == Some(i),
             };
             device.onboard(&OnboardEvent::Sample(sample), out);
             self.invalid.1 = t_us;
             samples += 1;
         }
+        self.trigger
+            .plan(
+                self.times[n - 1],
+                read_us,
+                period,
+                u32::from(settings.watermark.max(1)),
+                &mut self.trigger_output,
+            )
+            .map_err(PathError::Trigger)?;
         Ok(ReadSummary {
             samples,
             lost,
-            triggered,
+            triggered: paired.index.is_some(),
         })
     }
 
@@ -346,7 +363,7 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
         device: &mut Device<T>,
         delay: &mut impl DelayNs,
         out: Out,
-    ) -> Result<Option<ReadSummary>, PathError<SPI::Error, PIN::Error>> {
+    ) -> Result<Option<ReadSummary>, PathError<SPI::Error, TRG::Error>> {
         let now_us = timing.now_us();
         if !self.started {
             // A part that failed to start is tried again every second; once it answers, the
@@ -372,8 +389,34 @@ impl<SPI: SpiDevice, PIN: OutputPin> SamplePath<SPI, PIN> {
             now_us.saturating_sub(t) >= MISSED_INTERRUPTS_BEFORE_POLLING * interval
         });
         if silent {
-            return self.read(timing, false, device, delay, out).map(Some);
+            return self.read(timing, false, device, out).map(Some);
+        }
+        // A trigger due before the next read (the first after the host's choice) is armed now,
+        // from the last sample stamped, while it is recent enough to predict from.
+        self.trigger.choose(trigger_every(device));
+        let period = self.stamper.period_us();
+        let batch = settings.watermark.max(1);
+        if let Some(last) = self.stamper.last_us()
+            && now_us.saturating_sub(last) < 4 * period * u64::from(batch)
+        {
+            self.trigger
+                .plan(
+                    last,
+                    now_us,
+                    period,
+                    u32::from(batch),
+                    &mut self.trigger_output,
+                )
+                .map_err(PathError::Trigger)?;
         }
         Ok(None)
+    }
+}
+
+/// The host's choice of triggers: every how many samples (0: none, or the host samples).
+fn trigger_every<T: Kernels>(device: &Device<T>) -> u16 {
+    match device.onboard_state().sampling().source {
+        SampleSource::Core { trigger_every } => trigger_every,
+        SampleSource::Host => 0,
     }
 }

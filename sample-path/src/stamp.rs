@@ -27,6 +27,10 @@ pub const DRIFT_WINDOW_US: u64 = 4_000_000;
 /// How far the rate may be off before it was first measured [ppm]: the internal oscillator's
 /// tolerance (±2 %).
 const RATE_ERROR_UNMEASURED_PPM: u64 = 20_000;
+/// How far the rate may be off while the first window fills [ppm] (see `EARLY_RATE_AFTER_US`).
+const RATE_ERROR_EARLY_PPM: u64 = 2_000;
+/// Core µs after which the first window's rate so far replaces the nominal one.
+const EARLY_RATE_AFTER_US: u64 = 20_000;
 /// How far a measured rate may be off [ppm]: drift of the oscillator within a window.
 const RATE_ERROR_MEASURED_PPM: u64 = 500;
 
@@ -88,8 +92,10 @@ pub struct Stamper {
     nominal_q32: u64,
     /// Core µs per tick as measured (nominal until then), Q32.
     rate_q32: u64,
-    /// Whether `rate_q32` was measured.
+    /// Whether `rate_q32` was measured over a whole window.
     measured: bool,
+    /// Whether `rate_q32` is the first window's so far.
+    early: bool,
     /// The sample period in ticks, Q32: nominal, then measured.
     period_q32: u64,
     last: Option<Last>,
@@ -111,6 +117,7 @@ impl Stamper {
             nominal_q32,
             rate_q32: nominal_q32,
             measured: false,
+            early: false,
             period_q32: ((period_part_us as u64 * den) << Q) / num,
             last: None,
             window: None,
@@ -150,8 +157,13 @@ impl Stamper {
         q_div(core_us, self.rate_q32)
     }
 
-    /// The period in core µs.
-    fn period_us(&self) -> u64 {
+    /// The core time of the last sample stamped, if any.
+    pub fn last_us(&self) -> Option<u64> {
+        self.last.map(|l| l.t_us)
+    }
+
+    /// The sample period in core µs, at the measured rate.
+    pub fn period_us(&self) -> u64 {
         let t = (u128::from(self.period_q32) * u128::from(self.rate_q32)) >> (2 * Q);
         u64::try_from(t).unwrap_or(u64::MAX).max(1)
     }
@@ -319,6 +331,8 @@ impl Stamper {
         // A prediction is trusted while the rate's error over it is under a quarter period.
         let error_ppm = if self.measured {
             RATE_ERROR_MEASURED_PPM
+        } else if self.early {
+            RATE_ERROR_EARLY_PPM
         } else {
             RATE_ERROR_UNMEASURED_PPM
         };
@@ -358,12 +372,22 @@ impl Stamper {
         };
         let core_us = t_us.saturating_sub(t0);
         let counted = ticks.saturating_sub(ticks0);
-        if core_us < DRIFT_WINDOW_US || counted == 0 {
+        if counted == 0 {
             return None;
         }
         let rate = u64::try_from((u128::from(core_us) << Q) / u128::from(counted))
             .unwrap_or(u64::MAX)
             .max(1);
+        if core_us < DRIFT_WINDOW_US {
+            // Until the first window is full, the rate so far (its error falls as the window
+            // grows: 1 µs of interrupt jitter over 20 ms is 50 ppm): predictions from the
+            // nominal tick would be off by the oscillator's tolerance, 200 µs a 10 ms period.
+            if !self.measured && core_us >= EARLY_RATE_AFTER_US {
+                self.rate_q32 = rate;
+                self.early = true;
+            }
+            return None;
+        }
         // The IMU fast: its ticks last fewer core µs than nominal.
         let ppm = (i128::from(self.nominal_q32) - i128::from(rate)) * 1_000_000 / i128::from(rate);
         let ppm = ppm.clamp(-100_000, 100_000) as i32;

@@ -99,6 +99,10 @@ impl Board {
         let mut answers = Vec::new();
         let mut out = |m| answers.push(m);
         let period = u64::from(self.path.imu().settings().period_us());
+        // The timer's pulse armed for this sample rises with it.
+        let line = self.path.trigger_output_mut();
+        line.set_now(s.t_us);
+        line.advance(s.t_us + period / 2);
         let interrupts = match serve {
             Serve::Interrupt => vec![s.t_us],
             Serve::ArrivedDuringRead => vec![s.t_us - period, s.t_us],
@@ -111,7 +115,7 @@ impl Board {
                 interrupts: &interrupts,
             };
             self.path
-                .on_interrupt(&mut timing, &mut driver.device, &mut NoDelay, &mut out)
+                .on_interrupt(&mut timing, &mut driver.device, &mut out)
                 .expect("the simulated part answers");
         }
         if serve != Serve::Nothing {

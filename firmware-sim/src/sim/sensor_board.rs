@@ -13,7 +13,7 @@ use fusion_core::{Device, Kernels};
 use icm42688::sim::SharedSim;
 use icm42688::{Icm42688, Odr, Settings, SimIcm42688};
 use protocol::CoreToHost;
-use sample_path::{At, SamplePath};
+use sample_path::{At, SamplePath, Served, TriggerOutput};
 
 use super::scenario::ImuSample as Reading;
 
@@ -47,6 +47,41 @@ pub struct BoardRun {
     /// Pulses on the camera's trigger line.
     pub trigger_pulses: u32,
 }
+/// The main loop's timing, for [`run_loop`]: each turn of the loop (serve USB, answer frames,
+/// read the FIFO if an interrupt came) takes `short_us`, or with probability `long_share`
+/// a duration up to `long_max_us` drawn uniformly (a frame's correspondences, USB bursts);
+/// an interrupt is taken 0 to `irq_jitter_us` after its sample; the IMU's clock runs
+/// `drift_ppm` off the MCU's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LoopModel {
+    /// Seed of the durations.
+    pub seed: u64,
+    /// A short turn [µs].
+    pub short_us: u64,
+    /// Share of long turns.
+    pub long_share: f64,
+    /// The longest turn [µs].
+    pub long_max_us: u64,
+    /// The interrupt's latency after its sample, at most [µs].
+    pub irq_jitter_us: u64,
+    /// The IMU's clock against the MCU's [ppm] (positive: fast).
+    pub drift_ppm: f64,
+}
+
+/// What [`run_loop`] produced.
+#[derive(Debug, Default)]
+pub struct LoopRun {
+    /// Everything the core sent, in order.
+    pub sent: Vec<CoreToHost>,
+    /// The MCU time [µs] of each reading (the truth of its time stamp).
+    pub sampled_at_us: Vec<u64>,
+    /// Every rising edge of the trigger line: its time [µs], and whether the loop fired it at
+    /// once (else the timer, armed ahead).
+    pub rises: Vec<(u64, bool)>,
+    /// Each FIFO read: the loop's time, and the true time of the newest sample it held (a
+    /// pulse fired at the read, as before issue 55, would have been that late).
+    pub reads: Vec<(u64, u64)>,
+}
 
 /// A no-op delay: the simulated part needs no waiting.
 pub struct NoDelay;
@@ -55,28 +90,51 @@ impl embedded_hal::delay::DelayNs for NoDelay {
     fn delay_ns(&mut self, _ns: u32) {}
 }
 
-/// The camera's trigger line: counts pulses.
-#[derive(Default)]
+/// The camera's trigger line as the board drives it (`sample_path::TriggerOutput`): a pulse
+/// armed on the timer rises at its time, one fired by the loop at the loop's time. The
+/// simulation tells the line the time ([`TriggerLine::set_now`], [`TriggerLine::advance`]).
+#[derive(Clone, Debug, Default)]
 pub struct TriggerLine {
-    /// Rising edges seen.
-    pub pulses: u32,
-    high: bool,
+    /// Every rising edge: its core time [µs], and whether the loop fired it at once (else the
+    /// timer did, at the time armed).
+    pub rises: Vec<(u64, bool)>,
+    armed: Option<u64>,
+    now_us: u64,
 }
 
-impl embedded_hal::digital::ErrorType for TriggerLine {
+impl TriggerLine {
+    /// The loop's time now [µs] (when a pulse fired at once rises).
+    pub fn set_now(&mut self, now_us: u64) {
+        self.now_us = now_us;
+    }
+
+    /// Time runs to `t_us`: an armed pulse whose time has come rises (at its time). Whether
+    /// one did.
+    pub fn advance(&mut self, t_us: u64) -> bool {
+        match self.armed {
+            Some(at) if at <= t_us => {
+                self.rises.push((at, false));
+                self.armed = None;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// Pulses so far.
+    pub fn pulses(&self) -> u32 {
+        u32::try_from(self.rises.len()).unwrap_or(u32::MAX)
+    }
+}
+
+impl TriggerOutput for TriggerLine {
     type Error = Infallible;
-}
-
-impl embedded_hal::digital::OutputPin for TriggerLine {
-    fn set_low(&mut self) -> Result<(), Infallible> {
-        self.high = false;
+    fn arm(&mut self, at_us: u64) -> Result<(), Infallible> {
+        self.armed = Some(at_us);
         Ok(())
     }
-    fn set_high(&mut self) -> Result<(), Infallible> {
-        if !self.high {
-            self.pulses += 1;
-        }
-        self.high = true;
+    fn fire_now(&mut self) -> Result<(), Infallible> {
+        self.rises.push((self.now_us, true));
         Ok(())
     }
 }
@@ -135,14 +193,12 @@ pub fn run(
         }
         let irq = !faults.missed_interrupts.contains(&k) && part.borrow().interrupt_pending();
         let mut out = |m| sent.push(m);
+        let line = path.trigger_output_mut();
+        line.set_now(t + faults.irq_latency_us);
+        line.advance(t + period_part_us / 2);
         if irq {
-            path.on_interrupt(
-                &mut At(t + faults.irq_latency_us),
-                device,
-                &mut delay,
-                &mut out,
-            )
-            .map_err(|e| e.to_string())?;
+            path.on_interrupt(&mut At(t + faults.irq_latency_us), device, &mut out)
+                .map_err(|e| e.to_string())?;
         }
         path.poll(
             &mut At(t + faults.irq_latency_us + 1),
@@ -154,7 +210,7 @@ pub fn run(
         run.sent.append(&mut sent);
     }
     run.dropped_on_overflow = part.borrow().dropped_on_overflow();
-    run.trigger_pulses = path.trigger_pin().pulses;
+    run.trigger_pulses = path.trigger_output().pulses();
     Ok(run)
 }
 
@@ -230,16 +286,96 @@ impl SimulatedImu {
         self.part
             .part()
             .sample(t_us + self.part_offset_us, gyro, accel, 25.0);
-        let pulses = self.path.trigger_pin().pulses;
+        let pulses = self.path.trigger_output().pulses();
+        let half_period = u64::from(self.settings().period_us()) / 2;
+        let line = self.path.trigger_output_mut();
+        line.set_now(t_us);
+        // The pulse armed for this sample rises with it (the timer fires within microseconds
+        // of the sample, on either side).
+        line.advance(t_us + half_period);
         let pending = self.part.part().interrupt_pending();
         if pending {
             self.path
-                .on_interrupt(&mut At(t_us), device, &mut NoDelay, out)
+                .on_interrupt(&mut At(t_us), device, out)
                 .map_err(|e| e.to_string())?;
         }
         self.path
             .poll(&mut At(t_us), device, &mut NoDelay, out)
             .map_err(|e| e.to_string())?;
-        Ok(self.path.trigger_pin().pulses != pulses)
+        Ok(self.path.trigger_output().pulses() != pulses)
     }
+}
+
+/// Runs `readings` through the part and the sample path as the board's main loop would,
+/// event by event: samples arrive at their times and interrupt (latency per `model`), the loop
+/// turns at the durations `model` draws and reads the FIFO when an interrupt came, and the
+/// trigger line's timer fires armed pulses at their times. The device is set up as for [`run`].
+pub fn run_loop(
+    readings: &[Reading],
+    settings: Settings,
+    model: &LoopModel,
+    device: &mut Device<f32>,
+) -> Result<LoopRun, String> {
+    use rand::{RngExt, SeedableRng};
+    let mut rng = rand::rngs::StdRng::seed_from_u64(model.seed);
+    let part = RefCell::new(SimIcm42688::new());
+    let mut path = SamplePath::new(
+        Icm42688::new(SharedSim::new(&part), settings),
+        TriggerLine::default(),
+    );
+    let period = u64::from(settings.period_us());
+    let t0 = 1_000_000u64;
+    path.start(0, &mut NoDelay).map_err(|e| e.to_string())?;
+    // The part samples every `period` of its own clock, `drift_ppm` fast.
+    let mut run = LoopRun {
+        sampled_at_us: (0..readings.len())
+            .map(|k| t0 + (k as f64 * period as f64 * 1e6 / (1e6 + model.drift_ppm)).round() as u64)
+            .collect(),
+        ..LoopRun::default()
+    };
+    let f = |v: nalgebra::Vector3<f64>| [v[0], v[1], v[2]];
+    let mut interrupts: Vec<u64> = Vec::new();
+    let mut pending = false;
+    let mut next = 0;
+    let mut now = t0 - period;
+    let end = run.sampled_at_us.last().map_or(t0, |t| t + 10_000);
+    while now < end {
+        // The samples that came by now, and their interrupts.
+        while let Some(r) = readings.get(next) {
+            let t = run.sampled_at_us[next];
+            if t > now {
+                break;
+            }
+            let part_us = 5_000 + next as u64 * period;
+            part.borrow_mut()
+                .sample(part_us, f(r.reading.gyro), f(r.reading.accel), 25.0);
+            interrupts.push(t + rng.random_range(0..=model.irq_jitter_us));
+            pending = true;
+            next += 1;
+        }
+        let line = path.trigger_output_mut();
+        line.advance(now);
+        line.set_now(now);
+        let mut out = |m| run.sent.push(m);
+        let mut timing = Served {
+            now_us: now,
+            interrupts: &interrupts,
+        };
+        if pending {
+            pending = false;
+            let newest = run.sampled_at_us[next - 1];
+            path.on_interrupt(&mut timing, device, &mut out)
+                .map_err(|e| e.to_string())?;
+            run.reads.push((now, newest));
+        }
+        path.poll(&mut timing, device, &mut NoDelay, &mut out)
+            .map_err(|e| e.to_string())?;
+        now += if rng.random_bool(model.long_share) {
+            rng.random_range(model.short_us..=model.long_max_us)
+        } else {
+            model.short_us
+        };
+    }
+    run.rises = path.trigger_output().rises.clone();
+    Ok(run)
 }

@@ -332,16 +332,15 @@ fn session(timer: &Timer, model: ModelKind) {
     hprintln!("BENCH session_mode_{} {:?}", name, io.device.mode());
 }
 
-/// No pin: the camera trigger's cost is the GPIO writes, outside what the core computes.
+/// No trigger line: the camera trigger's cost is a timer register write, outside what the
+/// core computes.
 struct NoPin;
-impl embedded_hal::digital::ErrorType for NoPin {
+impl sample_path::TriggerOutput for NoPin {
     type Error = core::convert::Infallible;
-}
-impl embedded_hal::digital::OutputPin for NoPin {
-    fn set_low(&mut self) -> Result<(), Self::Error> {
+    fn arm(&mut self, _: u64) -> Result<(), Self::Error> {
         Ok(())
     }
-    fn set_high(&mut self) -> Result<(), Self::Error> {
+    fn fire_now(&mut self) -> Result<(), Self::Error> {
         Ok(())
     }
 }
@@ -408,7 +407,7 @@ fn bench_sample_path(timer: &Timer) {
             let t = 1_000_000 + k * 5000;
             let (ins, _) = if through_path {
                 timed(timer, mark_message, || {
-                    path.on_interrupt(&mut At(t), d, &mut NoDelay, &mut sink)
+                    path.on_interrupt(&mut At(t), d, &mut sink)
                 })
             } else {
                 // A sample like the path's (the filter's cost does not depend on the values).

@@ -252,16 +252,17 @@ fn a_stopped_full_fifo_is_placed_after_the_last_read() {
     };
     let mut s = Stamper::new(5_000, PLL);
     let mut out = [0u64; 128];
-    for k in 0..10u64 {
+    for k in 0..100u64 {
         s.stamp(&p.stamps::<1>(k), &[p.core(k)], 0, false, &mut out[..1]);
     }
-    // Samples 10..138 fill the FIFO; 138..160 are dropped; the loop reads at sample 160.
-    let irqs = [p.core(157), p.core(158), p.core(159), p.core(160)];
-    let found = s.stamp(&p.stamps::<128>(10), &irqs, 0, true, &mut out);
+    // Samples 100..228 fill the FIFO; 228..250 are dropped; the loop reads at sample 250.
+    let irqs = [p.core(247), p.core(248), p.core(249), p.core(250)];
+    let found = s.stamp(&p.stamps::<128>(100), &irqs, 0, true, &mut out);
     assert_eq!((found.anchor, found.lost), (Anchor::Predicted, 0));
+    // At the rate measured so far (0.5 s of 1.07 µs ticks: a few ppm), over 0.64 s.
     for (i, t) in out.iter().enumerate() {
-        assert!(t.abs_diff(p.core(10 + i as u64)) <= 1, "{i}: {t}");
+        assert!(t.abs_diff(p.core(100 + i as u64)) <= 5, "{i}: {t}");
     }
-    let found = s.stamp(&p.stamps::<1>(161), &[p.core(161)], 0, false, &mut out[..1]);
-    assert_eq!((out[0], found.lost), (p.core(161), 23));
+    let found = s.stamp(&p.stamps::<1>(251), &[p.core(251)], 0, false, &mut out[..1]);
+    assert_eq!((out[0], found.lost), (p.core(251), 23));
 }

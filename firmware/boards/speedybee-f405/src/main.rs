@@ -17,7 +17,7 @@ use embedded_hal_bus::spi::ExclusiveDevice;
 use fusion_core::DeviceIo;
 use icm42688::{Icm42688, Odr, Settings};
 use protocol::{CoreToHost, MAX_FRAME_LEN, encode_frame};
-use sample_path::{Clock64, INTERRUPTS_KEPT, SamplePath, Timing};
+use sample_path::{Clock64, INTERRUPTS_KEPT, SamplePath, TRIGGER_PULSE_US, Timing, TriggerOutput};
 use stm32f4xx_hal::gpio::Edge;
 use stm32f4xx_hal::otg_fs::{USB, UsbBus};
 use stm32f4xx_hal::pac::{self, interrupt};
@@ -55,6 +55,71 @@ fn EXTI4() {
     IRQ_PENDING.store(true, Ordering::Release);
     // SAFETY: writing 1 clears line 4's pending bit and touches no other line.
     unsafe { (*pac::EXTI::ptr()).pr().write(|w| w.bits(1 << 4)) };
+}
+
+/// Whether the trigger line is high (the compare interrupt's state).
+static TRIGGER_HIGH: AtomicBool = AtomicBool::new(false);
+
+/// TIM2's capture/compare 1 flag (SR) and interrupt enable (DIER): bit 1 of both.
+const CC1: u32 = 1 << 1;
+/// PB14 in GPIOB's BSRR: set, and reset (16 bits up).
+const PB14_SET: u32 = 1 << 14;
+const PB14_RESET: u32 = 1 << (14 + 16);
+
+/// The camera's trigger on PB14, raised by TIM2's channel 1 compare: the core's clock itself,
+/// so the pulse rises at the armed count whatever the main loop is doing (issue 55, point 5),
+/// and the compare interrupt lowers it `TRIGGER_PULSE_US` later.
+struct TimerTrigger;
+
+impl TriggerOutput for TimerTrigger {
+    type Error = core::convert::Infallible;
+
+    fn arm(&mut self, at_us: u64) -> Result<(), Self::Error> {
+        // TIM2 counts the low 32 bits of the extended clock.
+        let at = at_us as u32;
+        // SAFETY: TIM2's compare 1 registers are this driver's alone (the counter HAL uses
+        // the counter and the update event); the interrupt handler only reads and rewrites them
+        // while the pulse is up, which `arm` is never called during (one pulse at a time).
+        let tim = unsafe { &*pac::TIM2::ptr() };
+        tim.ccr1().write(|w| unsafe { w.bits(at) });
+        tim.sr().write(|w| unsafe { w.bits(!CC1) });
+        tim.dier().modify(|r, w| unsafe { w.bits(r.bits() | CC1) });
+        // Already past (the loop was slower than the lead): raise it at once rather than at the
+        // counter's next wrap, 71 minutes on.
+        let now = tim.cnt().read().bits();
+        if now.wrapping_sub(at) < 1 << 31 {
+            tim.ccr1().write(|w| unsafe { w.bits(now.wrapping_add(2)) });
+        }
+        Ok(())
+    }
+
+    fn fire_now(&mut self) -> Result<(), Self::Error> {
+        // SAFETY: a read of TIM2's counter.
+        let now = unsafe { (*pac::TIM2::ptr()).cnt().read().bits() };
+        self.arm(u64::from(now.wrapping_add(2)))
+    }
+}
+
+#[interrupt]
+fn TIM2() {
+    // SAFETY: see `TimerTrigger::arm`; GPIOB's BSRR sets or resets PB14 alone.
+    let tim = unsafe { &*pac::TIM2::ptr() };
+    if tim.sr().read().bits() & CC1 == 0 {
+        return;
+    }
+    tim.sr().write(|w| unsafe { w.bits(!CC1) });
+    let gpiob = unsafe { &*pac::GPIOB::ptr() };
+    if TRIGGER_HIGH.load(Ordering::Relaxed) {
+        gpiob.bsrr().write(|w| unsafe { w.bits(PB14_RESET) });
+        TRIGGER_HIGH.store(false, Ordering::Relaxed);
+        tim.dier().modify(|r, w| unsafe { w.bits(r.bits() & !CC1) });
+    } else {
+        gpiob.bsrr().write(|w| unsafe { w.bits(PB14_SET) });
+        TRIGGER_HIGH.store(true, Ordering::Relaxed);
+        let up = tim.ccr1().read().bits();
+        tim.ccr1()
+            .write(|w| unsafe { w.bits(up.wrapping_add(TRIGGER_PULSE_US)) });
+    }
 }
 
 /// The core's clock (TIM2 extended to 64 bits) and the interrupt handler's times, read by the
@@ -121,8 +186,10 @@ fn main() -> ! {
     // Setting a GPIO of this HAL cannot fail.
     let Ok(spi) = ExclusiveDevice::new_no_delay(spi, cs);
     // The camera trigger on the CAMERA_CONTROL pad (PB14), low when idle.
-    let trigger = gpiob.pb14.into_push_pull_output();
-    let mut path = SamplePath::new(Icm42688::new(spi, Settings::new(ODR)), trigger);
+    // PB14 stays a plain output: TIM2's compare interrupt drives it (`TimerTrigger`).
+    let mut trigger_pin = gpiob.pb14.into_push_pull_output();
+    trigger_pin.set_low();
+    let mut path = SamplePath::new(Icm42688::new(spi, Settings::new(ODR)), TimerTrigger);
 
     // INT1 on PC4: rising edge (push-pull, active high, pulsed), EXTI4.
     let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
@@ -145,6 +212,8 @@ fn main() -> ! {
     device.device.set_onboard_imu(imu_ok);
     // SAFETY: the handler only touches atomics and EXTI's pending register.
     unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::EXTI4) };
+    // SAFETY: the handler touches TIM2's compare 1 registers, an atomic and PB14's BSRR bits.
+    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::TIM2) };
 
     // USB CDC-ACM on PA11/PA12.
     let Some(ep_memory) = cortex_m::singleton!(: [u32; 1024] = [0; 1024]) else {
@@ -201,7 +270,7 @@ fn main() -> ! {
         if IRQ_PENDING.swap(false, Ordering::Acquire) {
             // A failed SPI transfer loses this read's samples; the next read's time stamps
             // count them and the core reports the gap.
-            let _ = path.on_interrupt(&mut timing, &mut device.device, &mut delay, &mut out);
+            let _ = path.on_interrupt(&mut timing, &mut device.device, &mut out);
         }
         let _ = path.poll(&mut timing, &mut device.device, &mut delay, &mut out);
     }
