@@ -375,9 +375,7 @@ impl Stamper {
         if counted == 0 {
             return None;
         }
-        let rate = u64::try_from((u128::from(core_us) << Q) / u128::from(counted))
-            .unwrap_or(u64::MAX)
-            .max(1);
+        let rate = q_div(core_us, counted).max(1);
         if core_us < DRIFT_WINDOW_US {
             // Until the first window is full, the rate so far (its error falls as the window
             // grows: 1 µs of interrupt jitter over 20 ms is 50 ppm): predictions from the
