@@ -66,6 +66,15 @@ fn raw(r: &BoardRun) -> Vec<ImuSample> {
         .collect()
 }
 
+fn triggers(sent: &[CoreToHost]) -> Vec<protocol::Trigger> {
+    sent.iter()
+        .filter_map(|m| match m {
+            CoreToHost::Trigger(t) => Some(*t),
+            _ => None,
+        })
+        .collect()
+}
+
 fn reports(r: &BoardRun) -> Vec<SamplingReport> {
     r.sent
         .iter()
@@ -109,14 +118,7 @@ fn every_sample_is_stamped_within_a_microsecond_and_every_fourth_triggers_the_ca
     println!("{} samples, worst stamp error {worst} µs", errors.len());
     assert!(worst <= 1, "worst stamp error {worst} µs");
     // One trigger message per pulse, every 4th sample, frame ids from 0.
-    let triggers: Vec<_> = r
-        .sent
-        .iter()
-        .filter_map(|m| match m {
-            CoreToHost::Trigger(t) => Some(*t),
-            _ => None,
-        })
-        .collect();
+    let triggers = triggers(&r.sent);
     assert_eq!(triggers.len() as u32, r.trigger_pulses);
     assert_eq!(triggers.len(), r.sampled_at_us.len().div_ceil(4));
     for (i, t) in triggers.iter().enumerate() {
@@ -287,14 +289,7 @@ fn the_trigger_rises_within_10_us_of_its_sample_whatever_the_main_loop_does() {
     ] {
         let mut d = device();
         let r = run_loop(&readings, settings, &model, &mut d).unwrap();
-        let triggers: Vec<_> = r
-            .sent
-            .iter()
-            .filter_map(|m| match m {
-                CoreToHost::Trigger(t) => Some(*t),
-                _ => None,
-            })
-            .collect();
+        let triggers = triggers(&r.sent);
         // Every pulse has its trigger, in order, and the camera's count is the core's.
         assert_eq!(triggers.len(), r.rises.len());
         assert!(

@@ -1182,6 +1182,35 @@ mod tests {
     use crate::state::State;
     use core::mem::size_of;
 
+    /// `m` handled by `d`; its answers.
+    fn send<T: Kernels>(d: &mut Device<T>, m: HostToCore) -> std::vec::Vec<CoreToHost> {
+        let mut got = std::vec::Vec::new();
+        d.handle(&m, &mut |a| got.push(a));
+        got
+    }
+
+    /// An IMU sample at rest at `t_us`.
+    fn still_imu(t_us: u64) -> HostToCore {
+        HostToCore::Imu(protocol::ImuSample {
+            t_us,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            trigger: false,
+        })
+    }
+
+    /// A device greeted, configured with `config` and started with `init`.
+    fn started<T: Kernels>(config: protocol::Config, init: Init) -> Device<T> {
+        let mut d = Device::<T>::new();
+        let hello = protocol::Hello {
+            version: protocol::PROTOCOL_VERSION,
+        };
+        send(&mut d, HostToCore::Hello(hello));
+        send(&mut d, HostToCore::Configure(config));
+        send(&mut d, HostToCore::Init(init));
+        d
+    }
+
     /// Defect 10 of issue 12: the counters were incremented with `+= 1`, which panics on
     /// overflow where overflow checks are on (this test profile), and `decode_errors` can be
     /// driven at line rate with 2-byte junk frames. Every counter goes through `bump`: 2³² + 1
@@ -1242,42 +1271,19 @@ mod tests {
     /// from 1 with a zero update step is caught by the norm itself.
     #[test]
     fn nothing_non_finite_leaves_the_core_and_the_quaternion_norm_is_tested() {
-        use std::vec::Vec;
-        let send = |d: &mut Device<f64>, m: HostToCore| {
-            let mut got = Vec::new();
-            d.handle(&m, &mut |a| got.push(a));
-            got
-        };
         let config = protocol::Config {
             state_every: 1,
             ..protocol::samples::config()
         };
-        let imu = |t_us| {
-            HostToCore::Imu(protocol::ImuSample {
-                t_us,
-                gyro: [0.0; 3],
-                accel: [0.0, 0.0, 9.81],
-                trigger: false,
-            })
-        };
+        let imu = still_imu;
         let dt = (1e6 / f64::from(config.imu_rate_hz)) as u64;
         let n = u64::from(config.still_samples) + 20;
         for poison in [(0, 1e39), (crate::state::QUAT + 1, 3.0)] {
-            let mut d = Device::<f64>::new();
-            send(
-                &mut d,
-                HostToCore::Hello(protocol::Hello {
-                    version: protocol::PROTOCOL_VERSION,
-                }),
-            );
-            send(&mut d, HostToCore::Configure(config));
-            send(
-                &mut d,
-                HostToCore::Init(Init {
-                    position: [0.5, 0.0, 1.0],
-                    attitude: InitAttitude::GravityAndYaw(0.3),
-                }),
-            );
+            let init = Init {
+                position: [0.5, 0.0, 1.0],
+                attitude: InitAttitude::GravityAndYaw(0.3),
+            };
+            let mut d = started::<f64>(config, init);
             for k in 1..=n {
                 send(&mut d, imu(k * dt));
             }
@@ -1294,29 +1300,15 @@ mod tests {
         }
     }
 
-    /// Issue 17 (long runs): µs time stamps up to their limit, `u64::MAX`. The core runs to it
-    /// and answers its triggers, with no panic (overflow checks are on in this profile), and a
-    /// sample at the limit again is refused by name: nothing can come after it.
+    /// Issue 17 (recovery): `Query` changes nothing, and a reset core resumes where the
+    /// state it reported was.
     #[test]
     fn query_reports_the_mode_and_state_and_resume_restarts_a_reset_core_where_it_was() {
-        use std::vec::Vec;
-        let send = |d: &mut Device<f32>, m: HostToCore| {
-            let mut got = Vec::new();
-            d.handle(&m, &mut |a| got.push(a));
-            got
-        };
         let hello = HostToCore::Hello(protocol::Hello {
             version: protocol::PROTOCOL_VERSION,
         });
         let config = protocol::samples::config();
-        let imu = |t_us| {
-            HostToCore::Imu(protocol::ImuSample {
-                t_us,
-                gyro: [0.0; 3],
-                accel: [0.0, 0.0, 9.81],
-                trigger: false,
-            })
-        };
+        let imu = still_imu;
         let mut d = Device::<f32>::new();
         // A core that booted has no session.
         let ack = send(&mut d, hello.clone());
@@ -1375,30 +1367,17 @@ mod tests {
         }
     }
 
+    /// Issue 17 (long runs): µs time stamps up to their limit, `u64::MAX`. The core runs to it
+    /// and answers its triggers, with no panic (overflow checks are on in this profile), and a
+    /// sample at the limit again is refused by name: nothing can come after it.
     #[test]
     fn time_stamps_run_up_to_the_u64_limit_without_a_panic() {
-        use std::vec::Vec;
-        let mut d = Device::<f32>::new();
-        let send = |d: &mut Device<f32>, m: HostToCore| {
-            let mut got = Vec::new();
-            d.handle(&m, &mut |a| got.push(a));
-            got
-        };
         let config = protocol::samples::config();
-        send(
-            &mut d,
-            HostToCore::Hello(protocol::Hello {
-                version: protocol::PROTOCOL_VERSION,
-            }),
-        );
-        send(&mut d, HostToCore::Configure(config));
-        send(
-            &mut d,
-            HostToCore::Init(Init {
-                position: [0.0; 3],
-                attitude: InitAttitude::Gravity,
-            }),
-        );
+        let init = Init {
+            position: [0.0; 3],
+            attitude: InitAttitude::Gravity,
+        };
+        let mut d = started::<f32>(config, init);
         let dt = (1e6 / f64::from(config.imu_rate_hz)) as u64;
         let samples = 3 * u64::from(config.imu_rate_hz as u32);
         let (mut predictions, mut errors) = (0, 0);
