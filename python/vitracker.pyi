@@ -157,12 +157,14 @@ class FrameReport:
     t: float
     """Its time [s from the tracker's first frame or sample]; NaN for a skipped frame."""
     pose: Optional[Pose]
-    """The pose estimated with it, or None. With an IMU None: the core applies a frame's
-    measurements when they arrive, and its poses come at the IMU's rate (`poll_poses()`)."""
+    """The pose its verdict is on, the core's pose at the frame's time, or None: without an
+    IMU the pose estimated with the frame; with one, the pose put out at the frame's time
+    (its prediction: the core applies the frame's measurements when they arrive, and its
+    poses come at the IMU's rate, `poll_poses()`)."""
     tracked: Optional[bool]
-    """Whether it counts as tracked (the model's features registered at the estimated pose);
-    None where it was not analysed (no pose yet, an unusable image), and with an IMU (the
-    tracker's `state` tells)."""
+    """Whether it counts as tracked (the model's features registered at that pose, or its
+    contour; with an IMU, at the pose they fit, the prediction within 5 cm and 5° of it:
+    docs/VISION.md §10); None where it was not analysed (no pose yet, an unusable image)."""
     correspondences: int
     """Correspondences sent to the core (texture features and contour points)."""
     skipped: Optional[str]
@@ -245,7 +247,7 @@ class Tracker:
         TrackerError for an untextured model (nothing to search by)."""
     def finish(self) -> dict[str, Optional[float]]:
         """Ends the run, finishing what is in flight, and returns its figures: `tracked` and
-        `judged` frames and their `share` (None where none was judged: with an IMU). The
+        `judged` frames and their `share` (None where none was judged). The
         tracker takes nothing after; `poll()` and `poll_poses()` give its last reports and
         poses."""
     def __enter__(self) -> "Tracker": ...

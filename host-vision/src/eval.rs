@@ -161,7 +161,26 @@ pub fn ensure_dataset_until(
         Some(d) => format!("{scenario}-{d}s-seed{seed}"),
         None => format!("{scenario}-seed{seed}"),
     };
-    let dir = cache.join(name);
+    let options = SynthOptions {
+        seed,
+        duration,
+        overwrite: true,
+        interrupt,
+        ..SynthOptions::new(scenario, cache.join(name))
+    };
+    ensure_synth(cache, options, progress)
+}
+
+/// Synthesises `options` into `options.out`, a folder of `cache`, unless a complete dataset of
+/// this build is there (the folder's name must say every option that changes it). Stopped by
+/// `options.interrupt`, the unfinished dataset is removed.
+pub fn ensure_synth(
+    cache: &Path,
+    options: SynthOptions,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<PathBuf, EvalError> {
+    let dir = options.out.clone();
+    let scenario = options.scenario;
     // A dataset is complete once its manifest is written (it is written last).
     let manifest = dir.join("manifest.json");
     let generator = format!("host-vision synth {}", env!("CARGO_PKG_VERSION"));
@@ -169,26 +188,17 @@ pub fn ensure_dataset_until(
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
         .is_some_and(|v| v["generator"] == generator.as_str());
-    if !complete {
-        let options = SynthOptions {
-            seed,
-            duration,
-            overwrite: true,
-            interrupt,
-            ..SynthOptions::new(scenario, dir.clone())
-        };
-        if let Err(e) = crate::synth::run(&options, progress) {
-            if matches!(e, SynthError::Interrupted) {
-                // The cache's own folder, half written: nothing of the user's. The cache
-                // itself goes too if that leaves it empty.
-                let _ = std::fs::remove_dir_all(&dir);
-                let _ = std::fs::remove_dir(cache);
-            }
-            return Err(EvalError::Synth {
-                scenario,
-                source: Box::new(e),
-            });
+    if !complete && let Err(e) = crate::synth::run(&options, progress) {
+        if matches!(e, SynthError::Interrupted) {
+            // The cache's own folder, half written: nothing of the user's. The cache itself
+            // goes too if that leaves it empty.
+            let _ = std::fs::remove_dir_all(&dir);
+            let _ = std::fs::remove_dir(cache);
         }
+        return Err(EvalError::Synth {
+            scenario,
+            source: Box::new(e),
+        });
     }
     Ok(dir)
 }

@@ -5,7 +5,9 @@
 //! datasets as the tracker reads them ([`dataset`]) and the tracking pipeline with its outputs
 //! ([`track`]), and the checks of a run's output folder ([`out_folder`]); frame sources without
 //! an IMU, a video through ffmpeg or an image folder ([`frames`]); the full 6-DoF start
-//! pose file ([`start_pose`]) is the camera crate's, re-exported.
+//! pose file ([`start_pose`]) is the camera crate's, re-exported. The paper's experiments
+//! ([`eval`]) and the robustness corpus that scores the verdict against the truth
+//! ([`corpus`]) run on synthetic datasets.
 //!
 //! The camera model ([`camera`]), textured model loading ([`model`]), the offscreen renderer
 //! ([`render`], with back-projection of rendered depth, [`backproject`]) and natural features
@@ -14,6 +16,7 @@
 
 pub use ::camera;
 pub use ::render::backproject;
+pub mod corpus;
 pub mod dataset;
 pub mod eval;
 pub use ::features;

@@ -122,7 +122,7 @@ pub struct FrameReport {
     index: usize,
     /// Its time [s from the tracker's first frame or sample].
     t: f64,
-    /// The pose estimated with it, or None.
+    /// The pose its verdict is on (the core's pose at the frame's time), or None.
     pose: Option<Pose>,
     /// Whether it counts as tracked; None where it was not analysed.
     tracked: Option<bool>,
@@ -450,7 +450,7 @@ impl Tracker {
         let d = PyDict::new(py);
         d.set_item("tracked", tracked)?;
         d.set_item("judged", judged)?;
-        // With an IMU frames are not judged: no share.
+        // No frame judged (none analysed): no share.
         d.set_item(
             "share",
             (judged > 0).then(|| tracked as f64 / judged as f64),

@@ -76,7 +76,6 @@ def test_a_synthetic_imu_dataset_is_tracked_through_push_imu(dataset, filter):
         assert tracker.state in ("starting", "tracking"), (k, tracker.state)
     assert tracker.state == "tracking"
     summary = tracker.finish()
-    assert summary["judged"] == 0 and summary["share"] is None, summary
     reports += tracker.poll()
     poses += tracker.poll_poses()
 
@@ -85,6 +84,11 @@ def test_a_synthetic_imu_dataset_is_tracked_through_push_imu(dataset, filter):
     first = reports[0].index
     assert first <= 10 and [r.index for r in reports] == list(range(first, len(frames)))
     assert all(r.skipped is None and r.correspondences >= 10 for r in reports), reports
+    # Every analysed frame has a verdict, on the pose put out at its time (docs/VISION.md §10):
+    # the textured target is tracked throughout, by either model.
+    assert summary["judged"] == len(reports), summary
+    assert summary["share"] >= 0.95, summary
+    assert all(r.tracked is not None and r.pose is not None for r in reports), reports
     # A pose per sample from the first prediction on, each against the ground truth at its time.
     assert len(poses) >= len(imu_ns) - round(0.31 * rate)
     errors = []

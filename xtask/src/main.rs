@@ -286,7 +286,12 @@ const GL_PACKAGES: &[&str] = &["host-vision", "render", "features"];
 /// nine runs (issue 36's note). The cold start's tests render through the same renderer calls
 /// as the tracking tests that do run on GL, and cost 166 s there: the Python module's wheel
 /// and tests (issue 38) take that time instead.
-const GL_SKIPPED: &[&str] = &["host-vision test visp_cube", "host-vision test locate"];
+/// The corpus's quick form measures the tracker's verdicts, not the driver: once is enough.
+const GL_SKIPPED: &[&str] = &[
+    "host-vision test visp_cube",
+    "host-vision test locate",
+    "host-vision test corpus",
+];
 
 fn test() -> Result<(), String> {
     let start = Instant::now();

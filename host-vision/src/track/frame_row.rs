@@ -38,6 +38,12 @@ pub struct FrameRow {
     pub prediction_error_px: Option<f64>,
     /// Camera position error of the prediction [m], with ground truth.
     pub position_error_m: Option<f64>,
+    /// Camera position error [m] against ground truth of the pose the frame's verdict is on,
+    /// the core's pose at the frame's time: vision-only, the one estimated with the frame;
+    /// with an IMU, its prediction (the frame's own update is applied later).
+    pub estimate_error_m: Option<f64>,
+    /// The angle [°] of that pose's rotation error.
+    pub estimate_error_deg: Option<f64>,
     /// Rendering [ms].
     pub render_ms: f64,
     /// Pyramids [ms].

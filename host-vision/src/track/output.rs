@@ -476,7 +476,7 @@ pub struct Summary {
     pub snapped_on_at: Option<f64>,
     /// Whether the core had IMU samples (false: the vision-only model, on ticks alone).
     pub imu_used: bool,
-    /// Frames judged tracked by the rendered-vs-live check (vision-only runs), and the rule.
+    /// Frames judged by the tracked rule, and the rule (docs/VISION.md §10).
     pub tracked: Option<TrackedShare>,
     /// Divergences and re-initialisations.
     pub divergences: Vec<Event>,
@@ -625,6 +625,14 @@ impl fmt::Display for Summary {
                 t.rule.confirm_contour_rms_px,
                 t.rule.confirm_silhouette
             )?;
+            if self.imu_used {
+                writeln!(
+                    f,
+                    "             with the IMU: judged at the pose put out at each frame's time (its prediction), the features at the pose they fit, which the prediction must be within {} cm and {}° of",
+                    t.rule.max_offset_m * 100.0,
+                    t.rule.max_offset_deg
+                )?;
+            }
             if !t.untracked.is_empty() {
                 let mut longest = t.untracked.clone();
                 longest.sort_by(|a, b| (b[1] - b[0]).total_cmp(&(a[1] - a[0])));
@@ -820,6 +828,18 @@ fn estimates(log: &CoreLog, vision_only: bool) -> impl Iterator<Item = &protocol
         .filter(move |s| !(vision_only && log.predictions.contains_key(&s.t_us)))
 }
 
+/// The camera position [m] and rotation [°] errors of a predicted pose `p` against the
+/// ground truth at `stamp` [ns], where there is one.
+fn camera_error(dataset: &Dataset, stamp: u64, p: &protocol::PosePrediction) -> Option<(f64, f64)> {
+    let (pt, qt) = dataset.groundtruth_at(stamp)?;
+    let (c_true, q_cw_true) = dataset.hand_eye.camera_pose(&pt, &qt);
+    let (c, q_wc) = super::vision::camera_in_world(p)?;
+    Some((
+        (c - c_true).norm(),
+        q_cw_true.inverse().angle_to(&q_wc).to_degrees(),
+    ))
+}
+
 /// Writes `(stamp ns, position, q_wc)` rows as a TUM trajectory. Each of `gaps`, `(stamp ns
 /// of its start, what)`, is marked by a comment line where it falls (a TUM reader such as
 /// `evo` skips comments).
@@ -929,7 +949,7 @@ pub(super) struct Seen<'a> {
 }
 
 /// The columns of `frames.csv`.
-const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome";
+const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome";
 
 /// A line of `frames.csv`.
 enum FrameLine<'a> {
@@ -1059,18 +1079,25 @@ pub(super) fn write_all(
     }
 
     // Frames.
-    let rule = super::TrackedRule::default();
+    let rule = record.rule;
+    let by_time: BTreeMap<u64, &protocol::StateReport> = estimates().map(|s| (s.t_us, s)).collect();
     let mut rows = Vec::with_capacity(record.results.len());
     for (frame_id, r) in &record.results {
         let reports = log.updates.get(frame_id);
         let accepted = reports.map_or(0, |v| v.iter().map(|u| u.accepted as usize).sum());
         let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
         let p = &r.job.prediction;
-        let position_error_m = dataset.groundtruth_at(r.job.stamp).and_then(|(pt, qt)| {
-            let (c_true, _) = he.camera_pose(&pt, &qt);
-            let (c, _) = super::vision::camera_in_world(p)?;
-            Some((c - c_true).norm())
-        });
+        let position_error_m = camera_error(dataset, r.job.stamp, p).map(|e| e.0);
+        // The pose the frame's verdict is on (docs/VISION.md §10): vision-only, the core's
+        // answer to the frame; with an IMU, its prediction, the pose put out at its time.
+        let estimate_error = if options.vision_only() {
+            by_time
+                .get(&(p.t_us + 1))
+                .and_then(|s| state_errors(dataset, &core_he, stamp_of(p.t_us), s))
+                .map(|e| (e.position_m, e.attitude_deg))
+        } else {
+            camera_error(dataset, r.job.stamp, p)
+        };
         let judged = record.assessments.get(frame_id);
         let tracked = record.tracked(*frame_id);
         let latency = record.latency.frames.get(&r.job.index);
@@ -1103,6 +1130,8 @@ pub(super) fn write_all(
             gated,
             prediction_error_px: r.prediction_error_px,
             position_error_m,
+            estimate_error_m: estimate_error.map(|e| e.0),
+            estimate_error_deg: estimate_error.map(|e| e.1),
             render_ms: r.times.render * 1e3,
             pyramids_ms: r.times.pyramids * 1e3,
             klt_ms: r.times.klt * 1e3,
@@ -1128,7 +1157,7 @@ pub(super) fn write_all(
             };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1144,6 +1173,8 @@ pub(super) fn write_all(
                 o(r.contour_error_px),
                 o(r.prediction_error_px),
                 o(r.position_error_m),
+                o(r.estimate_error_m),
+                o(r.estimate_error_deg),
                 r.render_ms,
                 r.pyramids_ms,
                 r.klt_ms,

@@ -225,6 +225,34 @@ impl Model {
         self.meshes.iter().map(Mesh::triangle_count).sum()
     }
 
+    /// The corners `(lowest, highest)` of the axis-aligned box around every position [m];
+    /// `None` without a finite position.
+    pub fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in self.meshes.iter().flat_map(|m| m.positions.iter()) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(f64::from(p[k]));
+                hi[k] = hi[k].max(f64::from(p[k]));
+            }
+        }
+        lo.iter()
+            .chain(hi.iter())
+            .all(|v| v.is_finite())
+            .then_some((lo, hi))
+    }
+
+    /// The model's size: the diagonal of [`Self::bounds`] [m] (0 without a position).
+    pub fn diagonal(&self) -> f64 {
+        self.bounds().map_or(0.0, |(lo, hi)| {
+            lo.iter()
+                .zip(&hi)
+                .map(|(a, b)| (b - a) * (b - a))
+                .sum::<f64>()
+                .sqrt()
+        })
+    }
+
     /// Multiplies all positions by `factor` (e.g. 0.001 for a model in millimetres).
     pub fn scale(&mut self, factor: f32) {
         for p in self.meshes.iter_mut().flat_map(|m| m.positions.iter_mut()) {

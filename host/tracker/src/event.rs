@@ -35,10 +35,12 @@ pub struct FrameReport {
     pub index: usize,
     /// Its time [µs from the first frame].
     pub t_us: u64,
-    /// The pose estimated with it, where the core estimated one.
+    /// The pose its verdict is on, the core's pose at the frame's time: vision-only, the one
+    /// estimated with the frame; with an IMU, the one put out at the frame's time (its
+    /// prediction, with every earlier frame's update), as the frame's update is applied later.
     pub pose: Option<CameraPose>,
-    /// Whether it counts as tracked (the tracked rule at the estimated pose); `None` where it
-    /// was not analysed (no pose yet, or an unusable image). A later tilt check may still
+    /// Whether it counts as tracked (the tracked rule at that pose, docs/VISION.md §10); `None`
+    /// where it was not analysed (no pose yet, or an unusable image). A later tilt check may still
     /// withhold it (the frames after a flip, until it is confirmed): the record's
     /// [`Record::tracked`] is final.
     pub tracked: Option<bool>,

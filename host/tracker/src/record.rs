@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 use serde::Serialize;
-use vision::{Assessment, FrameResult};
+use vision::{Assessment, FrameResult, TrackedRule};
 
 use crate::error::TrackerError;
 use crate::latency::Latencies;
@@ -34,6 +34,8 @@ pub struct Record {
     /// Per frame id, the run's verdict on it ([`vision::Verdicts`]): tracked or not, before
     /// the tilt branch withholds any.
     pub verdicts: BTreeMap<u32, bool>,
+    /// The rule the verdicts were given by (its bounds scale with the model's size).
+    pub rule: TrackedRule,
     /// What the core said.
     pub log: CoreLog,
     /// Every frame taken, in the order taken, with what became of it.
@@ -80,6 +82,7 @@ impl Record {
             clock: Vec::new(),
             assessments: BTreeMap::new(),
             verdicts: BTreeMap::new(),
+            rule: TrackedRule::default(),
             log: CoreLog::default(),
             frames: Vec::new(),
             results: Vec::new(),

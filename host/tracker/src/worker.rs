@@ -30,6 +30,8 @@ pub struct VisionWorker {
 pub enum WorkerJob {
     /// Analyse a frame.
     Frame(FrameJob),
+    /// Analyse a frame and judge it at its prediction ([`Vision::process_judged`]).
+    FrameJudged(FrameJob),
     /// Judge the last analysed frame at the pose estimated with its update, over the
     /// correspondences the core applied.
     Assess(camera::CameraPose, Vec<bool>),
@@ -98,6 +100,11 @@ impl VisionWorker {
     /// Sends a frame to analyse (its answer comes by [`Self::recv`] or [`Self::try_recv`]).
     pub fn send(&self, job: FrameJob) -> Result<(), TrackerError> {
         self.send_job(WorkerJob::Frame(job))
+    }
+
+    /// Sends a frame to analyse and judge at its prediction (answered as [`Self::send`]'s).
+    pub fn send_judged(&self, job: FrameJob) -> Result<(), TrackerError> {
+        self.send_job(WorkerJob::FrameJudged(job))
     }
 
     fn stopped() -> TrackerError {
@@ -267,6 +274,9 @@ fn vision_worker(
             WorkerJob::Frame(job) => {
                 WorkerDone::Frame(Box::new(vision.process(job).map_err(TrackerError::from)))
             }
+            WorkerJob::FrameJudged(job) => WorkerDone::Frame(Box::new(
+                vision.process_judged(job).map_err(TrackerError::from),
+            )),
             WorkerJob::Assess(pose, applied) => {
                 WorkerDone::Assess(vision.assess(&pose, &applied).map_err(TrackerError::from))
             }
@@ -320,15 +330,9 @@ pub struct Ready {
 /// Where the overlays draw the model's axes: the centre of its bounding box, a quarter of its
 /// largest extent long.
 pub fn model_axes(model: &model::Model) -> (Vector3<f64>, f64) {
-    let mut lo = Vector3::repeat(f64::INFINITY);
-    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
-    for p in model.meshes.iter().flat_map(|m| m.positions.iter()) {
-        let p = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
-        lo = lo.inf(&p);
-        hi = hi.sup(&p);
-    }
-    if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite())) {
+    let Some((lo, hi)) = model.bounds() else {
         return (Vector3::zeros(), 0.1);
-    }
+    };
+    let (lo, hi) = (Vector3::from(lo), Vector3::from(hi));
     ((lo + hi) * 0.5, ((hi - lo).max() * 0.25).max(0.02))
 }

@@ -171,6 +171,10 @@ pub struct FrameResult {
     /// Pixels on the border of the model rendered at the prediction, if the job asked for the
     /// image (the overlay draws the model's outline from them).
     pub outline: Vec<[u32; 2]>,
+    /// The frame judged at its prediction over every correspondence sent
+    /// ([`Vision::process_judged`]; `None` from [`Vision::process`]): with an IMU, the
+    /// prediction is the pose the core put out at the frame's time.
+    pub at_prediction: Option<Assessment>,
 }
 
 /// Fewest registrations whose fit judges the contour's lines in a frame measuring both (the
@@ -352,6 +356,7 @@ impl Vision {
             contour_rms_px: contour.rms_px,
             contour_spread: contour.spread,
             silhouette: contour.silhouette,
+            prediction_offset: None,
         })
     }
 
@@ -718,6 +723,34 @@ impl Vision {
         self.process_with(job, false)
     }
 
+    /// [`Self::process`], and the frame's prediction judged over every correspondence sent:
+    /// the judgement of the pose put out at the frame's time where an IMU carries the pose
+    /// between frames (docs/VISION.md §10). With enough registrations they are judged at the
+    /// pose they fit from the prediction, and the prediction's offset from it is kept; with
+    /// too few, the frame is judged at the prediction (its contour form).
+    pub fn process_judged(&mut self, job: FrameJob) -> Result<FrameResult, VisionError> {
+        let mut result = self.process_with(job, false)?;
+        let prediction = prediction_pose(&result.job.prediction)?;
+        let sent = vec![true; result.correspondences.len() + result.contours.len()];
+        // The registrations judged at the pose they fit (as the pose estimated with them is,
+        // vision-only), and the prediction held to that pose (eq. T4).
+        let fit = self
+            .last
+            .as_ref()
+            .filter(|l| l.registered.len() >= TEXTURE_FIT_MIN)
+            .and_then(|l| robust_fit(&self.ideal, &prediction, &l.registered))
+            .map(|(p, _)| p);
+        let mut a = self.assess(fit.as_ref().unwrap_or(&prediction), &sent)?;
+        a.prediction_offset = fit.map(|f| {
+            [
+                (f.c_w - prediction.c_w).norm(),
+                f.q_cw.angle_to(&prediction.q_cw),
+            ]
+        });
+        result.at_prediction = Some(a);
+        Ok(result)
+    }
+
     /// [`Self::process`], the live image and its pyramid [`Self::prepared_live`]'s with
     /// `reuse_live`.
     fn process_with(
@@ -794,6 +827,7 @@ impl Vision {
             times,
             image,
             outline,
+            at_prediction: None,
             job,
         })
     }

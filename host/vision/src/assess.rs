@@ -44,6 +44,10 @@ pub struct Assessment {
     /// relative to what they expect (eq. K5'; 0 is a silhouette anywhere, 1 as good a fit as
     /// the statistics can tell).
     pub silhouette: Option<f64>,
+    /// Judged at the pose the registrations fit from a prediction (runs with an IMU,
+    /// [`crate::Vision::process_judged`]): how far the prediction is from it, position [m]
+    /// and rotation [rad] (eq. T4).
+    pub prediction_offset: Option<[f64; 2]>,
 }
 
 /// Fewest model pixels for a correlation worth reporting (a model a few pixels wide says
@@ -196,6 +200,11 @@ pub struct TrackedRule {
     pub confirm_contour_rms_px: f64,
     /// The contour form's confirmation: consecutive confirming frames needed.
     pub confirm_frames: usize,
+    /// A prediction judged at the pose its frame's registrations fit: its largest distance
+    /// from that pose [m] (eq. T4).
+    pub max_offset_m: f64,
+    /// The same of the rotation [°].
+    pub max_offset_deg: f64,
 }
 
 impl Default for TrackedRule {
@@ -213,7 +222,8 @@ impl Default for TrackedRule {
     /// of a picture cube on a desk score a median of 0.72 at the poses its texture verifies,
     /// and a tenth of them below 0.62. The lines must pin the pose to 2.5 cm and 2.5° (one σ,
     /// eq. K10: two of them within the 5 cm and 5° a right pose is held to), and the track be
-    /// confirmed (eq. K9).
+    /// confirmed (eq. K9). A prediction judged at its registrations' fit must lie within
+    /// 5 cm and 5° of it (eq. T4): RBOT's success bound, which the pose put out is held to.
     fn default() -> Self {
         TrackedRule {
             max_rms_px: 1.5,
@@ -227,11 +237,33 @@ impl Default for TrackedRule {
             confirm_silhouette: 0.85,
             confirm_contour_rms_px: 1.5,
             confirm_frames: 2,
+            max_offset_m: 0.05,
+            max_offset_deg: 5.0,
         }
     }
 }
 
 impl TrackedRule {
+    /// The rule for an object of size `diagonal` [m] (its bounding box's diagonal): the
+    /// bounds that scale with what a right pose is held to, `b = min(5 cm, diagonal / 10)`
+    /// (docs/VISION.md eq. T1), are the contour's spread `b / 2` (eq. K10: two σ within it) and
+    /// a prediction's offset from its frame's fit `b` (eq. T4); the default's for an object of
+    /// half a metre or more.
+    pub fn for_object(diagonal: f64) -> Self {
+        let d = Self::default();
+        let tenth = 0.1 * diagonal;
+        let b = if tenth.is_finite() && tenth > 0.0 {
+            tenth.min(d.max_offset_m)
+        } else {
+            d.max_offset_m
+        };
+        TrackedRule {
+            max_contour_sigma_m: b / 2.0,
+            max_offset_m: b,
+            ..d
+        }
+    }
+
     /// Whether `a` is a tracked frame: by its features, or, with too few of them, by its
     /// contour. One frame's judgement; a run judges its frames with [`Verdicts`], which asks
     /// the contour form for confirmation too.
@@ -239,6 +271,9 @@ impl TrackedRule {
         if self.by_features(a) {
             a.rms_px.is_some_and(|r| r <= self.max_rms_px)
                 && a.ncc.is_some_and(|c| c >= self.min_ncc)
+                && a.prediction_offset.is_none_or(|[m, rad]| {
+                    m <= self.max_offset_m && rad.to_degrees() <= self.max_offset_deg
+                })
         } else {
             a.contours >= self.min_contours
                 && a.contour_rms_px
@@ -506,5 +541,39 @@ mod tests {
         assert!(v.judge(&rule, &weak));
         assert!(!v.judge(&rule, &failing));
         assert!(!v.judge(&rule, &weak));
+    }
+
+    #[test]
+    fn a_small_object_is_held_to_a_tenth_of_its_size() {
+        let large = TrackedRule::for_object(2.0);
+        assert_eq!(large, TrackedRule::default());
+        let small = TrackedRule::for_object(0.15);
+        assert!((small.max_offset_m - 0.015).abs() < 1e-12);
+        assert!((small.max_contour_sigma_m - 0.0075).abs() < 1e-12);
+        assert_eq!(small.max_offset_deg, 5.0);
+        assert_eq!(TrackedRule::for_object(f64::NAN), TrackedRule::default());
+        assert_eq!(TrackedRule::for_object(0.0), TrackedRule::default());
+    }
+
+    #[test]
+    fn a_prediction_judged_at_its_fit_holds_only_within_the_bound_of_it() {
+        let rule = TrackedRule::default();
+        let fitted = |m: f64, deg: f64| Assessment {
+            features: 12,
+            rms_px: Some(1.0),
+            ncc: Some(0.5),
+            prediction_offset: Some([m, deg.to_radians()]),
+            ..Assessment::default()
+        };
+        assert!(rule.holds(&fitted(0.01, 1.0)));
+        assert!(rule.holds(&fitted(0.05, 5.0)));
+        assert!(!rule.holds(&fitted(0.051, 1.0)));
+        assert!(!rule.holds(&fitted(0.01, 5.1)));
+        // A fit that fails the rule itself fails whatever the offset.
+        let bad = Assessment {
+            rms_px: Some(1.6),
+            ..fitted(0.0, 0.0)
+        };
+        assert!(!rule.holds(&bad));
     }
 }

@@ -13,7 +13,9 @@ pub mod analysis;
 pub mod assess;
 pub mod contours;
 
-pub use analysis::{FrameImage, FrameJob, FrameResult, Verified, Vision, VisionOptions};
+pub use analysis::{
+    FrameImage, FrameJob, FrameResult, Verified, Vision, VisionOptions, prediction_pose,
+};
 pub use assess::{Assessment, Contrast, TrackedRule, Verdicts};
 pub use contours::{Modality, is_textured};
 

@@ -42,6 +42,10 @@ pub enum Command {
     Frames(Box<FramesArgs>),
     /// The paper's experiments: every scenario with every model; Table 2 and accuracy.
     Eval(Box<EvalArgs>),
+    /// The robustness corpus: scenes made to break the tracker, tracked with the IMU and
+    /// without; the verdict ("tracked") scored against the ground truth per scene: precision,
+    /// recall, and how soon a wrong pose is reported (corpus.md, corpus.json).
+    Corpus(Box<CorpusArgs>),
     /// The demo: synthesises the fast desktop sequence (cached), tracks it with the acc and
     /// gyro models over the simulated serial link, prints the summary and where the images are.
     Demo(Box<DemoArgs>),
@@ -155,6 +159,29 @@ pub struct EvalArgs {
     /// Overlay images every N frames (0: none).
     #[arg(long, default_value_t = 0)]
     pub overlay_every: usize,
+}
+
+/// Options of `corpus`.
+#[derive(clap::Args, Debug)]
+pub struct CorpusArgs {
+    /// Output folder (corpus.md, corpus.json, and each run's outputs in SCENE/FILTER/).
+    #[arg(long, default_value = "corpus-out")]
+    pub out: PathBuf,
+    /// Replace the outputs of an earlier corpus run in --out.
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Where synthetic datasets are cached.
+    #[arg(long, default_value = "datasets")]
+    pub cache: PathBuf,
+    /// The quick form (the test suite's): a few scenes of a few seconds each.
+    #[arg(long)]
+    pub quick: bool,
+    /// Only this scene (repeatable; default: every scene of the form).
+    #[arg(long = "scene")]
+    pub scenes: Vec<String>,
+    /// Seed of the synthetic sensors.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
 }
 
 /// Help of `--video`, shared by `frames` and `track`.

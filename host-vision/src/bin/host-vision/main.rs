@@ -12,7 +12,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use clap::Parser as _;
 use firmware_sim::sim::scenario::ScenarioName;
 
-use args::{Cli, Command, DemoArgs, EvalArgs, FramesArgs, LocateArgs, SynthArgs, TrackArgs};
+use args::{
+    Cli, Command, CorpusArgs, DemoArgs, EvalArgs, FramesArgs, LocateArgs, SynthArgs, TrackArgs,
+};
 use console::{Failure, exit, note, say};
 use progress::Bar;
 
@@ -643,6 +645,57 @@ fn eval(a: &EvalArgs) -> Result<Done, Failure> {
     Ok(Done::Complete)
 }
 
+fn corpus(a: &CorpusArgs) -> Result<Done, Failure> {
+    use host_vision::corpus::{CorpusEvent, CorpusOptions};
+    let options = CorpusOptions {
+        quick: a.quick,
+        only: a.scenes.clone(),
+        cache: a.cache.clone(),
+        out: a.out.clone(),
+        seed: a.seed,
+        overwrite: a.overwrite,
+        interrupt: interrupt_flag(),
+    };
+    let mut bar = Bar::new(EVAL_BAR);
+    let report = host_vision::corpus::run(&options, &mut |event| match event {
+        CorpusEvent::Step { what, done, total } => bar.update(what, done, total),
+        CorpusEvent::RunDone(row) => {
+            let c = &row.score;
+            let share = |v: Option<f64>| v.map_or("-".into(), |v| format!("{:.1} %", 100.0 * v));
+            bar.say(&format!(
+                "done: {} {}: {} frames, right {}, tracked {} (precision {}, recall {}), {} wrong stretches, {} never reported",
+                row.scene.name,
+                row.filter,
+                c.frames,
+                share(c.success),
+                c.tracked,
+                share(c.precision),
+                share(c.recall),
+                c.report_delays.len(),
+                c.unreported()
+            ));
+        }
+    });
+    bar.clear();
+    let report = report.map_err(anyhow::Error::from)?;
+    if report.rows.is_empty() {
+        say!("interrupted before any run finished: nothing written");
+        return Ok(Done::Interrupted);
+    }
+    say!("{}", report.markdown());
+    say!(
+        "written: {} and {}, and each run's outputs in {}",
+        a.out.join("corpus.md").display(),
+        a.out.join("corpus.json").display(),
+        a.out.display()
+    );
+    if report.interrupted {
+        say!("interrupted: wrote the runs done");
+        return Ok(Done::Interrupted);
+    }
+    Ok(Done::Complete)
+}
+
 fn demo(a: &DemoArgs) -> Result<Done, Failure> {
     use host_vision::eval::EvalOptions;
     let scenario = ScenarioName::DesktopFast;
@@ -732,6 +785,7 @@ fn main() -> ExitCode {
         Command::Track(args) => track(&args),
         Command::Frames(args) => frames(&args),
         Command::Eval(args) => eval(&args),
+        Command::Corpus(args) => corpus(&args),
         Command::Demo(args) => demo(&args),
         Command::Locate(args) => locate(&args),
     };

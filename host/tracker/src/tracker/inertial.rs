@@ -422,7 +422,8 @@ impl<T: CoreTransport> Tracker<T> {
         };
         let omega_c = self.omega_c(t_us);
         let every = self.config.keep_image_every;
-        self.worker.send(FrameJob {
+        // Judged at its prediction: the pose the core put out at the frame's time.
+        self.worker.send_judged(FrameJob {
             index: frame.index,
             stamp: u64::try_from(frame.t_ns).unwrap_or(0),
             image: frame.image,
@@ -483,6 +484,12 @@ impl<T: CoreTransport> Tracker<T> {
     ) -> Result<(), TrackerError> {
         let results = self.record.results.len();
         let ok = result.is_ok();
+        let judged = match &result {
+            Ok(r) => r
+                .at_prediction
+                .map(|a| (a, vision::prediction_pose(&r.job.prediction))),
+            Err(_) => None,
+        };
         self.record
             .deliver(&mut self.core, (p.frame_id, p.index), p.trigger_us, result)?;
         if ok {
@@ -493,11 +500,21 @@ impl<T: CoreTransport> Tracker<T> {
             Some((_, r)) => r.correspondences.len() + r.contours.len(),
             None => 0,
         };
+        // The verdict on the pose put out at the frame's time (docs/VISION.md §10).
+        let (pose, tracked) = match judged {
+            Some((a, Ok(pose))) => {
+                self.record.assessments.insert(p.frame_id, a);
+                let tracked = self.verdicts.judge(&self.record.rule, &a);
+                self.record.verdicts.insert(p.frame_id, tracked);
+                (Some(pose), Some(tracked))
+            }
+            _ => (None, None),
+        };
         self.events.push_back(Event::Frame(FrameReport {
             index: p.index,
             t_us: p.trigger_us,
-            pose: None,
-            tracked: None,
+            pose,
+            tracked,
             correspondences,
         }));
         Ok(())

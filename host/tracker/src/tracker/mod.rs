@@ -102,7 +102,6 @@ pub struct Tracker<T: CoreTransport = CoreLink> {
     pub(crate) record: Record,
     /// The core's outlier gate on `s_i`.
     gate: f64,
-    rule: TrackedRule,
     /// The run's verdicts so far (the contour form's confirmation).
     verdicts: vision::Verdicts,
     /// Vision-only: the last tick's time [µs].
@@ -178,7 +177,6 @@ impl<T: CoreTransport> Tracker<T> {
         };
         let mut tracker = Self {
             gate: 0.0,
-            rule: TrackedRule::default(),
             verdicts: vision::Verdicts::default(),
             last_us: None,
             started: config.start != Start::Locate,
@@ -195,7 +193,10 @@ impl<T: CoreTransport> Tracker<T> {
             states_told: 0,
             stopped: None,
             adapter: ready.adapter,
-            record: Record::new(hand_eye, config.session_id, ready.axes),
+            record: Record {
+                rule: TrackedRule::for_object(model.diagonal()),
+                ..Record::new(hand_eye, config.session_id, ready.axes)
+            },
             config,
             core,
             worker,
@@ -614,7 +615,7 @@ impl<T: CoreTransport> Tracker<T> {
             .collect();
         let a = self.worker.assess(pose, applied)?;
         self.record.assessments.insert(p.frame_id, a);
-        let tracked = self.verdicts.judge(&self.rule, &a);
+        let tracked = self.verdicts.judge(&self.record.rule, &a);
         self.record.verdicts.insert(p.frame_id, tracked);
         self.record.tilt.judged(p.frame_id);
         Ok(Some(Judged {

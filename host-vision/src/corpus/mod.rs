@@ -1,0 +1,251 @@
+//! The robustness corpus (`host-vision corpus`, issue 56; docs/VISION.md §10): scenes made to
+//! break the tracker, each synthesised with exact ground truth and tracked with the IMU and
+//! without, and every frame's verdict scored against the truth ([`score`]): the precision
+//! and recall of "tracked", and how long a wrong pose went unreported.
+//!
+//! - [`scenes`]: what each scene is and tries to break;
+//! - [`score`]: the per-frame comparison and the run's figures (eq. T1-T3);
+//! - [`report`]: the tables (`corpus.md`, `corpus.json`).
+
+pub mod report;
+pub mod scenes;
+pub mod score;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use firmware_sim::sim::scenario::Scenario;
+use protocol::ModelKind;
+use serde::Serialize;
+
+use crate::eval::{EvalError, ensure_synth, options_for};
+use crate::out_folder::OutFolder;
+use crate::track::{self, LinkSpec, Summary};
+use report::CorpusReport;
+use scenes::{FILTERS, SCENES, Scene};
+use score::{Bound, FrameTruth, Score};
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct CorpusOptions {
+    /// The quick form (the suite's): the quick scenes, a few seconds each.
+    pub quick: bool,
+    /// Only these scenes (by name); all of the form's when empty.
+    pub only: Vec<String>,
+    /// Where synthetic datasets are cached.
+    pub cache: PathBuf,
+    /// Where results go.
+    pub out: PathBuf,
+    /// Seed of the synthetic sensors.
+    pub seed: u64,
+    /// Replace the outputs of an earlier corpus run in `out`.
+    pub overwrite: bool,
+    /// Set (by Ctrl-C) to stop: the current run writes what it tracked, the report what was
+    /// done.
+    pub interrupt: Arc<AtomicBool>,
+}
+
+/// One tracking run of the corpus, scored.
+#[derive(Debug, Clone, Serialize)]
+pub struct CorpusRow {
+    /// The scene.
+    pub scene: Scene,
+    /// The filter model (`acc`, `vision`).
+    pub filter: String,
+    /// When a pose counts as right.
+    pub bound: Bound,
+    /// The verdict against the truth.
+    pub score: Score,
+    /// The run's summary (as `track` writes it).
+    pub summary: Summary,
+}
+
+/// What the corpus reports while it runs.
+#[derive(Debug)]
+pub enum CorpusEvent<'a> {
+    /// A step (synthesis, a tracking run) advanced: `done` of `total`.
+    Step {
+        /// The step.
+        what: &'a str,
+        /// Done.
+        done: u64,
+        /// Total.
+        total: u64,
+    },
+    /// A run finished.
+    RunDone(&'a CorpusRow),
+}
+
+/// Progress callback.
+pub type CorpusProgress<'a> = &'a mut dyn FnMut(CorpusEvent);
+
+impl CorpusOptions {
+    /// The scenes this run covers, in the tables' order; an unknown name is refused.
+    pub fn scenes(&self) -> Result<Vec<&'static Scene>, EvalError> {
+        if let Some(bad) = self
+            .only
+            .iter()
+            .find(|n| !SCENES.iter().any(|s| s.name == n.as_str()))
+        {
+            let names: Vec<&str> = SCENES.iter().map(|s| s.name).collect();
+            return Err(EvalError::Option(format!(
+                "--scene {bad}: no such scene (the corpus has {})",
+                names.join(", ")
+            )));
+        }
+        Ok(SCENES
+            .iter()
+            .filter(|s| {
+                if self.only.is_empty() {
+                    s.quick || !self.quick
+                } else {
+                    self.only.iter().any(|n| n == s.name)
+                }
+            })
+            .collect())
+    }
+}
+
+/// The object's size [m]: the diagonal of the box around the modelled surfaces (what the
+/// tracker knows), as the tracked rule takes it (`TrackedRule::for_object`).
+pub fn object_size(scene: &Scene) -> f64 {
+    let sc = Scenario::new(scene.scenario);
+    let corners = sc.scene.modelled.iter().flat_map(|q| q.corners.iter());
+    let (mut lo, mut hi) = (
+        nalgebra::Vector3::repeat(f64::INFINITY),
+        nalgebra::Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for c in corners {
+        lo = lo.inf(c);
+        hi = hi.sup(c);
+    }
+    let d = (hi - lo).norm();
+    if d.is_finite() { d } else { 0.0 }
+}
+
+/// Every frame taken in `run`, for the score: the analysed ones in order with their verdict
+/// and error, then the others (no pose, no verdict).
+pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
+    let mut frames: Vec<FrameTruth> = run
+        .frames
+        .iter()
+        .map(|r| FrameTruth {
+            index: r.index,
+            tracked: r.tracked,
+            error: r.estimate_error_m.zip(r.estimate_error_deg),
+        })
+        .collect();
+    let taken: usize = run.summary.frame_outcomes.values().sum();
+    frames.extend((frames.len()..taken).map(|index| FrameTruth {
+        index,
+        tracked: None,
+        error: None,
+    }));
+    frames
+}
+
+fn filter_name(m: ModelKind) -> String {
+    format!("{m:?}").to_lowercase()
+}
+
+/// Tracks one scene's dataset with `filter`, in process (deterministic), and scores it.
+fn run_one(
+    scene: &'static Scene,
+    dataset: &std::path::Path,
+    filter: ModelKind,
+    options: &CorpusOptions,
+    progress: CorpusProgress,
+) -> Result<CorpusRow, EvalError> {
+    let name = filter_name(filter);
+    let mut o = options_for(dataset, options.out.join(scene.name).join(&name))?;
+    o.filter = filter;
+    o.link = LinkSpec::InProcess(firmware_sim::board::Precision::F32);
+    o.overlay_every = 0;
+    let what = format!("{} {name}", scene.name);
+    let run = track::run(&o, options.interrupt.clone(), &mut |done, total, _, _| {
+        progress(CorpusEvent::Step {
+            what: &what,
+            done: done as u64,
+            total: total as u64,
+        })
+    })
+    .map_err(|source| EvalError::Track {
+        scenario: scene.name.into(),
+        model: name.clone(),
+        source: Box::new(source),
+    })?;
+    let bound = Bound::for_diameter(object_size(scene));
+    Ok(CorpusRow {
+        scene: *scene,
+        filter: name,
+        bound,
+        score: score::score(&frame_truths(&run), &bound),
+        summary: run.summary,
+    })
+}
+
+/// The names a corpus run writes into its output folder.
+fn outputs() -> Vec<String> {
+    let mut names = vec!["corpus.md".to_string(), "corpus.json".to_string()];
+    names.extend(SCENES.iter().map(|s| s.name.to_string()));
+    names
+}
+
+/// Runs the corpus and writes `corpus.md` and `corpus.json` (and each run's outputs in
+/// `SCENE/FILTER/`). Stopped by `options.interrupt`, it writes them for the runs done.
+pub fn run(options: &CorpusOptions, progress: CorpusProgress) -> Result<CorpusReport, EvalError> {
+    let scenes = options.scenes()?;
+    let mut out = OutFolder::prepare(&options.out, &outputs(), None, options.overwrite)?;
+    let mut report = CorpusReport {
+        quick: options.quick,
+        ..CorpusReport::default()
+    };
+    let stop = || options.interrupt.load(Ordering::Relaxed);
+    'scenes: for scene in scenes {
+        let what = format!("synth {}", scene.name);
+        let synth = scene.synth_options(
+            options
+                .cache
+                .join(scene.dataset_name(options.quick, options.seed)),
+            options.quick,
+            options.seed,
+        );
+        let dataset = match ensure_synth(
+            &options.cache,
+            crate::synth::SynthOptions {
+                interrupt: Some(options.interrupt.clone()),
+                ..synth
+            },
+            &mut |done, total| {
+                progress(CorpusEvent::Step {
+                    what: &what,
+                    done,
+                    total,
+                })
+            },
+        ) {
+            Ok(d) => d,
+            Err(_) if stop() => break,
+            Err(e) => return Err(e),
+        };
+        for filter in FILTERS {
+            if stop() {
+                break 'scenes;
+            }
+            let row = match run_one(scene, &dataset, filter, options, progress) {
+                Ok(row) => row,
+                Err(_) if stop() => break 'scenes,
+                Err(e) => return Err(e),
+            };
+            out.keep();
+            progress(CorpusEvent::RunDone(&row));
+            report.rows.push(row);
+        }
+    }
+    report.interrupted = stop();
+    if !report.rows.is_empty() {
+        report.write(&options.out)?;
+    }
+    Ok(report)
+}

@@ -1,0 +1,240 @@
+//! The verdict scored against the truth (issue 56): per frame, whether the run flagged it
+//! tracked and whether its pose is right; per run, the precision and recall of "tracked" and
+//! how long a wrong pose went unreported.
+
+use serde::Serialize;
+
+/// When a pose is right: within `position_m` and `rotation_deg` of the truth.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Bound {
+    /// Largest camera position error [m].
+    pub position_m: f64,
+    /// Largest rotation error [°].
+    pub rotation_deg: f64,
+}
+
+impl Bound {
+    /// Eq. T1: RBOT's success criterion, 5 cm and 5°, tightened to 10 % of the object's
+    /// `diameter` [m] where that is smaller (a 5 cm error on a 10 cm object is no success).
+    pub fn for_diameter(diameter: f64) -> Self {
+        let tenth = 0.1 * diameter;
+        Bound {
+            position_m: if tenth.is_finite() && tenth > 0.0 {
+                tenth.min(0.05)
+            } else {
+                0.05
+            },
+            rotation_deg: 5.0,
+        }
+    }
+
+    /// Whether an error `(position [m], rotation [°])` is within `factor` times the bound.
+    pub fn holds(&self, error: (f64, f64), factor: f64) -> bool {
+        error.0 <= factor * self.position_m && error.1 <= factor * self.rotation_deg
+    }
+}
+
+/// One frame taken, as the score sees it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameTruth {
+    /// The frame's index in the input.
+    pub index: usize,
+    /// Whether the run flagged it tracked (`None`: the run gave it no verdict).
+    pub tracked: Option<bool>,
+    /// The error of the pose estimated with it against the truth, `(position [m], rotation
+    /// [°])`; `None` where it has no pose (not analysed) or no truth.
+    pub error: Option<(f64, f64)>,
+}
+
+/// A run's verdicts against the truth.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Score {
+    /// Frames taken.
+    pub frames: usize,
+    /// Frames with a pose and a truth to compare it with.
+    pub with_truth: usize,
+    /// Of those, the right ones (within the bound).
+    pub right: usize,
+    /// Frames given a verdict (tracked or not).
+    pub judged: usize,
+    /// Frames flagged tracked.
+    pub tracked: usize,
+    /// Frames flagged tracked and right.
+    pub tracked_right: usize,
+    /// Frames flagged tracked and beyond twice the bound.
+    pub tracked_far: usize,
+    /// Frames flagged tracked with no truth to tell (past the ground truth's end): outside
+    /// the precision.
+    pub tracked_untold: usize,
+    /// Share of the tracked frames with a truth that are right (`None`: none flagged).
+    pub precision: Option<f64>,
+    /// Share of the right frames flagged tracked (`None`: none right).
+    pub recall: Option<f64>,
+    /// Share of the frames with a truth that are right (the tracker's success, RBOT's
+    /// measure, whatever the verdict said).
+    pub success: Option<f64>,
+    /// The largest error of a frame flagged tracked, `[m, °]`.
+    pub worst_tracked: Option<[f64; 2]>,
+    /// Per stretch of consecutive wrong frames: frames from its first one to the first frame
+    /// not flagged tracked (0: the first wrong frame was itself not flagged); `None` where
+    /// every frame of the stretch was flagged tracked (never reported).
+    pub report_delays: Vec<Option<usize>>,
+}
+
+impl Score {
+    /// The longest report delay [frames], `None` where some wrong stretch was never reported
+    /// or there was none.
+    pub fn worst_delay(&self) -> Option<usize> {
+        if self.report_delays.iter().any(Option::is_none) {
+            return None;
+        }
+        self.report_delays.iter().flatten().copied().max()
+    }
+
+    /// Wrong stretches whose every frame was flagged tracked.
+    pub fn unreported(&self) -> usize {
+        self.report_delays.iter().filter(|d| d.is_none()).count()
+    }
+}
+
+/// Scores `frames` (in the order taken) against `bound` (eq. T2, T3).
+pub fn score(frames: &[FrameTruth], bound: &Bound) -> Score {
+    let mut s = Score {
+        frames: frames.len(),
+        ..Score::default()
+    };
+    let is_right = |f: &FrameTruth| f.error.is_some_and(|e| bound.holds(e, 1.0));
+    for f in frames {
+        let flagged = f.tracked == Some(true);
+        s.judged += usize::from(f.tracked.is_some());
+        s.with_truth += usize::from(f.error.is_some());
+        s.right += usize::from(is_right(f));
+        if flagged {
+            s.tracked += 1;
+            s.tracked_right += usize::from(is_right(f));
+            s.tracked_untold += usize::from(f.error.is_none());
+            s.tracked_far += usize::from(f.error.is_some_and(|e| !bound.holds(e, 2.0)));
+            if let Some((m, deg)) = f.error {
+                let worst = s.worst_tracked.get_or_insert([m, deg]);
+                *worst = [worst[0].max(m), worst[1].max(deg)];
+            }
+        }
+    }
+    let share = |n: usize, of: usize| (of > 0).then(|| n as f64 / of as f64);
+    s.precision = share(s.tracked_right, s.tracked - s.tracked_untold);
+    s.recall = share(s.tracked_right, s.right);
+    s.success = share(s.right, s.with_truth);
+    s.report_delays = report_delays(frames, &is_right);
+    s
+}
+
+/// Eq. T3's delays: per maximal stretch of wrong frames (a pose and a truth, beyond the
+/// bound), the frames until the first one not flagged tracked.
+fn report_delays(
+    frames: &[FrameTruth],
+    is_right: &dyn Fn(&FrameTruth) -> bool,
+) -> Vec<Option<usize>> {
+    let wrong = |f: &FrameTruth| f.error.is_some() && !is_right(f);
+    let mut delays = Vec::new();
+    let mut k = 0;
+    while k < frames.len() {
+        if !wrong(&frames[k]) {
+            k += 1;
+            continue;
+        }
+        let start = k;
+        while k < frames.len() && wrong(&frames[k]) {
+            k += 1;
+        }
+        delays.push(
+            frames[start..k]
+                .iter()
+                .position(|f| f.tracked != Some(true)),
+        );
+    }
+    delays
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(index: usize, tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
+        FrameTruth {
+            index,
+            tracked,
+            error,
+        }
+    }
+
+    const GOOD: Option<(f64, f64)> = Some((0.01, 1.0));
+    const BAD: Option<(f64, f64)> = Some((0.08, 1.0));
+    const FAR: Option<(f64, f64)> = Some((0.02, 12.0));
+
+    #[test]
+    fn the_bound_is_5_cm_and_5_degrees_or_a_tenth_of_a_small_object() {
+        assert_eq!(Bound::for_diameter(1.0).position_m, 0.05);
+        assert!((Bound::for_diameter(0.15).position_m - 0.015).abs() < 1e-12);
+        assert_eq!(Bound::for_diameter(f64::NAN).position_m, 0.05);
+        let b = Bound::for_diameter(1.0);
+        assert!(b.holds((0.05, 5.0), 1.0));
+        assert!(!b.holds((0.0501, 0.0), 1.0));
+        assert!(!b.holds((0.0, 5.01), 1.0));
+        assert!(b.holds((0.09, 9.0), 2.0));
+    }
+
+    #[test]
+    fn precision_recall_and_success_count_what_they_say() {
+        let frames = [
+            frame(0, Some(true), GOOD),
+            frame(1, Some(true), BAD),
+            frame(2, Some(false), GOOD),
+            frame(3, Some(true), FAR),
+            frame(4, None, None),
+            frame(5, Some(true), GOOD),
+            frame(6, Some(true), None),
+        ];
+        let s = score(&frames, &Bound::for_diameter(1.0));
+        assert_eq!((s.frames, s.with_truth, s.right, s.judged), (7, 5, 3, 6));
+        assert_eq!((s.tracked, s.tracked_right, s.tracked_far), (5, 2, 1));
+        assert_eq!(s.tracked_untold, 1);
+        assert_eq!(s.precision, Some(0.5));
+        assert_eq!(s.recall, Some(2.0 / 3.0));
+        assert_eq!(s.success, Some(0.6));
+        assert_eq!(s.worst_tracked, Some([0.08, 12.0]));
+    }
+
+    #[test]
+    fn a_wrong_stretch_is_reported_at_its_first_frame_not_flagged() {
+        let frames = [
+            frame(0, Some(true), GOOD),
+            // Reported at once.
+            frame(1, Some(false), BAD),
+            frame(2, Some(false), BAD),
+            frame(3, Some(true), GOOD),
+            // Reported two frames late.
+            frame(4, Some(true), BAD),
+            frame(5, Some(true), FAR),
+            frame(6, None, BAD),
+            frame(7, Some(true), GOOD),
+            // Never reported.
+            frame(8, Some(true), BAD),
+        ];
+        let s = score(&frames, &Bound::for_diameter(1.0));
+        assert_eq!(s.report_delays, vec![Some(0), Some(2), None]);
+        assert_eq!(s.unreported(), 1);
+        assert_eq!(s.worst_delay(), None);
+        let reported = score(&frames[..8], &Bound::for_diameter(1.0));
+        assert_eq!(reported.worst_delay(), Some(2));
+    }
+
+    #[test]
+    fn a_run_without_verdicts_has_no_precision_and_no_recall_of_its_verdict() {
+        let frames = [frame(0, None, GOOD), frame(1, None, BAD)];
+        let s = score(&frames, &Bound::for_diameter(1.0));
+        assert_eq!((s.judged, s.tracked), (0, 0));
+        assert_eq!(s.precision, None);
+        assert_eq!(s.recall, Some(0.0));
+        assert_eq!(s.report_delays, vec![Some(0)]);
+    }
+}
