@@ -1694,3 +1694,42 @@ fn i36_the_core_sampling_its_own_imu_tracks_as_the_host_driven_replay_of_its_sam
         assert!(se.contains(problem), "{more:?}: {se}");
     }
 }
+
+/// Issue 56: `synth --object` names the flag and the file when the mesh cannot be read, and
+/// writes nothing; `--lit` and `--ideal` (no lighting changes) are refused together.
+#[test]
+fn i56_synth_object_and_lit_are_checked_before_anything_is_written() {
+    let out = tmp("i56-object");
+    let missing = tmp("i56-no-such-mesh.obj");
+    let (_, se) = expect(
+        &[
+            "synth",
+            "--scenario",
+            "desktop-fast",
+            "--object",
+            s(&missing),
+            "--out",
+            s(&out),
+        ],
+        1,
+    );
+    assert!(
+        se.contains("--object") && se.contains("i56-no-such-mesh.obj"),
+        "{se}"
+    );
+    assert!(!out.exists(), "nothing written");
+    let (_, se) = expect(
+        &[
+            "synth",
+            "--scenario",
+            "desktop-fast",
+            "--lit",
+            "--ideal",
+            "--out",
+            s(&out),
+        ],
+        2,
+    );
+    assert!(se.contains("--lit") && se.contains("--ideal"), "{se}");
+    assert!(!out.exists(), "nothing written");
+}

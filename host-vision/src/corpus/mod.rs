@@ -11,11 +11,10 @@ pub mod report;
 pub mod scenes;
 pub mod score;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use firmware_sim::sim::scenario::Scenario;
 use protocol::ModelKind;
 use serde::Serialize;
 
@@ -39,6 +38,9 @@ pub struct CorpusOptions {
     pub out: PathBuf,
     /// Seed of the synthetic sensors.
     pub seed: u64,
+    /// The shared data folder (`../shared/data`): the meshes of the scenes that stand one in
+    /// place of the modelled surfaces. Where a mesh is absent, its scene is skipped and said.
+    pub data: PathBuf,
     /// Replace the outputs of an earlier corpus run in `out`.
     pub overwrite: bool,
     /// Set (by Ctrl-C) to stop: the current run writes what it tracked, the report what was
@@ -75,6 +77,8 @@ pub enum CorpusEvent<'a> {
     },
     /// A run finished.
     RunDone(&'a CorpusRow),
+    /// A scene was skipped, with why.
+    Skipped(&'a Scene, &'a str),
 }
 
 /// Progress callback.
@@ -107,21 +111,15 @@ impl CorpusOptions {
     }
 }
 
-/// The object's size [m]: the diagonal of the box around the modelled surfaces (what the
-/// tracker knows), as the tracked rule takes it (`TrackedRule::for_object`).
-pub fn object_size(scene: &Scene) -> f64 {
-    let sc = Scenario::new(scene.scenario);
-    let corners = sc.scene.modelled.iter().flat_map(|q| q.corners.iter());
-    let (mut lo, mut hi) = (
-        nalgebra::Vector3::repeat(f64::INFINITY),
-        nalgebra::Vector3::repeat(f64::NEG_INFINITY),
-    );
-    for c in corners {
-        lo = lo.inf(c);
-        hi = hi.sup(c);
-    }
-    let d = (hi - lo).norm();
-    if d.is_finite() { d } else { 0.0 }
+/// The object's size [m]: the diagonal of its model's bounding box, as the tracked rule
+/// takes it (`TrackedRule::for_object`), from the dataset's model.
+pub fn object_size(dataset: &Path) -> Result<f64, EvalError> {
+    let path = dataset.join("model/scene.obj");
+    let model = crate::model::load(&path).map_err(|e| EvalError::Manifest {
+        path: path.clone(),
+        what: format!("the model cannot be read: {e}"),
+    })?;
+    Ok(model.diagonal())
 }
 
 /// Every frame taken in `run`, for the score: the analysed ones in order with their verdict
@@ -175,7 +173,7 @@ fn run_one(
         model: name.clone(),
         source: Box::new(source),
     })?;
-    let bound = Bound::for_diameter(object_size(scene));
+    let bound = Bound::for_diameter(object_size(dataset)?);
     Ok(CorpusRow {
         scene: *scene,
         filter: name,
@@ -208,9 +206,19 @@ pub fn run(options: &CorpusOptions, progress: CorpusProgress) -> Result<CorpusRe
             options
                 .cache
                 .join(scene.dataset_name(options.quick, options.seed)),
+            &options.data,
             options.quick,
             options.seed,
         );
+        if let Some(object) = synth.object.as_ref().filter(|p| !p.is_file()) {
+            let why = format!(
+                "{} is absent (the shared data folder, --data)",
+                object.display()
+            );
+            progress(CorpusEvent::Skipped(scene, &why));
+            report.skipped.push((scene.name.to_string(), why));
+            continue;
+        }
         let dataset = match ensure_synth(
             &options.cache,
             crate::synth::SynthOptions {

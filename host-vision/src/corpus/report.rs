@@ -22,6 +22,8 @@ pub struct CorpusReport {
     pub rows: Vec<CorpusRow>,
     /// Stopped by Ctrl-C: the rows are the runs done (the last one possibly cut short).
     pub interrupted: bool,
+    /// Scenes not run, with why (a mesh absent).
+    pub skipped: Vec<(String, String)>,
 }
 
 fn percent(v: Option<f64>) -> String {
@@ -81,9 +83,12 @@ impl CorpusReport {
                 c.report_delays.len(),
             );
         }
+        for (scene, why) in &self.skipped {
+            let _ = writeln!(s, "\n**Skipped** {scene}: {why}.");
+        }
         let _ = writeln!(
             s,
-            "\n- **right**: share of the frames with a pose whose error against the truth is within the bound (5 cm and 5°, or a tenth of the object's diameter if smaller), whatever the verdict said;\n\
+            "\n- **right**: share of the frames with a pose whose error against the truth is within the bound (5 cm and 5°, or a tenth of the model's bounding-box diagonal if smaller), whatever the verdict said;\n\
              - **judged**: frames given a verdict; **tracked**: flagged tracked;\n\
              - **precision**: share of the tracked frames that are right (of those with a truth to tell); **recall**: share of the right frames flagged tracked;\n\
              - **wrong stretches**: runs of consecutive wrong frames; **reported**: the verdict said \"not tracked\" within {REPORT_WITHIN_FRAMES} frames of the first (docs/VISION.md §10)."

@@ -15,6 +15,7 @@ use rand_distr::{Distribution, StandardNormal};
 
 use super::SynthError;
 use super::scene::SceneModels;
+use super::shading::Shading;
 use crate::camera::{Camera, CameraPose, Distortion, Pinhole};
 use crate::model::Model;
 use crate::render::{Frame, RenderView, Renderer};
@@ -40,6 +41,9 @@ pub struct FrameOptions {
     pub read_noise: f64,
     /// Shot noise: variance per grey level of signal.
     pub shot_noise: f64,
+    /// Lit, shaded surfaces (a directional and an ambient light); `None`: the model's values
+    /// unlit, as the renderer draws them.
+    pub shading: Option<Shading>,
 }
 
 impl FrameOptions {
@@ -54,6 +58,7 @@ impl FrameOptions {
             lighting: true,
             read_noise: 1.5,
             shot_noise: 0.04,
+            shading: None,
         }
     }
 
@@ -342,7 +347,18 @@ impl FrameSynth {
         for i in 0..n {
             // Mid-points of n equal slots of the exposure.
             let ts = t + exposure * ((i as f64 + 0.5) / n as f64 - 0.5);
-            let r = self.render_live(scenario, ts)?;
+            let mut r = self.render_live(scenario, ts)?;
+            if let Some(shading) = &self.options.shading {
+                let (_, q_cw) = scenario.camera_pose(ts);
+                shading.apply(
+                    &mut r.gray,
+                    &r.depth,
+                    self.render_size.0 as usize,
+                    &self.render_pinhole,
+                    &q_cw,
+                    ts,
+                );
+            }
             for (a, g) in self.accum.iter_mut().zip(&r.gray) {
                 *a += g;
             }

@@ -17,6 +17,7 @@
 
 pub mod frames;
 pub mod scene;
+pub mod shading;
 pub mod texture;
 
 use std::fmt::Write as _;
@@ -33,6 +34,7 @@ use rand::rngs::StdRng;
 
 pub use frames::{FrameOptions, FrameSynth, SynthFrame, live_camera};
 pub use scene::{SceneModels, TextureOptions, UNTEXTURED_COLOUR, write_obj};
+pub use shading::Shading;
 
 use crate::camera::{Camera, CameraError, Distortion};
 use crate::render::RenderError;
@@ -125,6 +127,10 @@ pub struct SynthOptions {
     pub frames: FrameOptions,
     /// Textures.
     pub textures: TextureOptions,
+    /// A mesh file (OBJ, glTF) to stand in place of the scenario's modelled surfaces: in
+    /// metres, y up, its origin at the centre of its base (the Stanford bunny of
+    /// `../shared/data/meshes/bunny`).
+    pub object: Option<PathBuf>,
     /// Replace an existing dataset in `out` (its `mav0/` and `model/` folders).
     pub overwrite: bool,
     /// Set (by Ctrl-C) to stop after the current frame, with [`SynthError::Interrupted`].
@@ -144,6 +150,7 @@ impl SynthOptions {
             imu_noise: None,
             frames: FrameOptions::new(320, 240),
             textures: TextureOptions::generated(),
+            object: None,
             overwrite: false,
             interrupt: None,
         }
@@ -344,7 +351,14 @@ pub fn run(
     // Everything that can be checked is checked before anything is written.
     let scenario = options.build_scenario()?;
     options.frames.validate()?;
-    let models = SceneModels::build(&scenario.scene, &options.textures)?;
+    let object = match &options.object {
+        Some(path) => Some(
+            crate::model::load(path)
+                .map_err(|e| SynthError::BadOption(format!("--object {}: {e}", path.display())))?,
+        ),
+        None => None,
+    };
+    let models = SceneModels::build_with(&scenario.scene, &options.textures, object.as_ref())?;
     prepare_out(&options.out, options.overwrite)?;
     let out = &options.out;
 
@@ -444,6 +458,13 @@ pub fn run(
         "texture_scale": options.textures.scale,
         "user_textures": options.textures.user_images,
         "untextured": options.textures.untextured,
+        "object": options.object,
+        "shading": fo.shading.map(|s| serde_json::json!({
+            "ambient": s.ambient, "diffuse": s.diffuse, "specular": s.specular,
+            "shininess": s.shininess, "elevation_rad": s.elevation,
+            "azimuth_rad": s.azimuth.0, "azimuth_rad_per_s": s.azimuth.1,
+            "dimming": s.dimming.0, "dimming_period_s": s.dimming.1,
+        })),
         "adapter": report.adapter,
     });
     manifest["scene"] = serde_json::json!({

@@ -74,6 +74,18 @@ fn f32x3(v: &nalgebra::Vector3<f64>) -> [f32; 3] {
 impl SceneModels {
     /// Builds the models, generating (or loading) one texture per surface.
     pub fn build(scene: &Scene, options: &TextureOptions) -> Result<Self, SynthError> {
+        Self::build_with(scene, options, None)
+    }
+
+    /// [`Self::build`], with `object` (a mesh in metres, y up, its origin at the centre of
+    /// its base, as `../shared/data/meshes/bunny` is) in place of the modelled surfaces: stood
+    /// upright where they stand, in the untextured colour where one is given, else in its
+    /// own materials.
+    pub fn build_with(
+        scene: &Scene,
+        options: &TextureOptions,
+        object: Option<&Model>,
+    ) -> Result<Self, SynthError> {
         if !(options.scale.is_finite() && options.scale > 0.0 && options.scale <= 16.0) {
             return Err(SynthError::BadOption(format!(
                 "texture scale must be in (0, 16], got {}",
@@ -103,12 +115,16 @@ impl SceneModels {
             Arc::new(texture::generate(q.surface, q.texture_seed, size, w, h))
         };
         let mut model = Model::default();
-        for (i, q) in scene.modelled.iter().enumerate() {
-            match options.untextured {
-                Some([r, g, b]) => add_quad(&mut model, q, None, [r, g, b, 1.0]),
-                None => {
-                    let user = (!users.is_empty()).then(|| &users[i % users.len()]);
-                    add_quad(&mut model, q, Some(texture_of(q, user)), [1.0; 4]);
+        if let Some(object) = object {
+            model = placed(object, scene, options.untextured)?;
+        } else {
+            for (i, q) in scene.modelled.iter().enumerate() {
+                match options.untextured {
+                    Some([r, g, b]) => add_quad(&mut model, q, None, [r, g, b, 1.0]),
+                    None => {
+                        let user = (!users.is_empty()).then(|| &users[i % users.len()]);
+                        add_quad(&mut model, q, Some(texture_of(q, user)), [1.0; 4]);
+                    }
                 }
             }
         }
@@ -131,6 +147,42 @@ impl SceneModels {
             occluders,
         })
     }
+}
+
+/// `object` (y up, origin at its base's centre) turned z up and stood on the floor of the
+/// scene's modelled surfaces, at their centre; its materials in `colour` where given.
+fn placed(object: &Model, scene: &Scene, colour: Option<[f32; 3]>) -> Result<Model, SynthError> {
+    let corners = || scene.modelled.iter().flat_map(|q| q.corners.iter());
+    let lowest = corners().map(|c| c.z).fold(f64::INFINITY, f64::min);
+    let (lo, hi) = corners().fold(
+        (
+            nalgebra::Vector3::repeat(f64::INFINITY),
+            nalgebra::Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), c| (lo.inf(c), hi.sup(c)),
+    );
+    if !lowest.is_finite() {
+        return Err(SynthError::BadOption(
+            "the scenario has no modelled surface to stand an object on".into(),
+        ));
+    }
+    let base = [(lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0, lowest].map(|v| v as f32);
+    let mut m = object.clone();
+    for p in m
+        .meshes
+        .iter_mut()
+        .flat_map(|mesh| mesh.positions.iter_mut())
+    {
+        // y up → z up: (x, y, z) ↦ (x, −z, y), a rotation about x.
+        *p = [p[0] + base[0], -p[2] + base[1], p[1] + base[2]];
+    }
+    if let Some([r, g, b]) = colour {
+        for mat in &mut m.materials {
+            mat.base_colour = [r, g, b, 1.0];
+            mat.texture = None;
+        }
+    }
+    Ok(m)
 }
 
 fn add_quad(model: &mut Model, q: &Quad, texture: Option<Arc<RgbaImage>>, base_colour: [f32; 4]) {

@@ -609,7 +609,7 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {:.2} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,
@@ -628,7 +628,7 @@ impl fmt::Display for Summary {
             if self.imu_used {
                 writeln!(
                     f,
-                    "             with the IMU: judged at the pose put out at each frame's time (its prediction), the features at the pose they fit, which the prediction must be within {} cm and {}° of",
+                    "             with the IMU: judged at the pose put out at each frame's time (its prediction), the features at the pose they fit, which the prediction must be within {:.2} cm and {}° of",
                     t.rule.max_offset_m * 100.0,
                     t.rule.max_offset_deg
                 )?;

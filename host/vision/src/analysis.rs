@@ -315,10 +315,21 @@ impl Vision {
         pose: &CameraPose,
         applied: &[bool],
     ) -> Result<Assessment, VisionError> {
+        self.assess_rendered(pose, pose, applied)
+    }
+
+    /// [`Self::assess`], the rendering's part (the correlation, the contour's judgement) at
+    /// `rendered`, and the registrations' rms at `pose`.
+    fn assess_rendered(
+        &mut self,
+        pose: &CameraPose,
+        rendered: &CameraPose,
+        applied: &[bool],
+    ) -> Result<Assessment, VisionError> {
         if self.last.is_none() {
             return Ok(Assessment::default());
         }
-        let rendering = self.rendering_at(pose)?;
+        let rendering = self.rendering_at(rendered)?;
         let Some(last) = &self.last else {
             return Ok(Assessment::default());
         };
@@ -338,7 +349,7 @@ impl Vision {
             self.contour.judge(
                 &last.contours,
                 applied_contours,
-                pose,
+                rendered,
                 &self.ideal.pinhole,
                 &rendering,
                 &live,
@@ -725,22 +736,25 @@ impl Vision {
 
     /// [`Self::process`], and the frame's prediction judged over every correspondence sent:
     /// the judgement of the pose put out at the frame's time where an IMU carries the pose
-    /// between frames (docs/VISION.md §10). With enough registrations they are judged at the
-    /// pose they fit from the prediction, and the prediction's offset from it is kept; with
-    /// too few, the frame is judged at the prediction (its contour form).
+    /// between frames (docs/VISION.md §10). The rendering at the prediction (the analysis's,
+    /// no other) gives the correlation and the contour's judgement; with enough
+    /// registrations, their rms is taken at the pose they fit from the prediction, and the
+    /// prediction's offset from it is kept (eq. T4).
     pub fn process_judged(&mut self, job: FrameJob) -> Result<FrameResult, VisionError> {
         let mut result = self.process_with(job, false)?;
         let prediction = prediction_pose(&result.job.prediction)?;
         let sent = vec![true; result.correspondences.len() + result.contours.len()];
         // The registrations judged at the pose they fit (as the pose estimated with them is,
-        // vision-only), and the prediction held to that pose (eq. T4).
+        // vision-only), and the prediction held to that pose (eq. T4); the rendering, and the
+        // contour, at the prediction, the pose put out (the analysis rendered there).
         let fit = self
             .last
             .as_ref()
             .filter(|l| l.registered.len() >= TEXTURE_FIT_MIN)
             .and_then(|l| robust_fit(&self.ideal, &prediction, &l.registered))
             .map(|(p, _)| p);
-        let mut a = self.assess(fit.as_ref().unwrap_or(&prediction), &sent)?;
+        let mut a =
+            self.assess_rendered(fit.as_ref().unwrap_or(&prediction), &prediction, &sent)?;
         a.prediction_offset = fit.map(|f| {
             [
                 (f.c_w - prediction.c_w).norm(),

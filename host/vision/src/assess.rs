@@ -299,41 +299,54 @@ impl TrackedRule {
     }
 }
 
-/// A run's verdicts, frame after frame (docs/VISION.md §9.4, eq. K9). A frame judged by its
-/// features counts as [`TrackedRule::holds`] says, and a pass verifies the pose for the
-/// contour too. A frame judged by its contour counts only on a confirmed track: an outline
-/// fits poses along the directions it does not see, so a pose that drifted along them still
-/// passes the rule. Confirmation takes [`TrackedRule::confirm_frames`] consecutive frames that
-/// [confirm](TrackedRule::confirms); the track holds while frames pass the rule, and the first
-/// that does not ends it.
+/// A run's verdicts, frame after frame (docs/VISION.md §9.4, eq. K9; §10, eq. T5). A frame
+/// judged by its features counts as [`TrackedRule::holds`] says, except after a frame that
+/// failed: then [`TrackedRule::confirm_frames`] consecutive passing frames are needed before
+/// they count again (eq. T5), as one frame whose features agree with a pose can be a chance
+/// alignment after the model was lost. A frame judged by its contour counts only on a
+/// confirmed track: an outline fits poses along the directions it does not see, so a pose
+/// that drifted along them still passes the rule. Confirmation takes `confirm_frames`
+/// consecutive frames that [confirm](TrackedRule::confirms), or a counted feature frame; the
+/// track holds while frames pass the rule, and the first that does not ends it. A run's
+/// start (the default) has lost nothing yet: its feature frames count at once. A pose found
+/// again after a loss does not start afresh: it was verified in an earlier frame than the
+/// ones it is applied to, which must confirm it.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Verdicts {
     /// Consecutive confirming frames since the track ended.
     confirming: usize,
     /// Whether the track is confirmed.
     confirmed: bool,
+    /// Whether a frame failed since the last fresh start or confirmation.
+    lapsed: bool,
 }
 
 impl Verdicts {
     /// The verdict on the next frame, `a`, by `rule`.
     pub fn judge(&mut self, rule: &TrackedRule, a: &Assessment) -> bool {
-        let holds = rule.holds(a);
-        if rule.by_features(a) {
-            self.confirmed = holds;
-            self.confirming = 0;
-            return holds;
-        }
-        if !holds {
-            *self = Verdicts::default();
+        if !rule.holds(a) {
+            *self = Verdicts {
+                lapsed: true,
+                ..Verdicts::default()
+            };
             return false;
         }
-        if !self.confirmed {
-            self.confirming = if rule.confirms(a) {
-                self.confirming + 1
-            } else {
-                0
-            };
-            self.confirmed = self.confirming >= rule.confirm_frames;
+        let confirms = if rule.by_features(a) {
+            true
+        } else if self.confirmed {
+            return true;
+        } else {
+            rule.confirms(a)
+        };
+        if rule.by_features(a) && !self.lapsed {
+            self.confirmed = true;
+            return true;
+        }
+        self.confirming = if confirms { self.confirming + 1 } else { 0 };
+        if self.confirming >= rule.confirm_frames {
+            self.confirmed = true;
+            self.lapsed = false;
+            self.confirming = 0;
         }
         self.confirmed
     }
@@ -541,6 +554,42 @@ mod tests {
         assert!(v.judge(&rule, &weak));
         assert!(!v.judge(&rule, &failing));
         assert!(!v.judge(&rule, &weak));
+    }
+
+    /// Issue 56: under large motion, vision-only, each of the 4 wrong frames counted as
+    /// tracked (3.9-7.7 cm off) stood alone among failing ones. After a failure, feature
+    /// frames count once two in a row pass (eq. T5); a fresh start counts at once.
+    #[test]
+    fn after_a_failure_feature_frames_count_once_two_in_a_row_pass() {
+        let rule = TrackedRule::default();
+        let pass = Assessment {
+            features: 12,
+            rms_px: Some(1.0),
+            ncc: Some(0.5),
+            ..Assessment::default()
+        };
+        let fail = Assessment {
+            rms_px: Some(2.0),
+            ..pass
+        };
+        let mut v = Verdicts::default();
+        let seq = [
+            (pass, true),
+            (pass, true),
+            (fail, false),
+            // A lone passing frame among failing ones does not count.
+            (pass, false),
+            (fail, false),
+            (pass, false),
+            (pass, true),
+            (pass, true),
+        ];
+        for (i, (a, tracked)) in seq.iter().enumerate() {
+            assert_eq!(v.judge(&rule, a), *tracked, "frame {i}");
+        }
+        // A run's start counts its first frame.
+        let mut fresh = Verdicts::default();
+        assert!(fresh.judge(&rule, &pass));
     }
 
     #[test]

@@ -179,6 +179,10 @@ pub struct CorpusArgs {
     /// Only this scene (repeatable; default: every scene of the form).
     #[arg(long = "scene")]
     pub scenes: Vec<String>,
+    /// The shared data folder, with the meshes some scenes stand in place of their modelled
+    /// surfaces (meshes/bunny/bunny.obj); a scene whose mesh is absent is skipped and said.
+    #[arg(long, default_value = "../shared/data")]
+    pub data: PathBuf,
     /// Seed of the synthetic sensors.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -469,6 +473,17 @@ pub struct SynthArgs {
     /// camera).
     #[arg(long, requires = "untextured", value_parser = parse_colour, allow_hyphen_values = true)]
     pub untextured_colour: Option<[f32; 3]>,
+    /// A mesh (OBJ, glTF) in place of the modelled surfaces, stood where they stand: in
+    /// metres, y up, its origin at the centre of its base, such as the Stanford bunny of
+    /// ../shared/data/meshes/bunny/bunny.obj. It is the dataset's model; with --untextured,
+    /// in that colour.
+    #[arg(long, conflicts_with = "textures")]
+    pub object: Option<PathBuf>,
+    /// Lit, shaded frames: a directional light 50° up, turning 10° a second and dimming by
+    /// 40 % every 6 s, and an ambient one; Lambert's diffuse term and a highlight (default:
+    /// the surfaces' values unlit).
+    #[arg(long, conflicts_with = "ideal")]
+    pub lit: bool,
     /// Noise-free IMU and frames (no noise, biases, vibration, clipping, lighting changes).
     #[arg(long)]
     pub ideal: bool,

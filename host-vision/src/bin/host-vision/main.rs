@@ -497,6 +497,7 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
     frames.subframes = a.subframes;
     frames.max_subframes = a.max_subframes;
     frames.supersample = a.supersample;
+    frames.shading = a.lit.then(host_vision::synth::Shading::default);
     if a.ideal {
         frames.lighting = false;
         frames.read_noise = 0.0;
@@ -528,6 +529,7 @@ fn synth(a: &SynthArgs) -> Result<Done, Failure> {
             ),
             ..TextureOptions::generated()
         },
+        object: a.object.clone(),
         overwrite: a.overwrite,
         interrupt: Some(interrupt_flag()),
         ..SynthOptions::new(a.scenario, a.out.clone())
@@ -653,6 +655,7 @@ fn corpus(a: &CorpusArgs) -> Result<Done, Failure> {
         cache: a.cache.clone(),
         out: a.out.clone(),
         seed: a.seed,
+        data: a.data.clone(),
         overwrite: a.overwrite,
         interrupt: interrupt_flag(),
     };
@@ -675,6 +678,7 @@ fn corpus(a: &CorpusArgs) -> Result<Done, Failure> {
                 c.unreported()
             ));
         }
+        CorpusEvent::Skipped(scene, why) => bar.say(&format!("skipped: {}: {why}", scene.name)),
     });
     bar.clear();
     let report = report.map_err(anyhow::Error::from)?;
