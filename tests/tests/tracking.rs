@@ -985,6 +985,17 @@ fn a_serial_device_that_comes_back_under_another_name_is_found_again() {
         }
     });
     let ds = dataset(ScenarioName::DesktopFast, 12.0);
+    // The board publishes its first device from its own thread: the host starts once it is
+    // there (with the dataset cached, it could start first and find none).
+    let first = dir.join("tty-0");
+    let waited = std::time::Instant::now();
+    while std::fs::symlink_metadata(&first).is_err() {
+        assert!(
+            waited.elapsed() < std::time::Duration::from_secs(30),
+            "the board published no device"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
     let mut o = options(&ds, "desktop-fast-serial-renamed", ModelKind::Acc);
     o.link = track::LinkSpec::Serial {
         path: format!("{}/tty-*", dir.display()),

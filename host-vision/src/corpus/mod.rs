@@ -173,7 +173,7 @@ fn run_one(
         model: name.clone(),
         source: Box::new(source),
     })?;
-    let bound = Bound::for_diameter(object_size(dataset)?);
+    let bound = Bound::for_size(object_size(dataset)?);
     Ok(CorpusRow {
         scene: *scene,
         filter: name,

@@ -14,16 +14,11 @@ pub struct Bound {
 }
 
 impl Bound {
-    /// Eq. T1: RBOT's success criterion, 5 cm and 5°, tightened to 10 % of the object's
-    /// `diameter` [m] where that is smaller (a 5 cm error on a 10 cm object is no success).
-    pub fn for_diameter(diameter: f64) -> Self {
-        let tenth = 0.1 * diameter;
+    /// Eq. T1 for an object of `size` [m], its model's bounding-box diagonal
+    /// ([`vision::success_bound_m`]), and 5°.
+    pub fn for_size(size: f64) -> Self {
         Bound {
-            position_m: if tenth.is_finite() && tenth > 0.0 {
-                tenth.min(0.05)
-            } else {
-                0.05
-            },
+            position_m: vision::success_bound_m(size),
             rotation_deg: 5.0,
         }
     }
@@ -173,10 +168,10 @@ mod tests {
 
     #[test]
     fn the_bound_is_5_cm_and_5_degrees_or_a_tenth_of_a_small_object() {
-        assert_eq!(Bound::for_diameter(1.0).position_m, 0.05);
-        assert!((Bound::for_diameter(0.15).position_m - 0.015).abs() < 1e-12);
-        assert_eq!(Bound::for_diameter(f64::NAN).position_m, 0.05);
-        let b = Bound::for_diameter(1.0);
+        assert_eq!(Bound::for_size(1.0).position_m, 0.05);
+        assert!((Bound::for_size(0.15).position_m - 0.015).abs() < 1e-12);
+        assert_eq!(Bound::for_size(f64::NAN).position_m, 0.05);
+        let b = Bound::for_size(1.0);
         assert!(b.holds((0.05, 5.0), 1.0));
         assert!(!b.holds((0.0501, 0.0), 1.0));
         assert!(!b.holds((0.0, 5.01), 1.0));
@@ -194,7 +189,7 @@ mod tests {
             frame(5, Some(true), GOOD),
             frame(6, Some(true), None),
         ];
-        let s = score(&frames, &Bound::for_diameter(1.0));
+        let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!((s.frames, s.with_truth, s.right, s.judged), (7, 5, 3, 6));
         assert_eq!((s.tracked, s.tracked_right, s.tracked_far), (5, 2, 1));
         assert_eq!(s.tracked_untold, 1);
@@ -220,18 +215,18 @@ mod tests {
             // Never reported.
             frame(8, Some(true), BAD),
         ];
-        let s = score(&frames, &Bound::for_diameter(1.0));
+        let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!(s.report_delays, vec![Some(0), Some(2), None]);
         assert_eq!(s.unreported(), 1);
         assert_eq!(s.worst_delay(), None);
-        let reported = score(&frames[..8], &Bound::for_diameter(1.0));
+        let reported = score(&frames[..8], &Bound::for_size(1.0));
         assert_eq!(reported.worst_delay(), Some(2));
     }
 
     #[test]
     fn a_run_without_verdicts_has_no_precision_and_no_recall_of_its_verdict() {
         let frames = [frame(0, None, GOOD), frame(1, None, BAD)];
-        let s = score(&frames, &Bound::for_diameter(1.0));
+        let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!((s.judged, s.tracked), (0, 0));
         assert_eq!(s.precision, None);
         assert_eq!(s.recall, Some(0.0));

@@ -171,6 +171,19 @@ pub fn contrast(
     }
 }
 
+/// Eq. T1 (docs/VISION.md §10): how far [m] a right pose's camera may be from the truth for an
+/// object of size `diagonal` [m] (its bounding box's diagonal): RBOT's 5 cm, tightened to a
+/// tenth of the object where that is smaller (5 cm on a 10 cm object is no success); 5 cm
+/// for a size that is not a positive number.
+pub fn success_bound_m(diagonal: f64) -> f64 {
+    let tenth = 0.1 * diagonal;
+    if tenth.is_finite() && tenth > 0.0 {
+        tenth.min(0.05)
+    } else {
+        0.05
+    }
+}
+
 /// When a frame counts as tracked (issue 14's rule).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct TrackedRule {
@@ -251,12 +264,7 @@ impl TrackedRule {
     /// half a metre or more.
     pub fn for_object(diagonal: f64) -> Self {
         let d = Self::default();
-        let tenth = 0.1 * diagonal;
-        let b = if tenth.is_finite() && tenth > 0.0 {
-            tenth.min(d.max_offset_m)
-        } else {
-            d.max_offset_m
-        };
+        let b = success_bound_m(diagonal);
         TrackedRule {
             max_contour_sigma_m: b / 2.0,
             max_offset_m: b,
