@@ -286,11 +286,14 @@ const GL_PACKAGES: &[&str] = &["host-vision", "render", "features"];
 /// nine runs (issue 36's note). The cold start's tests render through the same renderer calls
 /// as the tracking tests that do run on GL, and cost 166 s there: the Python module's wheel
 /// and tests (issue 38) take that time instead.
-/// The corpus's quick form measures the tracker's verdicts, not the driver: once is enough.
+/// The corpus's quick form measures the tracker's verdicts, and the walkthrough's process tests
+/// (`cli_trust`) check exit codes, rows and messages, not the driver: once is enough (32 s of
+/// the budget under GL).
 const GL_SKIPPED: &[&str] = &[
     "host-vision test visp_cube",
     "host-vision test locate",
     "host-vision test corpus",
+    "host-vision test cli_trust",
 ];
 
 fn test() -> Result<(), String> {
