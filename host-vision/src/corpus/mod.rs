@@ -129,14 +129,12 @@ pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
         .frames
         .iter()
         .map(|r| FrameTruth {
-            index: r.index,
             tracked: r.tracked,
             error: r.estimate_error_m.zip(r.estimate_error_deg),
         })
         .collect();
     let taken: usize = run.summary.frame_outcomes.values().sum();
-    frames.extend((frames.len()..taken).map(|index| FrameTruth {
-        index,
+    frames.extend((frames.len()..taken).map(|_| FrameTruth {
         tracked: None,
         error: None,
     }));

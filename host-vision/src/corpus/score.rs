@@ -32,8 +32,6 @@ impl Bound {
 /// One frame taken, as the score sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameTruth {
-    /// The frame's index in the input.
-    pub index: usize,
     /// Whether the run flagged it tracked (`None`: the run gave it no verdict).
     pub tracked: Option<bool>,
     /// The error of the pose estimated with it against the truth, `(position [m], rotation
@@ -154,12 +152,8 @@ fn report_delays(
 mod tests {
     use super::*;
 
-    fn frame(index: usize, tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
-        FrameTruth {
-            index,
-            tracked,
-            error,
-        }
+    fn frame(_index: usize, tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
+        FrameTruth { tracked, error }
     }
 
     const GOOD: Option<(f64, f64)> = Some((0.01, 1.0));

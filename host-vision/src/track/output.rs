@@ -1080,7 +1080,12 @@ pub(super) fn write_all(
 
     // Frames.
     let rule = record.rule;
-    let by_time: BTreeMap<u64, &protocol::StateReport> = estimates().map(|s| (s.t_us, s)).collect();
+    // Vision-only, each frame's answer by its time (with an IMU the prediction is the pose).
+    let answers: BTreeMap<u64, &protocol::StateReport> = if options.vision_only() {
+        estimates().map(|s| (s.t_us, s)).collect()
+    } else {
+        BTreeMap::new()
+    };
     let mut rows = Vec::with_capacity(record.results.len());
     for (frame_id, r) in &record.results {
         let reports = log.updates.get(frame_id);
@@ -1091,7 +1096,7 @@ pub(super) fn write_all(
         // The pose the frame's verdict is on (docs/VISION.md §10): vision-only, the core's
         // answer to the frame; with an IMU, its prediction, the pose put out at its time.
         let estimate_error = if options.vision_only() {
-            by_time
+            answers
                 .get(&(p.t_us + 1))
                 .and_then(|s| state_errors(dataset, &core_he, stamp_of(p.t_us), s))
                 .map(|e| (e.position_m, e.attitude_deg))
