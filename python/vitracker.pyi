@@ -123,6 +123,11 @@ class Pose:
     @property
     def t(self) -> Optional[float]:
         """Its time [s from the tracker's first frame or sample]; None for a given pose."""
+    @property
+    def covariance(self) -> Optional[npt.NDArray[np.float64]]:
+        """The core's 6×6 covariance of `[position, θ]` [m², rad²]: θ the orientation's error
+        as a rotation vector in the model's frame (docs/VISION.md eq. T6); None for a given
+        pose. Its calibration on the corpus is in the README (`host-vision corpus`)."""
     def tum(self) -> str:
         """The TUM line `t tx ty tz qx qy qz qw` (evo reads a file of them)."""
 
@@ -167,6 +172,11 @@ class FrameReport:
     docs/VISION.md §10); None where it was not analysed (no pose yet, an unusable image)."""
     correspondences: int
     """Correspondences sent to the core (texture features and contour points)."""
+    weak: Optional[str]
+    """Tracked, with one direction pinned down weakly (one σ beyond half the bound a right
+    pose is held to, docs/VISION.md eq. T7): "depth", "sideways", "up-down" (the object's
+    position in the camera), "tilt", "pan", "roll about the view" (its orientation); None
+    where every direction is pinned, and where not tracked."""
     skipped: Optional[str]
     """Why the frame could not be used, where it could not (the tracker went on)."""
 

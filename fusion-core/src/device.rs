@@ -6,7 +6,7 @@ use nalgebra::Vector3;
 use protocol::{
     Capacities, Config, CoreToHost, DecodeError, Decoder, ErrorCode, Health, HostToCore, Init,
     InitAttitude, MAX_CORRESPONDENCES_PER_FRAME, MAX_CORRESPONDENCES_PER_MESSAGE, MAX_FRAME_LEN,
-    Mode, PosePrediction, StateReport, Status, StatusReason, UpdateOutcome, UpdateReport,
+    Mode, PosePrediction, StateReport, Status, StatusReason, Sym6, UpdateOutcome, UpdateReport,
     encode_frame, handshake, sym_index,
 };
 
@@ -818,20 +818,20 @@ impl<T: Kernels> Device<T> {
         }
     }
 
+    /// The configured hand-eye (the identity before a configuration).
+    fn hand_eye(&self) -> state::HandEye<T> {
+        self.prm
+            .as_ref()
+            .map(|p| p.hand_eye)
+            .unwrap_or(state::HandEye {
+                q_cs: quat::identity(),
+                r_cs: nalgebra::Matrix3::identity(),
+                c_s: Vector3::zeros(),
+            })
+    }
+
     fn prediction(&self, frame_id: u32) -> PosePrediction {
-        let prm = self.prm.as_ref();
-        let he = prm.map(|p| p.hand_eye).unwrap_or(state::HandEye {
-            q_cs: quat::identity(),
-            r_cs: nalgebra::Matrix3::identity(),
-            c_s: Vector3::zeros(),
-        });
-        let pose = state::camera_pose(&self.filter.st, &he);
-        let mut cov = [0.0f32; 21];
-        for r in 0..6 {
-            for c in r..6 {
-                cov[sym_index(6, r, c)] = pose.cov[(r, c)].to_wire();
-            }
-        }
+        let pose = state::camera_pose(&self.filter.st, &self.hand_eye());
         PosePrediction {
             frame_id,
             t_us: self.filter.t_us,
@@ -842,7 +842,7 @@ impl<T: Kernels> Device<T> {
                 pose.q_cw[2].to_wire(),
                 pose.q_cw[3].to_wire(),
             ],
-            cov,
+            cov: sym6(&pose.cov),
         }
     }
 
@@ -869,6 +869,7 @@ impl<T: Kernels> Device<T> {
                 residual_lowpass: self.monitor.g.to_wire(),
                 quaternion_norm_error: self.filter.quat_norm_error.to_wire(),
             },
+            cov: sym6(&state::camera_pose(st, &self.hand_eye()).cov),
         }
     }
 
@@ -1092,6 +1093,17 @@ fn hold_non_finite(m: CoreToHost, held: &mut bool, out: Out) {
 fn no_vision_us<T: Scalar>(prm: &Params<T>) -> u64 {
     prm.camera_period_us
         .saturating_mul(u64::from(NO_VISION_FRAMES))
+}
+
+/// A 6×6 covariance's upper triangle for the wire.
+fn sym6<T: Scalar>(m: &nalgebra::SMatrix<T, 6, 6>) -> Sym6 {
+    let mut cov = [0.0f32; 21];
+    for r in 0..6 {
+        for c in r..6 {
+            cov[sym_index(6, r, c)] = m[(r, c)].to_wire();
+        }
+    }
+    cov
 }
 
 /// The first three values of `x` for the wire (read from the state vector in place).

@@ -832,12 +832,21 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
     assert_eq!(sum["imu_used"], false);
     assert!(sum["tracked"]["frames"].as_u64().unwrap() > 20, "{sum}");
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
+    let header = csv.lines().next().unwrap();
     assert!(
-        csv.lines()
-            .next()
-            .unwrap()
-            .ends_with(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome")
+        header.contains(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,")
+            && header.ends_with(",weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome"),
+        "{header}"
     );
+    // Every analysed frame's pose has its covariance, as wide as the header.
+    let rows = frame_rows(&out);
+    let analysed: Vec<_> = rows.iter().filter(|r| r["outcome"] == "analysed").collect();
+    assert!(!analysed.is_empty());
+    for r in &analysed {
+        let sigma: f64 = r["sigma_pos_m"].parse().unwrap();
+        assert!(sigma > 0.0 && sigma < 0.5, "{sigma}");
+        assert!(!r["weakest"].is_empty() && !r["cov_55"].is_empty());
+    }
 
     // An inertial model needs the IMU.
     let out2 = tmp("p18-acc");

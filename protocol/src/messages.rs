@@ -777,6 +777,10 @@ pub struct StateReport {
     pub accel_bias: [f32; 3],
     /// Health figures.
     pub health: Health,
+    /// Covariance of the camera pose this state gives with the configured hand-eye, as
+    /// [`PosePrediction::cov`]: `[c_w, θ]`, θ the rotation error of `q_cw` as a world-frame
+    /// rotation vector [m², rad²] (since 4.0).
+    pub cov: Sym6,
 }
 
 /// Whether a correspondence part was applied.

@@ -239,6 +239,13 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 13] {
                     residual_lowpass: 1.5,
                     quaternion_norm_error: 1e-6,
                 },
+                cov: {
+                    let mut c = [0.0; 21];
+                    for (i, v) in [1e-4, 1e-4, 4e-4, 3e-5, 3e-5, 1e-4].into_iter().enumerate() {
+                        c[crate::sym_index(6, i, i)] = v;
+                    }
+                    c
+                },
             }),
         ),
         (

@@ -66,6 +66,7 @@ impl CoreToHost {
                         s.health.residual_lowpass,
                         s.health.quaternion_norm_error,
                     ])
+                    && all(&s.cov)
             }
             CoreToHost::UpdateReport(u) => all(&u.residuals) && u.prediction_error.is_finite(),
             CoreToHost::RawImu(s) => all(&s.gyro) && all(&s.accel),

@@ -28,4 +28,4 @@ impl Version {
 }
 
 /// The version this crate implements.
-pub const PROTOCOL_VERSION: Version = Version { major: 3, minor: 3 };
+pub const PROTOCOL_VERSION: Version = Version { major: 4, minor: 0 };

@@ -310,25 +310,34 @@ fn core_message() -> impl Strategy<Value = CoreToHost> {
                 })
             }
         ),
-        (any::<u64>(), a::<19>(), a::<6>(), a::<3>(), mode()).prop_map(|(t_us, x, y, h, mode)| {
-            let v3 = |i: usize| [x[i], x[i + 1], x[i + 2]];
-            CoreToHost::State(StateReport {
-                t_us,
-                s_w: v3(0),
-                q_sw: [x[3], x[4], x[5], x[6]],
-                v_w: v3(7),
-                a_w: v3(10),
-                omega_s: v3(13),
-                gyro_bias: v3(16),
-                accel_bias: [y[0], y[1], y[2]],
-                health: Health {
-                    mode,
-                    covariance_frobenius: h[0],
-                    residual_lowpass: h[1],
-                    quaternion_norm_error: h[2],
-                },
-            })
-        }),
+        (
+            any::<u64>(),
+            a::<19>(),
+            a::<6>(),
+            a::<3>(),
+            mode(),
+            a::<21>()
+        )
+            .prop_map(|(t_us, x, y, h, mode, cov)| {
+                let v3 = |i: usize| [x[i], x[i + 1], x[i + 2]];
+                CoreToHost::State(StateReport {
+                    t_us,
+                    s_w: v3(0),
+                    q_sw: [x[3], x[4], x[5], x[6]],
+                    v_w: v3(7),
+                    a_w: v3(10),
+                    omega_s: v3(13),
+                    gyro_bias: v3(16),
+                    accel_bias: [y[0], y[1], y[2]],
+                    health: Health {
+                        mode,
+                        covariance_frobenius: h[0],
+                        residual_lowpass: h[1],
+                        quaternion_norm_error: h[2],
+                    },
+                    cov,
+                })
+            }),
         (
             any::<u32>(),
             any::<u8>(),

@@ -170,6 +170,7 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                     residual_lowpass: 1.0,
                     quaternion_norm_error: 1.0,
                 },
+                cov: [1.0; 21],
             }),
         ),
         (

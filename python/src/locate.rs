@@ -140,7 +140,11 @@ pub fn locate_once(
         })
         .map_err(TrackerError::new_err)?;
     Ok(Located {
-        pose: attempt.pose.map(|camera| Pose { camera, t: None }),
+        pose: attempt.pose.map(|camera| Pose {
+            camera,
+            t: None,
+            cov: None,
+        }),
         keypoints: attempt.keypoints,
         matches: attempt.matches,
         inliers: attempt.inliers,

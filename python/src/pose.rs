@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use camera::CameraPose;
 use camera::start_pose::{cmo_of_pose, pose_of_cmo, read_start_pose};
+use camera::{CameraPose, PoseCovariance};
 use numpy::PyArray1;
 use numpy::PyArray2;
 use pyo3::prelude::*;
@@ -20,6 +20,8 @@ pub struct Pose {
     pub camera: CameraPose,
     /// Its time [s from the first frame or sample], where it is an estimate.
     pub t: Option<f64>,
+    /// The core's covariance of it, where it is an estimate.
+    pub cov: Option<PoseCovariance>,
 }
 
 #[pymethods]
@@ -29,7 +31,11 @@ impl Pose {
     fn new(c_m_o: &Bound<'_, PyAny>) -> PyResult<Self> {
         let m = matrix4_of(c_m_o, "cMo")?;
         let camera = pose_of_cmo(&m).map_err(|e| value_error(format!("start pose: {e}")))?;
-        Ok(Pose { camera, t: None })
+        Ok(Pose {
+            camera,
+            t: None,
+            cov: None,
+        })
     }
 
     /// The 4×4 `cMo` (model → camera).
@@ -56,6 +62,20 @@ impl Pose {
     #[getter]
     fn t(&self) -> Option<f64> {
         self.t
+    }
+
+    /// The core's 6×6 covariance of `[position, θ]` [m², rad²]: `position` as above, θ the
+    /// orientation's error as a rotation vector in the model's frame (docs/VISION.md
+    /// eq. T6); None for a pose that is no estimate.
+    #[getter]
+    fn covariance<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f64>>> {
+        let m = self.cov?;
+        let rows: Vec<Vec<f64>> = m
+            .matrix()
+            .row_iter()
+            .map(|r| r.iter().copied().collect())
+            .collect();
+        PyArray2::from_vec2(py, &rows).ok()
     }
 
     /// The TUM line `t tx ty tz qx qy qz qw` (time 0 where the pose has none).
@@ -96,7 +116,11 @@ impl Pose {
 #[pyfunction]
 pub fn read_pose(path: PathBuf) -> PyResult<Pose> {
     let camera = read_start_pose(&path).map_err(|e| of_start_pose(&path, e))?;
-    Ok(Pose { camera, t: None })
+    Ok(Pose {
+        camera,
+        t: None,
+        cov: None,
+    })
 }
 
 /// The start pose a tracker is given: a [`Pose`], a 4×4 `cMo`, or a start pose file.

@@ -128,6 +128,9 @@ pub struct FrameReport {
     tracked: Option<bool>,
     /// Correspondences sent to the core (2D/3D and contour).
     correspondences: usize,
+    /// Tracked with this direction weakly pinned ("depth", "sideways", "up-down", "tilt",
+    /// "pan", "roll about the view"; docs/VISION.md eq. T7), or None.
+    weak: Option<&'static str>,
     /// Why the frame could not be used, where it could not.
     skipped: Option<String>,
 }
@@ -138,10 +141,15 @@ impl FrameReport {
         match &self.skipped {
             Some(why) => format!("FrameReport(index={}, skipped={why:?})", self.index),
             None => format!(
-                "FrameReport(index={}, t={:.6}, tracked={:?}, correspondences={}, pose={})",
+                "FrameReport(index={}, t={:.6}, tracked={}, weak={}, correspondences={}, pose={})",
                 self.index,
                 self.t,
-                self.tracked,
+                match self.tracked {
+                    Some(true) => "True",
+                    Some(false) => "False",
+                    None => "None",
+                },
+                self.weak.map_or("None".into(), |w| format!("'{w}'")),
                 self.correspondences,
                 self.pose
                     .as_ref()
@@ -225,9 +233,11 @@ impl Tracker {
                     pose: f.pose.map(|camera| Pose {
                         camera,
                         t: Some(f.t_us as f64 * 1e-6),
+                        cov: f.cov,
                     }),
                     tracked: f.tracked,
                     correspondences: f.correspondences,
+                    weak: f.weak.map(|w| w.name()),
                     skipped: None,
                 }),
                 Event::FrameSkipped { index, why } => self.reports.push(FrameReport {
@@ -236,6 +246,7 @@ impl Tracker {
                     pose: None,
                     tracked: None,
                     correspondences: 0,
+                    weak: None,
                     skipped: Some(why),
                 }),
                 Event::Pose(p) => {
@@ -245,6 +256,7 @@ impl Tracker {
                     self.poses.push_back(Pose {
                         camera: p.camera,
                         t: Some(p.t_us as f64 * 1e-6),
+                        cov: p.cov,
                     });
                 }
                 Event::Located { .. } | Event::State(_) => {}
@@ -410,6 +422,7 @@ impl Tracker {
         Ok(self.inner()?.latest().map(|p| Pose {
             camera: p.camera,
             t: Some(p.t_us as f64 * 1e-6),
+            cov: p.cov,
         }))
     }
 

@@ -89,6 +89,16 @@ def test_a_synthetic_imu_dataset_is_tracked_through_push_imu(dataset, filter):
     assert summary["judged"] == len(reports), summary
     assert summary["share"] >= 0.9, summary
     assert all(r.tracked is not None and r.pose is not None for r in reports), reports
+    # Each with the core's covariance (docs/VISION.md eq. T6): 6×6, symmetric, positive
+    # definite; weak directions named only on tracked frames.
+    for r in reports:
+        cov = r.pose.covariance
+        assert cov.shape == (6, 6) and np.allclose(cov, cov.T), cov
+        assert np.linalg.eigvalsh(cov).min() > 0, cov
+        assert r.weak is None or (r.tracked and r.weak in (
+            "depth", "sideways", "up-down", "tilt", "pan", "roll about the view")), r
+    assert all(p.covariance is not None for p in poses)
+    assert vt.Pose(np.eye(4)).covariance is None
     # A pose per sample from the first prediction on, each against the ground truth at its time.
     assert len(poses) >= len(imu_ns) - round(0.31 * rate)
     errors = []

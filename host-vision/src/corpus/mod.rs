@@ -131,12 +131,14 @@ pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
         .map(|r| FrameTruth {
             tracked: r.tracked,
             error: r.estimate_error_m.zip(r.estimate_error_deg),
+            nees: r.nees,
         })
         .collect();
     let taken: usize = run.summary.frame_outcomes.values().sum();
     frames.extend((frames.len()..taken).map(|_| FrameTruth {
         tracked: None,
         error: None,
+        nees: None,
     }));
     frames
 }

@@ -37,6 +37,42 @@ pub struct FrameTruth {
     /// The error of the pose estimated with it against the truth, `(position [m], rotation
     /// [°])`; `None` where it has no pose (not analysed) or no truth.
     pub error: Option<(f64, f64)>,
+    /// That pose's normalised estimation error squared by the core's covariance (eq. T6).
+    pub nees: Option<f64>,
+}
+
+/// χ²₆'s 95 % quantile: a calibrated covariance's NEES lies below it on 95 % of frames.
+pub const CHI2_6_95: f64 = 12.592;
+
+/// How well the core's covariances describe the errors (eq. T6) over a set of frames.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize)]
+pub struct Calibration {
+    /// Frames with a NEES.
+    pub frames: usize,
+    /// Their mean NEES (6 where calibrated).
+    pub mean: f64,
+    /// Their median (5.35 where calibrated).
+    pub median: f64,
+    /// The share below χ²₆'s 95 % quantile (0.95 where calibrated).
+    pub inside_95: f64,
+}
+
+impl Calibration {
+    /// The calibration of these NEES values; `None` without any.
+    pub fn of(values: impl Iterator<Item = f64>) -> Option<Self> {
+        let mut v: Vec<f64> = values.collect();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        let n = v.len() as f64;
+        Some(Calibration {
+            frames: v.len(),
+            mean: v.iter().sum::<f64>() / n,
+            median: v[v.len() / 2],
+            inside_95: v.iter().filter(|&&x| x <= CHI2_6_95).count() as f64 / n,
+        })
+    }
 }
 
 /// A run's verdicts against the truth.
@@ -72,6 +108,10 @@ pub struct Score {
     /// not flagged tracked (0: the first wrong frame was itself not flagged); `None` where
     /// every frame of the stretch was flagged tracked (never reported).
     pub report_delays: Vec<Option<usize>>,
+    /// The covariances' calibration over the frames flagged tracked (what a program uses).
+    pub nees_tracked: Option<Calibration>,
+    /// The same over every frame with a pose.
+    pub nees_all: Option<Calibration>,
 }
 
 impl Score {
@@ -118,6 +158,13 @@ pub fn score(frames: &[FrameTruth], bound: &Bound) -> Score {
     s.recall = share(s.tracked_right, s.right);
     s.success = share(s.right, s.with_truth);
     s.report_delays = report_delays(frames, &is_right);
+    s.nees_tracked = Calibration::of(
+        frames
+            .iter()
+            .filter(|f| f.tracked == Some(true))
+            .filter_map(|f| f.nees),
+    );
+    s.nees_all = Calibration::of(frames.iter().filter_map(|f| f.nees));
     s
 }
 
@@ -153,7 +200,25 @@ mod tests {
     use super::*;
 
     fn frame(_index: usize, tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
-        FrameTruth { tracked, error }
+        FrameTruth {
+            tracked,
+            error,
+            nees: None,
+        }
+    }
+
+    #[test]
+    fn the_calibration_counts_the_frames_inside_the_bound() {
+        let c = Calibration::of([1.0, 5.0, 6.0, 12.0, 40.0].into_iter()).unwrap();
+        assert_eq!((c.frames, c.mean, c.median), (5, 12.8, 6.0));
+        assert!((c.inside_95 - 0.8).abs() < 1e-12);
+        assert_eq!(Calibration::of(std::iter::empty()), None);
+        let mut frames = [frame(0, Some(true), GOOD), frame(1, Some(false), BAD)];
+        frames[0].nees = Some(3.0);
+        frames[1].nees = Some(30.0);
+        let s = score(&frames, &Bound::for_size(1.0));
+        assert_eq!(s.nees_tracked.map(|c| c.frames), Some(1));
+        assert_eq!(s.nees_all.map(|c| c.mean), Some(16.5));
     }
 
     const GOOD: Option<(f64, f64)> = Some((0.01, 1.0));

@@ -44,6 +44,21 @@ pub struct FrameRow {
     pub estimate_error_m: Option<f64>,
     /// The angle [°] of that pose's rotation error.
     pub estimate_error_deg: Option<f64>,
+    /// The largest standard deviation of that pose's camera centre [m], by the core's
+    /// covariance.
+    pub sigma_pos_m: Option<f64>,
+    /// The same of its orientation [°].
+    pub sigma_rot_deg: Option<f64>,
+    /// The direction the covariance pins down least (docs/VISION.md eq. T7).
+    pub weakest: Option<&'static str>,
+    /// Its standard deviation in units of the bound a right pose is held to.
+    pub weakest_sigma: Option<f64>,
+    /// The normalised estimation error squared of that pose against the ground truth
+    /// (eq. T6): χ²₆ where the covariance is calibrated.
+    pub nees: Option<f64>,
+    /// The covariance of `[c_w, θ]`, its upper triangle row by row [m², m·rad, rad²].
+    #[serde(skip)]
+    pub cov: Option<[f64; 21]>,
     /// Rendering [ms].
     pub render_ms: f64,
     /// Pyramids [ms].

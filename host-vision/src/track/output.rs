@@ -840,6 +840,36 @@ fn camera_error(dataset: &Dataset, stamp: u64, p: &protocol::PosePrediction) -> 
     ))
 }
 
+/// The pose a frame's verdict is on, with the core's covariance of it (docs/VISION.md §10):
+/// vision-only the core's answer to the frame (`answer`, the state just after it), with an IMU
+/// its prediction `p`, the pose put out at its time.
+fn verdict_pose(
+    p: &protocol::PosePrediction,
+    answer: Option<&protocol::StateReport>,
+    vision_only: bool,
+    core_he: &HandEye,
+) -> Option<(camera::CameraPose, Option<camera::PoseCovariance>)> {
+    if vision_only {
+        let s = answer?;
+        let (c_w, q_wc) = camera_of_state(s, core_he);
+        let pose = camera::CameraPose {
+            q_cw: q_wc.inverse(),
+            c_w,
+        };
+        Some((pose, camera::PoseCovariance::from_upper(&s.cov)))
+    } else {
+        let pose = vision::prediction_pose(p).ok()?;
+        Some((pose, camera::PoseCovariance::from_upper(&p.cov)))
+    }
+}
+
+/// The camera's true pose at `stamp` [ns], where the dataset has ground truth.
+fn true_camera(dataset: &Dataset, stamp: u64) -> Option<camera::CameraPose> {
+    let (p, q) = dataset.groundtruth_at(stamp)?;
+    let (c_w, q_cw) = dataset.hand_eye.camera_pose(&p, &q);
+    Some(camera::CameraPose { q_cw, c_w })
+}
+
 /// Writes `(stamp ns, position, q_wc)` rows as a TUM trajectory. Each of `gaps`, `(stamp ns
 /// of its start, what)`, is marked by a comment line where it falls (a TUM reader such as
 /// `evo` skips comments).
@@ -949,7 +979,7 @@ pub(super) struct Seen<'a> {
 }
 
 /// The columns of `frames.csv`.
-const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,outcome";
+const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,sigma_pos_m,sigma_rot_deg,weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome";
 
 /// A line of `frames.csv`.
 enum FrameLine<'a> {
@@ -1093,16 +1123,24 @@ pub(super) fn write_all(
         let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
         let p = &r.job.prediction;
         let position_error_m = camera_error(dataset, r.job.stamp, p).map(|e| e.0);
-        // The pose the frame's verdict is on (docs/VISION.md §10): vision-only, the core's
-        // answer to the frame; with an IMU, its prediction, the pose put out at its time.
-        let estimate_error = if options.vision_only() {
-            answers
-                .get(&(p.t_us + 1))
-                .and_then(|s| state_errors(dataset, &core_he, stamp_of(p.t_us), s))
-                .map(|e| (e.position_m, e.attitude_deg))
-        } else {
-            camera_error(dataset, r.job.stamp, p)
-        };
+        // The pose the frame's verdict is on, its error and its covariance's calibration
+        // against the truth (docs/VISION.md §10, eq. T6).
+        let verdict = verdict_pose(
+            p,
+            answers.get(&(p.t_us + 1)).copied(),
+            options.vision_only(),
+            &core_he,
+        );
+        let truth = true_camera(dataset, stamp_of(p.t_us));
+        let estimate_error = verdict.zip(truth).map(|((e, _), t)| {
+            (
+                (e.c_w - t.c_w).norm(),
+                t.q_cw.angle_to(&e.q_cw).to_degrees(),
+            )
+        });
+        let cov = verdict.and_then(|(_, c)| c);
+        let weakest = verdict.and_then(|(pose, c)| Some(record.weakest(&pose, &c?)));
+        let nees = verdict.zip(truth).and_then(|((e, c), t)| c?.nees(&e, &t));
         let judged = record.assessments.get(frame_id);
         let tracked = record.tracked(*frame_id);
         let latency = record.latency.frames.get(&r.job.index);
@@ -1137,6 +1175,12 @@ pub(super) fn write_all(
             position_error_m,
             estimate_error_m: estimate_error.map(|e| e.0),
             estimate_error_deg: estimate_error.map(|e| e.1),
+            sigma_pos_m: cov.map(|c| c.position_sigma_m()),
+            sigma_rot_deg: cov.map(|c| c.rotation_sigma_rad().to_degrees()),
+            weakest: weakest.map(|w| w.name()),
+            weakest_sigma: weakest.map(|w| w.sigma),
+            nees,
+            cov: cov.map(|c| c.upper()),
             render_ms: r.times.render * 1e3,
             pyramids_ms: r.times.pyramids * 1e3,
             klt_ms: r.times.klt * 1e3,
@@ -1162,7 +1206,7 @@ pub(super) fn write_all(
             };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1197,6 +1241,16 @@ pub(super) fn write_all(
                 ms(r.sent_ms),
                 ms(r.pose_ms),
                 r.dropped_before,
+                o(r.sigma_pos_m),
+                o(r.sigma_rot_deg),
+                r.weakest.unwrap_or_default(),
+                o(r.weakest_sigma),
+                o(r.nees),
+                r.cov.map_or(",".repeat(20), |c| c
+                    .iter()
+                    .map(|v| format!("{v:.6e}"))
+                    .collect::<Vec<_>>()
+                    .join(",")),
                 Fate::Analysed.name()
             )
             .map_err(&e)?;

@@ -15,6 +15,7 @@ mod intrinsics;
 mod pinhole;
 mod pose;
 pub mod start_pose;
+mod uncertainty;
 mod undistort_map;
 
 pub use calib::{
@@ -26,6 +27,7 @@ pub use frame_file::{decode_frame, read_frame};
 pub use intrinsics::{parse_camera_json, parse_intrinsics, pinhole_camera, read_camera_json};
 pub use pinhole::Pinhole;
 pub use pose::CameraPose;
+pub use uncertainty::{Motion, PoseCovariance, WeakDirection};
 pub use undistort_map::{Gray32FImage, UndistortMap};
 
 use nalgebra::{Vector2, Vector3};

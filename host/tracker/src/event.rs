@@ -1,7 +1,7 @@
 //! What the tracker tells ([`crate::Tracker::poll`]): poses, frames' outcomes, searches'
 //! answers and its state.
 
-use camera::CameraPose;
+use camera::{CameraPose, PoseCovariance, WeakDirection};
 use protocol::Mode;
 
 /// Where the tracker stands (M3T's detecting, starting and tracking, with the loss).
@@ -26,6 +26,9 @@ pub struct Pose {
     pub camera: CameraPose,
     /// The core's mode then.
     pub mode: Option<Mode>,
+    /// Its covariance (`[c_w, θ]`, docs/VISION.md eq. T6); `None` where the core's was not
+    /// a covariance (never from a working core).
+    pub cov: Option<PoseCovariance>,
 }
 
 /// What one frame gave.
@@ -46,6 +49,12 @@ pub struct FrameReport {
     pub tracked: Option<bool>,
     /// Correspondences sent to the core, of both kinds (2D/3D and contour).
     pub correspondences: usize,
+    /// The covariance of `pose` (`[c_w, θ]`, docs/VISION.md eq. T6).
+    pub cov: Option<PoseCovariance>,
+    /// Tracked, with this direction pinned down weakly: its σ is more than half the bound
+    /// a right pose is held to (eq. T7). `None` where tracked with every direction pinned,
+    /// and where not tracked.
+    pub weak: Option<WeakDirection>,
 }
 
 /// What the tracker tells, in order ([`crate::Tracker::poll`]).

@@ -4,6 +4,7 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
+use camera::{CameraPose, PoseCovariance, WeakDirection};
 use nalgebra::Vector3;
 use serde::Serialize;
 use vision::{Assessment, FrameResult, TrackedRule};
@@ -130,6 +131,30 @@ impl Record {
     pub fn push_result(&mut self, frame_id: u32, result: FrameResult) {
         self.settle(result.job.index, Fate::Analysed);
         self.results.push((frame_id, result));
+    }
+
+    /// The direction `pose`, of covariance `cov`, is pinned down least, in units of the
+    /// rule's bounds, about the model's centre (docs/VISION.md eq. T7).
+    pub fn weakest(&self, pose: &CameraPose, cov: &PoseCovariance) -> WeakDirection {
+        let rule = &self.rule;
+        cov.weakest(
+            pose,
+            &self.axes.0,
+            rule.max_offset_m,
+            rule.max_offset_deg.to_radians(),
+        )
+    }
+
+    /// A tracked pose's weak direction: its weakest, where that exceeds the rule's
+    /// `weak_sigma` (eq. T7).
+    pub fn weak(
+        &self,
+        pose: &CameraPose,
+        cov: Option<&PoseCovariance>,
+        tracked: bool,
+    ) -> Option<WeakDirection> {
+        let w = self.weakest(pose, cov.filter(|_| tracked)?);
+        (w.sigma > self.rule.weak_sigma).then_some(w)
     }
 
     /// Seconds since the run started.

@@ -218,6 +218,10 @@ pub struct TrackedRule {
     pub max_offset_m: f64,
     /// The same of the rotation [°].
     pub max_offset_deg: f64,
+    /// A tracked pose whose weakest direction's standard deviation exceeds this share of the
+    /// bound (`max_offset_m`, `max_offset_deg`) is tracked with that direction named weak
+    /// (eq. T7).
+    pub weak_sigma: f64,
 }
 
 impl Default for TrackedRule {
@@ -237,6 +241,7 @@ impl Default for TrackedRule {
     /// eq. K10: two of them within the 5 cm and 5° a right pose is held to), and the track be
     /// confirmed (eq. K9). A prediction judged at its registrations' fit must lie within
     /// 5 cm and 5° of it (eq. T4): RBOT's success bound, which the pose put out is held to.
+    /// A direction whose σ is half the bound or more is weak: two σ span the bound (eq. T7).
     fn default() -> Self {
         TrackedRule {
             max_rms_px: 1.5,
@@ -252,6 +257,7 @@ impl Default for TrackedRule {
             confirm_frames: 2,
             max_offset_m: 0.05,
             max_offset_deg: 5.0,
+            weak_sigma: 0.5,
         }
     }
 }

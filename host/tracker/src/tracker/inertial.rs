@@ -490,6 +490,11 @@ impl<T: CoreTransport> Tracker<T> {
                 .map(|a| (a, vision::prediction_pose(&r.job.prediction))),
             Err(_) => None,
         };
+        // The prediction's covariance: the pose put out at the frame's time.
+        let cov = result
+            .as_ref()
+            .ok()
+            .and_then(|r| camera::PoseCovariance::from_upper(&r.job.prediction.cov));
         self.record
             .deliver(&mut self.core, (p.frame_id, p.index), p.trigger_us, result)?;
         if ok {
@@ -510,12 +515,18 @@ impl<T: CoreTransport> Tracker<T> {
             }
             _ => (None, None),
         };
+        let cov = pose.and(cov);
+        let weak = pose
+            .zip(tracked)
+            .and_then(|(pose, t)| self.record.weak(&pose, cov.as_ref(), t));
         self.events.push_back(Event::Frame(FrameReport {
             index: p.index,
             t_us: p.trigger_us,
             pose,
             tracked,
             correspondences,
+            cov,
+            weak,
         }));
         Ok(())
     }

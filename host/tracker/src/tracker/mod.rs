@@ -70,6 +70,8 @@ pub struct Judged {
     pub tracked: bool,
     /// The frame's id at the core.
     pub frame_id: u32,
+    /// The pose's covariance.
+    pub cov: Option<camera::PoseCovariance>,
 }
 
 /// A search on the search thread: its frame's index and time [µs], and since when the model
@@ -598,6 +600,7 @@ impl<T: CoreTransport> Tracker<T> {
             return Ok(None);
         };
         let pose = pose_of_state(s);
+        let cov = camera::PoseCovariance::from_upper(&s.cov);
         // Which correspondences the core applied: its reports' residuals, part by part in
         // the order sent, within the gate.
         let mut reports = self
@@ -622,6 +625,7 @@ impl<T: CoreTransport> Tracker<T> {
             pose,
             tracked,
             frame_id: p.frame_id,
+            cov,
         }))
     }
 
@@ -669,6 +673,8 @@ impl<T: CoreTransport> Tracker<T> {
             pose: judged.map(|j| j.pose),
             tracked: judged.map(|j| j.tracked),
             correspondences,
+            cov: judged.and_then(|j| j.cov),
+            weak: judged.and_then(|j| self.record.weak(&j.pose, j.cov.as_ref(), j.tracked)),
         }));
     }
 
@@ -842,6 +848,7 @@ impl<T: CoreTransport> Tracker<T> {
                     c_w,
                 },
                 mode: log.mode(),
+                cov: camera::PoseCovariance::from_upper(&s.cov),
             };
             self.latest = Some(pose);
             self.events.push_back(Event::Pose(pose));
