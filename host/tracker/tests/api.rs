@@ -232,3 +232,54 @@ fn relocate_sends_a_search_at_the_next_frame() {
     done.result.unwrap();
     assert_eq!(done.record.recoveries.len(), 1);
 }
+
+/// Issue 56: with an IMU the state follows the frames' verdicts, as vision-only: frames that
+/// hold no model are never tracked, so the tracker never says "tracking" however the core's
+/// filter runs, and is lost half a second after its first frame; every frame it analysed
+/// comes with its pose's covariance.
+#[test]
+fn with_an_imu_frames_never_tracked_never_make_the_state_tracking() {
+    let cache = tempfile::tempdir().unwrap();
+    let model = model::procedural::test_scene();
+    let mut c = config(cache.path());
+    c.model = protocol::ModelKind::Acc;
+    c.rig = tracker::Rig {
+        imu_rate_hz: 200.0,
+        imu_noise: None,
+        camera_rate_hz: Some(25.0),
+        hand_eye: tracker::HandEye::IDENTITY,
+    };
+    let mut t = Tracker::new(c, &model, inproc()).unwrap();
+    let mut states = Vec::new();
+    let mut reports = Vec::new();
+    // 2 s of an IMU at rest, a frame every 8th sample.
+    for k in 0..400u64 {
+        let t_ns = k * 5_000_000;
+        if k % 8 == 0 {
+            t.push_frame(frame((k / 8) as usize, (t_ns / 1_000_000) as i64, 320, 240))
+                .unwrap();
+        }
+        t.push_imu(tracker::ImuSample {
+            t_ns,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+        })
+        .unwrap();
+        states.push(t.state());
+        reports.extend(t.poll().filter_map(|e| match e {
+            tracker::Event::Frame(f) => Some(f),
+            _ => None,
+        }));
+    }
+    assert!(!states.contains(&State::Tracking), "{states:?}");
+    assert_eq!(states.last(), Some(&State::Lost));
+    assert!(reports.len() > 30, "{} frames reported", reports.len());
+    for f in &reports {
+        assert_ne!(f.tracked, Some(true), "{f:?}");
+        assert_eq!(f.weak, None, "{f:?}");
+        if f.pose.is_some() {
+            assert!(f.cov.is_some(), "{f:?}");
+        }
+    }
+    t.finish().result.unwrap();
+}

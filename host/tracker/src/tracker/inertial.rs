@@ -515,6 +515,10 @@ impl<T: CoreTransport> Tracker<T> {
             }
             _ => (None, None),
         };
+        // The verdicts drive the state as in vision-only runs (docs/VISION.md §10): a frame
+        // not judged tracked counts against the model.
+        self.loss.frame(tracked == Some(true), p.trigger_us);
+        self.tracked_since_start |= tracked == Some(true);
         let cov = pose.and(cov);
         let weak = pose
             .zip(tracked)
@@ -626,17 +630,23 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// The state after a sample at `t_us`: locating until the cold start found the model;
-    /// lost while the loss rule says so; tracking while the core tracks (or dead-reckons a
-    /// short stretch); starting before.
+    /// lost while a loss rule says so (the search's, by the core's mode; the verdicts', after
+    /// a divergence or half a second of frames not tracked, until a frame is tracked again);
+    /// tracking while the core tracks (or dead-reckons a short stretch) after a tracked
+    /// frame; starting before.
     pub(crate) fn judge_inertial(&mut self, t_us: u64) {
+        self.loss.note_statuses(&self.record.log.statuses, t_us);
         let mode = self.record.log.mode();
         let searching = self.inertial.as_ref().and_then(|i| i.searcher.as_ref());
         let state = match searching.map(|s| (s.started(), s.lost(t_us))) {
             Some((false, _)) => State::Locating,
             Some((true, true)) => State::Lost,
             _ => match mode {
-                Some(Mode::Tracking | Mode::DeadReckoning) => State::Tracking,
                 Some(Mode::Diverged) => State::Lost,
+                _ if self.loss.lost(t_us) => State::Lost,
+                Some(Mode::Tracking | Mode::DeadReckoning) if self.tracked_since_start => {
+                    State::Tracking
+                }
                 _ if self.state == State::Tracking => State::Lost,
                 _ => State::Starting,
             },
