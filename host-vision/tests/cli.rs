@@ -834,7 +834,7 @@ fn p18_inputs_without_an_imu_are_tracked_vision_only() {
     let csv = std::fs::read_to_string(out.join("frames.csv")).unwrap();
     let header = csv.lines().next().unwrap();
     assert!(
-        header.contains(",rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,")
+        header.contains(",rms_px,consistency,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,")
             && header.ends_with(",weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome"),
         "{header}"
     );

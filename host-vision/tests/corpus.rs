@@ -78,6 +78,23 @@ fn the_quick_corpus_table_is_what_its_runs_wrote_and_no_tracked_frame_is_far_off
             .map(|v| v.as_u64().unwrap())
             .sum();
         assert_eq!(n("frames") as u64, taken, "{scene} {filter}");
+        // Its covariances' calibration is that of the NEES in its frames.csv, one for every
+        // frame with an error against the truth (eq. T6).
+        let rows = frame_rows(&out.join(scene).join(filter));
+        let nees: Vec<f64> = rows.iter().filter_map(|r| r["nees"].parse().ok()).collect();
+        let errors = rows
+            .iter()
+            .filter(|r| !r["estimate_error_m"].is_empty())
+            .count();
+        assert_eq!(nees.len(), errors, "{scene} {filter}");
+        let all = &c["nees_all"];
+        assert_eq!(all["frames"].as_u64().unwrap() as usize, nees.len());
+        let mean = nees.iter().sum::<f64>() / nees.len() as f64;
+        let reported = all["mean"].as_f64().unwrap();
+        assert!(
+            (mean - reported).abs() <= 1e-3 * reported.max(1.0),
+            "{scene} {filter}: NEES mean {mean} against {reported}"
+        );
         if n("tracked_far") > 0 {
             far.push(format!("{scene} {filter}: {c}"));
         }

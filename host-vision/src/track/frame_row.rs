@@ -70,6 +70,9 @@ pub struct FrameRow {
     /// Reprojection rms [px] of the registered features at the pose estimated with this
     /// frame (vision-only runs; [`super::assess`]).
     pub rms_px: Option<f64>,
+    /// Eq. T8's χ² of the registrations at the pose judged, over its 0.999 quantile (at most 1
+    /// to pass).
+    pub consistency: Option<f64>,
     /// Rendered-vs-live correlation over the model's mask at that pose (vision-only runs).
     pub ncc: Option<f64>,
     /// The applied contour correspondences' rms along the normals at that pose [px].

@@ -609,12 +609,13 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {:.2} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features, their residuals' χ² by their covariances below its quantile at z = {}, and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {:.2} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,
                 t.rule.max_rms_px,
                 t.rule.min_features,
+                t.rule.consistency_z,
                 t.rule.min_ncc,
                 t.rule.max_contour_rms_px,
                 t.rule.min_contours,
@@ -979,7 +980,7 @@ pub(super) struct Seen<'a> {
 }
 
 /// The columns of `frames.csv`.
-const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,sigma_pos_m,sigma_rot_deg,weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome";
+const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,consistency,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,sigma_pos_m,sigma_rot_deg,weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome";
 
 /// A line of `frames.csv`.
 enum FrameLine<'a> {
@@ -1150,6 +1151,9 @@ pub(super) fn write_all(
             pose_ms: latency.and_then(|l| l.pose_ms),
             dropped_before: latency.map_or(0, |l| l.dropped_before),
             rms_px: judged.and_then(|a| a.rms_px),
+            consistency: judged
+                .and_then(|a| a.consistency)
+                .map(|c| c.ratio(rule.consistency_z)),
             ncc: judged.and_then(|a| a.ncc),
             contour_rms_px: judged.and_then(|a| a.contour_rms_px),
             contour_sigma_m: judged.and_then(|a| a.contour_spread).map(|s| s[0]),
@@ -1206,7 +1210,7 @@ pub(super) fn write_all(
             };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1233,6 +1237,7 @@ pub(super) fn write_all(
                 o(r.contour_sigma_m),
                 o(r.contour_sigma_deg),
                 o(r.rms_px),
+                o(r.consistency),
                 o(r.ncc),
                 r.tracked
                     .map(|t| if t { "1" } else { "0" })

@@ -24,7 +24,10 @@ use model::Model;
 use render::{RenderView, Renderer};
 
 use crate::VisionError;
-use crate::assess::{Assessment, Contrast, contrast, masked_ncc, reprojection_rms};
+use crate::assess::{
+    Assessment, Contrast, RegistrationCov, contrast, masked_ncc, registration_chi2,
+    reprojection_rms,
+};
 use crate::contours::{ContourFrame, ContourState, Modality};
 
 /// Image-analysis parameters.
@@ -206,6 +209,8 @@ struct LastFrame {
     live: GrayImage,
     /// Registered pixel and model point of each correspondence sent, in the order sent.
     registered: Vec<Registration>,
+    /// Their covariances: the registration's [px²] and the model point's [m²].
+    registered_cov: Vec<RegistrationCov>,
     /// The contour measurements sent, in the order sent (after the correspondences).
     contours: Vec<contour::ContourMeasurement>,
 }
@@ -332,6 +337,14 @@ impl Vision {
             .map(|(r, _)| *r)
             .collect();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
+        let used_cov: Vec<RegistrationCov> = last
+            .registered_cov
+            .iter()
+            .zip(applied_points)
+            .filter(|(_, a)| **a)
+            .map(|(c, _)| *c)
+            .collect();
+        let consistency = registration_chi2(&self.ideal, pose, &used, &used_cov);
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
         let contour = if self.options.modality.contour() {
             let live = GrayF32::from_gray8(&last.live)?;
@@ -357,6 +370,7 @@ impl Vision {
             contour_spread: contour.spread,
             silhouette: contour.silhouette,
             prediction_offset: None,
+            consistency,
         })
     }
 
@@ -533,10 +547,11 @@ impl Vision {
         pose: &CameraPose,
         omega_c: Option<&Vector3<f64>>,
         frame_index: u64,
-        (features, correspondences, registered): (
+        (features, correspondences, registered, registered_cov): (
             &mut Vec<FeatureOutcome>,
             &mut Vec<Correspondence>,
             &mut Vec<Registration>,
+            &mut Vec<RegistrationCov>,
         ),
     ) -> (f64, usize) {
         let mut error_sum = 0.0;
@@ -571,6 +586,7 @@ impl Vision {
                             Ok(c) => {
                                 correspondences.push(c);
                                 registered.push((px, feature.p_w));
+                                registered_cov.push((cov, feature.cov_w));
                                 true
                             }
                             Err(_) => false,
@@ -811,6 +827,7 @@ impl Vision {
         self.last = Some(LastFrame {
             live,
             registered: texture.registered,
+            registered_cov: texture.registered_cov,
             contours: contours.measurements,
         });
         self.rendering = Some(rendering);
@@ -909,6 +926,7 @@ impl Vision {
                     &mut out.features,
                     &mut out.correspondences,
                     &mut out.registered,
+                    &mut out.registered_cov,
                 ),
             );
             times.klt = t.elapsed().as_secs_f64();
@@ -927,6 +945,8 @@ struct TextureStep {
     features: Vec<FeatureOutcome>,
     correspondences: Vec<Correspondence>,
     registered: Vec<Registration>,
+    /// Their covariances, as [`LastFrame::registered_cov`].
+    registered_cov: Vec<RegistrationCov>,
     /// Sum and count of the registrations' distances from their predictions [px].
     error_sum: f64,
     error_count: usize,

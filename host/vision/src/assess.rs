@@ -48,6 +48,80 @@ pub struct Assessment {
     /// [`crate::Vision::process_judged`]): how far the prediction is from it, position [m]
     /// and rotation [rad] (eq. T4).
     pub prediction_offset: Option<[f64; 2]>,
+    /// The registrations' residuals at the pose weighed by their own covariances (eq. T8):
+    /// `χ²` and its degrees of freedom `2n − 6`; `None` with fewer than 4.
+    pub consistency: Option<Consistency>,
+}
+
+/// A registration's covariance [px²] and its model point's [m²].
+pub type RegistrationCov = (nalgebra::Matrix2<f64>, nalgebra::Matrix3<f64>);
+
+/// Eq. T8's statistic of a frame's registrations at a pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Consistency {
+    /// `Σ rᵢᵀ Sᵢ⁻¹ rᵢ`.
+    pub chi2: f64,
+    /// `2n − 6`.
+    pub dof: usize,
+}
+
+impl Consistency {
+    /// `χ²` over its quantile `p` at its degrees of freedom: at most 1 where the residuals are
+    /// what the covariances say they may be, to that confidence.
+    pub fn ratio(&self, p_z: f64) -> f64 {
+        self.chi2 / chi2_quantile(self.dof as f64, p_z)
+    }
+}
+
+/// χ²'s quantile at `k` degrees of freedom and standard-normal quantile `z` (Wilson–Hilferty:
+/// within a few per cent from `k` = 2, the closer the larger `k`).
+pub fn chi2_quantile(k: f64, z: f64) -> f64 {
+    let a = 2.0 / (9.0 * k);
+    k * (1.0 - a + z * a.sqrt()).powi(3).max(0.0)
+}
+
+/// Eq. T8: the residuals `rᵢ` of `registered` (pixel, model point) at `pose`, each weighed by
+/// its registration's covariance `Cᵢ` [px²] and its model point's `Pᵢ` [m²] projected there,
+/// `Sᵢ = Cᵢ + Jᵢ Pᵢ Jᵢᵀ` (`Jᵢ = ∂π/∂p_w`): `χ² = Σ rᵢᵀ Sᵢ⁻¹ rᵢ` over the points in front of
+/// the camera, with `2n − 6` degrees of freedom (the pose's six fitted). `None` below 4 points.
+pub fn registration_chi2(
+    camera: &Camera,
+    pose: &CameraPose,
+    registered: &[Registration],
+    cov: &[RegistrationCov],
+) -> Option<Consistency> {
+    let r_cw = pose.q_cw.to_rotation_matrix().into_inner();
+    let (fx, fy) = (camera.pinhole.fx, camera.pinhole.fy);
+    let mut chi2 = 0.0;
+    let mut n = 0usize;
+    for ((px, p_w), (c_px, c_w)) in registered.iter().zip(cov) {
+        let p_c = pose.world_to_camera(p_w);
+        let Some(proj) = camera.project(p_c) else {
+            continue;
+        };
+        // ∂π/∂p_c of the ideal pinhole (skew aside: its share is below a thousandth).
+        let z = p_c.z;
+        let j_c = nalgebra::Matrix2x3::new(
+            fx / z,
+            0.0,
+            -fx * p_c.x / (z * z),
+            0.0,
+            fy / z,
+            -fy * p_c.y / (z * z),
+        );
+        let j = j_c * r_cw;
+        let s = c_px + j * c_w * j.transpose();
+        let Some(s_inv) = s.try_inverse() else {
+            continue;
+        };
+        let r = px - proj;
+        chi2 += (r.transpose() * s_inv * r)[(0, 0)];
+        n += 1;
+    }
+    (n >= 4 && chi2.is_finite()).then(|| Consistency {
+        chi2,
+        dof: 2 * n - 6,
+    })
 }
 
 /// Fewest model pixels for a correlation worth reporting (a model a few pixels wide says
@@ -222,6 +296,9 @@ pub struct TrackedRule {
     /// bound (`max_offset_m`, `max_offset_deg`) is tracked with that direction named weak
     /// (eq. T7).
     pub weak_sigma: f64,
+    /// The registrations' residuals must be what their covariances allow to this
+    /// standard-normal quantile of eq. T8's χ² (3.09: 0.999).
+    pub consistency_z: f64,
 }
 
 impl Default for TrackedRule {
@@ -258,6 +335,7 @@ impl Default for TrackedRule {
             max_offset_m: 0.05,
             max_offset_deg: 5.0,
             weak_sigma: 0.5,
+            consistency_z: 3.09,
         }
     }
 }
@@ -284,6 +362,8 @@ impl TrackedRule {
     pub fn holds(&self, a: &Assessment) -> bool {
         if self.by_features(a) {
             a.rms_px.is_some_and(|r| r <= self.max_rms_px)
+                && a.consistency
+                    .is_none_or(|c| c.ratio(self.consistency_z) <= 1.0)
                 && a.ncc.is_some_and(|c| c >= self.min_ncc)
                 && a.prediction_offset.is_none_or(|[m, rad]| {
                     m <= self.max_offset_m && rad.to_degrees() <= self.max_offset_deg
@@ -446,6 +526,77 @@ mod tests {
             ),
             Contrast::default()
         );
+    }
+
+    #[test]
+    fn eq_t8_weighs_each_residual_by_its_own_covariance() {
+        use nalgebra::{Matrix2, Matrix3};
+        let camera = pinhole_camera(640, 480, Pinhole::new(500.0, 500.0, 320.0, 240.0)).unwrap();
+        let pose = CameraPose {
+            q_cw: UnitQuaternion::identity(),
+            c_w: Vector3::zeros(),
+        };
+        let point = |k: usize| Vector3::new(0.05 * k as f64 - 0.2, 0.03 * (k % 3) as f64, 1.0);
+        // Residuals of exactly one σ along x: χ² = n for n points, whatever each σ is.
+        let sigmas = [0.1, 0.3, 1.0, 0.2, 0.5, 2.0, 0.7, 0.4];
+        let (registered, cov): (Vec<Registration>, Vec<_>) = sigmas
+            .iter()
+            .enumerate()
+            .map(|(k, &s)| {
+                let p = point(k);
+                let px = camera.project(p).unwrap() + Vector2::new(s, 0.0);
+                ((px, p), (Matrix2::identity() * (s * s), Matrix3::zeros()))
+            })
+            .unzip();
+        let c = registration_chi2(&camera, &pose, &registered, &cov).unwrap();
+        assert!((c.chi2 - 8.0).abs() < 1e-9, "{c:?}");
+        assert_eq!(c.dof, 10);
+        // 8 at 10 degrees of freedom is well inside the 0.999 quantile (29.6); ten times the
+        // residuals is far outside.
+        assert!(c.ratio(3.09) < 0.3, "{}", c.ratio(3.09));
+        assert!((chi2_quantile(10.0, 3.09) - 29.59).abs() < 0.5);
+        let far: Vec<Registration> = registered
+            .iter()
+            .zip(&sigmas)
+            .map(|((px, p), s)| (px + Vector2::new(9.0 * s, 0.0), *p))
+            .collect();
+        let c = registration_chi2(&camera, &pose, &far, &cov).unwrap();
+        assert!(c.ratio(3.09) > 10.0, "{}", c.ratio(3.09));
+        // A model point's covariance along the image widens its residual's allowance.
+        let loose: Vec<_> = cov
+            .iter()
+            .map(|(c_px, _)| (*c_px, Matrix3::identity() * 1e-4))
+            .collect();
+        let c_loose = registration_chi2(&camera, &pose, &far, &loose).unwrap();
+        assert!(c_loose.chi2 < 0.2 * c.chi2, "{} {}", c_loose.chi2, c.chi2);
+        // Fewer than 4 points: no statistic (and no degrees of freedom below zero).
+        for n in 0..4 {
+            assert_eq!(
+                registration_chi2(&camera, &pose, &registered[..n], &cov[..n]),
+                None
+            );
+        }
+        // The rule refuses a frame whose residuals its covariances cannot explain.
+        let rule = TrackedRule::default();
+        let a = Assessment {
+            features: 12,
+            rms_px: Some(1.0),
+            ncc: Some(0.5),
+            consistency: Some(Consistency {
+                chi2: 300.0,
+                dof: 18,
+            }),
+            ..Assessment::default()
+        };
+        assert!(!rule.holds(&a));
+        let a = Assessment {
+            consistency: Some(Consistency {
+                chi2: 18.0,
+                dof: 18,
+            }),
+            ..a
+        };
+        assert!(rule.holds(&a));
     }
 
     #[test]

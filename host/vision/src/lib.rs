@@ -16,7 +16,10 @@ pub mod contours;
 pub use analysis::{
     FrameImage, FrameJob, FrameResult, Verified, Vision, VisionOptions, prediction_pose,
 };
-pub use assess::{Assessment, Contrast, TrackedRule, Verdicts, success_bound_m};
+pub use assess::{
+    Assessment, Consistency, Contrast, RegistrationCov, TrackedRule, Verdicts, registration_chi2,
+    success_bound_m,
+};
 pub use contours::{Modality, is_textured};
 
 use std::path::PathBuf;
