@@ -1,7 +1,7 @@
 //! The Python module's part of `cargo xtask test`: a virtual environment of its own
 //! (`target/python-venv`) with the packages of `python/requirements-test.txt` from the package
-//! registry; the wheel built with maturin (profile `wheel`: the test profile's settings),
-//! installed there, and the module's tests run with pytest against the Rust programs the test
+//! registry; the wheel built with maturin in the dev profile (the test profile's settings: the
+//! crates the test build compiled are reused), installed there, and the module's tests run with pytest against the Rust programs the test
 //! build made (the `track_video` example, `host-vision`).
 
 use std::path::PathBuf;
@@ -94,7 +94,7 @@ pub fn test(steps: &mut Steps, messages: &str) -> Result<(), String> {
             "-m",
             "python/Cargo.toml",
             "--profile",
-            "wheel",
+            "dev",
         ])
         .arg("--interpreter")
         .arg(&python)
