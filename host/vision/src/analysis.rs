@@ -329,21 +329,15 @@ impl Vision {
         };
         let points = last.registered.len();
         let (applied_points, applied_contours) = applied.split_at(points.min(applied.len()));
-        let used: Vec<Registration> = last
+        let (used, used_cov): (Vec<Registration>, Vec<RegistrationCov>) = last
             .registered
             .iter()
+            .zip(&last.registered_cov)
             .zip(applied_points)
             .filter(|(_, a)| **a)
-            .map(|(r, _)| *r)
-            .collect();
+            .map(|((r, c), _)| (*r, *c))
+            .unzip();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
-        let used_cov: Vec<RegistrationCov> = last
-            .registered_cov
-            .iter()
-            .zip(applied_points)
-            .filter(|(_, a)| **a)
-            .map(|(c, _)| *c)
-            .collect();
         let consistency = registration_chi2(&self.ideal, pose, &used, &used_cov);
         let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
         let contour = if self.options.modality.contour() {
