@@ -12,17 +12,12 @@ use protocol::ModelKind;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use rand_distr::{Distribution, StandardNormal};
+use vision::assess::chi2_quantile;
 
 const RATE: f64 = 200.0;
 const CAMERA_EVERY: usize = 8;
 const PIXEL_SIGMA: f64 = 1.0;
 const FOCAL: f64 = 277.0;
-
-/// χ²_k quantile by the Wilson–Hilferty approximation (accurate for k ≳ 30).
-fn chi2_quantile(k: f64, z: f64) -> f64 {
-    let a = 2.0 / (9.0 * k);
-    k * (1.0 - a + z * a.sqrt()).powi(3)
-}
 
 fn gauss(rng: &mut StdRng) -> f64 {
     StandardNormal.sample(rng)

@@ -199,7 +199,7 @@ fn report_delays(
 mod tests {
     use super::*;
 
-    fn frame(_index: usize, tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
+    fn frame(tracked: Option<bool>, error: Option<(f64, f64)>) -> FrameTruth {
         FrameTruth {
             tracked,
             error,
@@ -213,7 +213,7 @@ mod tests {
         assert_eq!((c.frames, c.mean, c.median), (5, 12.8, 6.0));
         assert!((c.inside_95 - 0.8).abs() < 1e-12);
         assert_eq!(Calibration::of(std::iter::empty()), None);
-        let mut frames = [frame(0, Some(true), GOOD), frame(1, Some(false), BAD)];
+        let mut frames = [frame(Some(true), GOOD), frame(Some(false), BAD)];
         frames[0].nees = Some(3.0);
         frames[1].nees = Some(30.0);
         let s = score(&frames, &Bound::for_size(1.0));
@@ -240,13 +240,13 @@ mod tests {
     #[test]
     fn precision_recall_and_success_count_what_they_say() {
         let frames = [
-            frame(0, Some(true), GOOD),
-            frame(1, Some(true), BAD),
-            frame(2, Some(false), GOOD),
-            frame(3, Some(true), FAR),
-            frame(4, None, None),
-            frame(5, Some(true), GOOD),
-            frame(6, Some(true), None),
+            frame(Some(true), GOOD),
+            frame(Some(true), BAD),
+            frame(Some(false), GOOD),
+            frame(Some(true), FAR),
+            frame(None, None),
+            frame(Some(true), GOOD),
+            frame(Some(true), None),
         ];
         let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!((s.frames, s.with_truth, s.right, s.judged), (7, 5, 3, 6));
@@ -261,18 +261,18 @@ mod tests {
     #[test]
     fn a_wrong_stretch_is_reported_at_its_first_frame_not_flagged() {
         let frames = [
-            frame(0, Some(true), GOOD),
+            frame(Some(true), GOOD),
             // Reported at once.
-            frame(1, Some(false), BAD),
-            frame(2, Some(false), BAD),
-            frame(3, Some(true), GOOD),
+            frame(Some(false), BAD),
+            frame(Some(false), BAD),
+            frame(Some(true), GOOD),
             // Reported two frames late.
-            frame(4, Some(true), BAD),
-            frame(5, Some(true), FAR),
-            frame(6, None, BAD),
-            frame(7, Some(true), GOOD),
+            frame(Some(true), BAD),
+            frame(Some(true), FAR),
+            frame(None, BAD),
+            frame(Some(true), GOOD),
             // Never reported.
-            frame(8, Some(true), BAD),
+            frame(Some(true), BAD),
         ];
         let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!(s.report_delays, vec![Some(0), Some(2), None]);
@@ -284,7 +284,7 @@ mod tests {
 
     #[test]
     fn a_run_without_verdicts_has_no_precision_and_no_recall_of_its_verdict() {
-        let frames = [frame(0, None, GOOD), frame(1, None, BAD)];
+        let frames = [frame(None, GOOD), frame(None, BAD)];
         let s = score(&frames, &Bound::for_size(1.0));
         assert_eq!((s.judged, s.tracked), (0, 0));
         assert_eq!(s.precision, None);

@@ -66,10 +66,11 @@ pub struct Consistency {
 }
 
 impl Consistency {
-    /// `χ²` over its quantile `p` at its degrees of freedom: at most 1 where the residuals are
-    /// what the covariances say they may be, to that confidence.
-    pub fn ratio(&self, p_z: f64) -> f64 {
-        self.chi2 / chi2_quantile(self.dof as f64, p_z)
+    /// `χ²` over its quantile at its degrees of freedom and standard-normal quantile `z`
+    /// (3.09: 0.999): at most 1 where the residuals are what the covariances say they may be,
+    /// to that confidence.
+    pub fn ratio(&self, z: f64) -> f64 {
+        self.chi2 / chi2_quantile(self.dof as f64, z)
     }
 }
 
