@@ -84,6 +84,9 @@ pub struct FrameRow {
     pub contour_sigma_m: Option<f64>,
     /// The same for the orientation [°].
     pub contour_sigma_deg: Option<f64>,
+    /// How much worse that pose explains them than the pose they fit alone, in χ² units
+    /// (eq. K11).
+    pub contour_excess: Option<f64>,
     /// Whether the frame counts as tracked ([`super::TrackedRule`]; vision-only runs).
     pub tracked: Option<bool>,
     /// The frame's age [ms since its capture, or since it was read in a replay] when the

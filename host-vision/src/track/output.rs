@@ -609,7 +609,7 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features, their residuals' χ² by their covariances below its quantile at z = {}, and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {} and the pose pinned to {:.2} cm and {}° (1 σ), on a track confirmed by {} frames with rms <= {} px and agreement >= {}",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features, their residuals' χ² by their covariances below its quantile at z = {}, and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {}, the pose pinned to {:.2} cm and {}° (1 σ) and within the χ²₆ quantile of the lines' own fit, on a track confirmed by {} frames with rms <= {} px and agreement >= {}; in either form, the σ of the pose's weakest direction at most {} times the bound",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,
@@ -624,7 +624,8 @@ impl fmt::Display for Summary {
                 t.rule.max_contour_sigma_deg,
                 t.rule.confirm_frames,
                 t.rule.confirm_contour_rms_px,
-                t.rule.confirm_silhouette
+                t.rule.confirm_silhouette,
+                t.rule.max_weak_sigma
             )?;
             if self.imu_used {
                 writeln!(
@@ -980,7 +981,7 @@ pub(super) struct Seen<'a> {
 }
 
 /// The columns of `frames.csv`.
-const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,rms_px,consistency,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,sigma_pos_m,sigma_rot_deg,weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome";
+const FRAMES_HEADER: &str = "index,t_s,frame_id,model_coverage,visible,added,tried,registered,sent,accepted,gated,contours,contour_error_px,prediction_error_px,position_error_m,estimate_error_m,estimate_error_deg,render_ms,pyramids_ms,klt_ms,total_ms,contour_rms_px,silhouette,contour_sigma_m,contour_sigma_deg,contour_excess,rms_px,consistency,ncc,tracked,age_ms,sent_ms,pose_ms,dropped_before,sigma_pos_m,sigma_rot_deg,weakest,weakest_sigma,nees,cov_00,cov_01,cov_02,cov_03,cov_04,cov_05,cov_11,cov_12,cov_13,cov_14,cov_15,cov_22,cov_23,cov_24,cov_25,cov_33,cov_34,cov_35,cov_44,cov_45,cov_55,outcome";
 
 /// A line of `frames.csv`.
 enum FrameLine<'a> {
@@ -1160,6 +1161,7 @@ pub(super) fn write_all(
             contour_sigma_deg: judged
                 .and_then(|a| a.contour_spread)
                 .map(|s| s[1].to_degrees()),
+            contour_excess: judged.and_then(|a| a.contour_excess),
             silhouette: judged.and_then(|a| a.silhouette),
             contours: r.contours.len(),
             contour_error_px: r.contour_error_px,
@@ -1210,7 +1212,7 @@ pub(super) fn write_all(
             };
             writeln!(
                 w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
                 r.index,
                 r.t,
                 r.frame_id,
@@ -1236,6 +1238,7 @@ pub(super) fn write_all(
                 o(r.silhouette),
                 o(r.contour_sigma_m),
                 o(r.contour_sigma_deg),
+                o(r.contour_excess),
                 o(r.rms_px),
                 o(r.consistency),
                 o(r.ncc),

@@ -13,7 +13,8 @@
 //!   lies, with its variance, from the posteriors (eq. K1-K3), coarse to fine; lines that leave
 //!   the image, cross another part of the model or say nothing are refused by name;
 //! - [`outliers`]: the lines no rigid pose explains together with the others (eq. K6-K7), the
-//!   contour form of the registrations' outlier rule;
+//!   contour form of the registrations' outlier rule, and how well the lines pin a pose and
+//!   how far it is from their own fit (eq. K10-K11);
 //! - [`measure`]: all of it for one frame, each line as long as the prediction's covariance
 //!   asks (eq. K8), the contour correspondences sent to the fusion core
 //!   (`protocol::ContourPoint`, docs/FILTER.md eq. 10c), and the judgement of a pose by its

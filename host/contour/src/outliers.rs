@@ -3,7 +3,8 @@
 //! searched on its own; where the background holds the object's grey levels a line can lock
 //! onto a step that is not the contour, tens of pixels out, with a small variance. The
 //! frame's lines are judged together: a robust rigid pose fit through all of them along their
-//! normals, then the X84 rule on the residuals there.
+//! normals, then the X84 rule on the residuals there. The same fit judges a pose by its lines
+//! (§9.4, eq. K10-K11).
 
 use nalgebra::{Matrix6, Vector2, Vector6};
 
@@ -123,6 +124,37 @@ pub fn pose_spread(
     spread.iter().all(|v| v.is_finite()).then_some(spread)
 }
 
+/// Huber's `ρ` of a residual `u` in units of the scale: `u²/2` within [`HUBER`], linear
+/// beyond (a line locked elsewhere weighs as an outlier does in eq. K6's fit).
+fn huber_rho(u: f64) -> f64 {
+    let a = u.abs();
+    if a <= HUBER {
+        0.5 * a * a
+    } else {
+        HUBER * a - 0.5 * HUBER * HUBER
+    }
+}
+
+/// Eq. K11: how much worse `pose` explains `lines` than the pose they fit alone (eq. K6's, from
+/// `pose`): `2 Σ [ρ_H(r_i(pose)/s) − ρ_H(r_i(fit)/s)]`, with `s` the residuals' robust scale at
+/// the fit, at least [`SPREAD_MIN_SCALE_PX`]. Where the lines hold and `pose` is within their
+/// spread (eq. K10) it is distributed as χ² with 6 degrees of freedom (the likelihood ratio of
+/// the two poses); a pose the lines fit within a pixel but that sits many of their σ along a
+/// direction they do see (an estimate that turned about an object's axis while the lines'
+/// residuals grew from 0.75 to 1 px) exceeds it. Directions the lines do not see change
+/// neither sum. `None` with fewer than [`MIN_LINES`] lines or a fit that fails.
+pub fn fit_excess(pin: &Pinhole, pose: &CameraPose, lines: &[ContourMeasurement]) -> Option<f64> {
+    if lines.len() < MIN_LINES {
+        return None;
+    }
+    let at_pose = residuals(pin, pose, lines)?;
+    let (_, at_fit) = robust_fit(pin, pose, lines)?;
+    let scale = residual_scale(&at_fit).max(SPREAD_MIN_SCALE_PX);
+    let sum = |r: &[f64]| r.iter().map(|v| huber_rho(v / scale)).sum::<f64>();
+    let excess = (2.0 * (sum(&at_pose) - sum(&at_fit))).max(0.0);
+    excess.is_finite().then_some(excess)
+}
+
 /// Eq. K7: which of `lines` are outliers by `rule`, judged at their robust fit from
 /// `predicted`: a residual beyond the median by more than `rule.mads` median absolute
 /// deviations, and above `rule.floor_px`. Fewer than [`MIN_LINES`] lines, or a fit that fails,
@@ -187,5 +219,32 @@ mod tests {
                 .iter()
                 .all(|f| !f)
         );
+    }
+
+    /// Eq. K11 on the disc's lines with 0.7 px of noise: at the pose they were found from,
+    /// within χ²₆'s bulk; where the disc moved 3 px but the pose did not, far beyond it.
+    #[test]
+    fn the_fit_excess_is_chi2_at_the_pose_the_lines_hold_and_large_off_it() {
+        let frame = disc_frame((320, 240), (160.0, 120.0), 50.0);
+        let samples = sample(&frame, &SampleConfig::default());
+        let lines = |shift: f64| -> Vec<ContourMeasurement> {
+            samples
+                .iter()
+                .enumerate()
+                .map(|(i, s)| ContourMeasurement {
+                    sample: *s,
+                    line: LineResult {
+                        offset_px: shift * s.normal.x + 0.7 * (i as f64 * 2.3).sin(),
+                        sigma_px: 1.0,
+                    },
+                })
+                .collect()
+        };
+        let pin = frame.view.pinhole;
+        let held = fit_excess(&pin, &frame.view.pose, &lines(0.0)).unwrap();
+        assert!(held < 12.6, "{held}");
+        let moved = fit_excess(&pin, &frame.view.pose, &lines(3.0)).unwrap();
+        assert!(moved > 100.0, "{moved}");
+        assert!(fit_excess(&pin, &frame.view.pose, &lines(0.0)[..8]).is_none());
     }
 }

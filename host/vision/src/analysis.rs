@@ -362,8 +362,10 @@ impl Vision {
             contours: contour.contours,
             contour_rms_px: contour.rms_px,
             contour_spread: contour.spread,
+            contour_excess: contour.excess,
             silhouette: contour.silhouette,
             prediction_offset: None,
+            weakest_sigma: None,
             consistency,
         })
     }

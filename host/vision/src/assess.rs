@@ -40,6 +40,9 @@ pub struct Assessment {
     /// [m] and orientation [rad] (eq. K10; `None` with too few, or a direction they do not
     /// see at all).
     pub contour_spread: Option<[f64; 2]>,
+    /// How much worse the estimated pose explains those correspondences than the pose they fit
+    /// alone, in χ² units (eq. K11: χ²₆ where the pose is within their spread).
+    pub contour_excess: Option<f64>,
     /// The silhouette's agreement with the object's statistics at the estimated pose,
     /// relative to what they expect (eq. K5'; 0 is a silhouette anywhere, 1 as good a fit as
     /// the statistics can tell).
@@ -48,6 +51,10 @@ pub struct Assessment {
     /// [`crate::Vision::process_judged`]): how far the prediction is from it, position [m]
     /// and rotation [rad] (eq. T4).
     pub prediction_offset: Option<[f64; 2]>,
+    /// The standard deviation of the pose along the direction its covariance pins down least,
+    /// in units of the bound (eq. T7's `σ_w`), set by the pose's estimator (the tracker, from
+    /// the core's covariance).
+    pub weakest_sigma: Option<f64>,
     /// The registrations' residuals at the pose weighed by their own covariances (eq. T8):
     /// `χ²` and its degrees of freedom `2n − 6`; `None` with fewer than 4.
     pub consistency: Option<Consistency>,
@@ -297,8 +304,13 @@ pub struct TrackedRule {
     /// bound (`max_offset_m`, `max_offset_deg`) is tracked with that direction named weak
     /// (eq. T7).
     pub weak_sigma: f64,
+    /// A pose whose weakest direction's standard deviation exceeds this share of the bound is
+    /// not tracked, however well it fits: along that direction the bound is within one σ
+    /// (eq. T9).
+    pub max_weak_sigma: f64,
     /// The registrations' residuals must be what their covariances allow to this
-    /// standard-normal quantile of eq. T8's χ² (3.09: 0.999).
+    /// standard-normal quantile of eq. T8's χ² (3.09: 0.999); the contour's excess over its
+    /// lines' own fit (eq. K11) is held to χ²₆'s quantile there (22.5).
     pub consistency_z: f64,
 }
 
@@ -336,6 +348,7 @@ impl Default for TrackedRule {
             max_offset_m: 0.05,
             max_offset_deg: 5.0,
             weak_sigma: 0.5,
+            max_weak_sigma: 1.0,
             consistency_z: 3.09,
         }
     }
@@ -361,6 +374,9 @@ impl TrackedRule {
     /// contour. One frame's judgement; a run judges its frames with [`Verdicts`], which asks
     /// the contour form for confirmation too.
     pub fn holds(&self, a: &Assessment) -> bool {
+        if a.weakest_sigma.is_some_and(|s| s > self.max_weak_sigma) {
+            return false;
+        }
         if self.by_features(a) {
             a.rms_px.is_some_and(|r| r <= self.max_rms_px)
                 && a.consistency
@@ -377,6 +393,8 @@ impl TrackedRule {
                 && a.contour_spread.is_some_and(|[m, rad]| {
                     m <= self.max_contour_sigma_m && rad.to_degrees() <= self.max_contour_sigma_deg
                 })
+                && a.contour_excess
+                    .is_some_and(|x| x <= chi2_quantile(6.0, self.consistency_z))
         }
     }
 
@@ -637,6 +655,12 @@ mod tests {
             ..Assessment::default()
         };
         assert!(rule.holds(&a));
+        // A pose whose covariance leaves a direction loose beyond the bound (eq. T9).
+        a.weakest_sigma = Some(0.8);
+        assert!(rule.holds(&a));
+        a.weakest_sigma = Some(1.2);
+        assert!(!rule.holds(&a));
+        a.weakest_sigma = None;
         a.ncc = Some(0.05);
         assert!(!rule.holds(&a));
         a.ncc = Some(0.5);
@@ -647,8 +671,15 @@ mod tests {
         a.contour_rms_px = Some(1.2);
         a.silhouette = Some(0.85);
         a.contour_spread = Some([0.01, 1f64.to_radians()]);
+        a.contour_excess = Some(5.0);
         a.ncc = None;
         assert!(rule.holds(&a));
+        // A pose many of the lines' σ from the pose they fit alone (eq. K11), or no such fit.
+        a.contour_excess = Some(30.0);
+        assert!(!rule.holds(&a));
+        a.contour_excess = None;
+        assert!(!rule.holds(&a));
+        a.contour_excess = Some(5.0);
         // Lines that leave the pose loose along a direction they do not see (eq. K10).
         a.contour_spread = Some([0.03, 1f64.to_radians()]);
         assert!(!rule.holds(&a));
@@ -684,6 +715,7 @@ mod tests {
             contours: 40,
             contour_rms_px: Some(rms),
             contour_spread: Some([0.01, 1f64.to_radians()]),
+            contour_excess: Some(5.0),
             silhouette: Some(silhouette),
             ..Assessment::default()
         };

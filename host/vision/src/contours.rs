@@ -190,7 +190,8 @@ impl ContourState {
     }
 
     /// The contour form of a frame's judgement at `pose`: the applied measurements' count, rms
-    /// along the normals [px] and how well they pin the pose (eq. K10), and the silhouette
+    /// along the normals [px], how well they pin the pose (eq. K10) and how far it is from
+    /// the pose they fit alone (eq. K11), and the silhouette
     /// agreement (eq. K5') of `rendering` (the model at `pose`) with `live`.
     pub fn judge(
         &self,
@@ -212,6 +213,7 @@ impl ContourState {
             contours,
             rms_px,
             spread: contour::outliers::pose_spread(pinhole, pose, &used),
+            excess: contour::outliers::fit_excess(pinhole, pose, &used),
             silhouette: silhouette_agreement(rendering, live, &self.colour, &self.config),
         }
     }
@@ -227,6 +229,8 @@ pub struct ContourJudgement {
     /// The largest standard deviations of position [m] and orientation [rad] they leave
     /// (eq. K10).
     pub spread: Option<[f64; 2]>,
+    /// How much worse the pose explains them than the pose they fit alone (eq. K11).
+    pub excess: Option<f64>,
     /// The silhouette agreement (eq. K5').
     pub silhouette: Option<f64>,
 }

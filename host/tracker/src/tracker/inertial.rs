@@ -507,7 +507,8 @@ impl<T: CoreTransport> Tracker<T> {
         };
         // The verdict on the pose put out at the frame's time (docs/VISION.md §10).
         let (pose, tracked) = match judged {
-            Some((a, Ok(pose))) => {
+            Some((mut a, Ok(pose))) => {
+                a.weakest_sigma = cov.as_ref().map(|c| self.record.weakest(&pose, c).sigma);
                 self.record.assessments.insert(p.frame_id, a);
                 let tracked = self.verdicts.judge(&self.record.rule, &a);
                 self.record.verdicts.insert(p.frame_id, tracked);

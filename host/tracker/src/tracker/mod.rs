@@ -616,7 +616,8 @@ impl<T: CoreTransport> Tracker<T> {
             .flat_map(|r| r.residuals.iter())
             .map(|&s_i| f64::from(s_i) <= self.gate)
             .collect();
-        let a = self.worker.assess(pose, applied)?;
+        let mut a = self.worker.assess(pose, applied)?;
+        a.weakest_sigma = cov.as_ref().map(|c| self.record.weakest(&pose, c).sigma);
         self.record.assessments.insert(p.frame_id, a);
         let tracked = self.verdicts.judge(&self.record.rule, &a);
         self.record.verdicts.insert(p.frame_id, tracked);
