@@ -183,7 +183,7 @@ pub fn ensure_synth(
     let scenario = options.scenario;
     // A dataset is complete once its manifest is written (it is written last).
     let manifest = dir.join("manifest.json");
-    let generator = format!("host-vision synth {}", env!("CARGO_PKG_VERSION"));
+    let generator = crate::synth::generator();
     let complete = std::fs::read_to_string(&manifest)
         .ok()
         .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())

@@ -95,6 +95,15 @@ fn the_quick_corpus_table_is_what_its_runs_wrote_and_no_tracked_frame_is_far_off
             (mean - reported).abs() <= 1e-3 * reported.max(1.0),
             "{scene} {filter}: NEES mean {mean} against {reported}"
         );
+        // The goal's recall counts the right frames with half the model in view, which the
+        // synthetic dataset says.
+        assert!(n("right_half_visible") <= right, "{scene} {filter}: {c}");
+        if right > 0 {
+            assert!(
+                c["recall_half_visible"].is_f64(),
+                "{scene} {filter}: the dataset should say what is visible: {c}"
+            );
+        }
         if n("tracked_far") > 0 {
             far.push(format!("{scene} {filter}: {c}"));
         }

@@ -122,9 +122,34 @@ pub fn object_size(dataset: &Path) -> Result<f64, EvalError> {
     Ok(model.diagonal())
 }
 
+/// The share of the model's own pixels no occluder hides, per image of a synthetic dataset in
+/// order (its `frames.csv`'s `model_unoccluded`; `None` where the model is out of view). Empty
+/// where the dataset does not say (not synthetic, or an older layout).
+pub fn unoccluded_shares(dataset: &Path) -> Vec<Option<f64>> {
+    let Ok(text) = std::fs::read_to_string(dataset.join("frames.csv")) else {
+        return Vec::new();
+    };
+    let mut lines = text.lines();
+    let Some(column) = lines
+        .next()
+        .and_then(|h| h.split(',').position(|c| c == "model_unoccluded"))
+    else {
+        return Vec::new();
+    };
+    lines
+        .map(|l| l.split(',').nth(column).and_then(|v| v.parse().ok()))
+        .collect()
+}
+
 /// Every frame taken in `run`, for the score: the analysed ones in order with their verdict
-/// and error, then the others (no pose, no verdict).
-pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
+/// and error, then the others (no pose, no verdict). `unoccluded` is the dataset's
+/// [`unoccluded_shares`], by the frame's index.
+pub fn frame_truths(run: &track::TrackRun, unoccluded: &[Option<f64>]) -> Vec<FrameTruth> {
+    let half_visible = |index: usize| {
+        unoccluded
+            .get(index)
+            .map(|share| share.is_some_and(|s| s >= 0.5))
+    };
     let mut frames: Vec<FrameTruth> = run
         .frames
         .iter()
@@ -132,6 +157,7 @@ pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
             tracked: r.tracked,
             error: r.estimate_error_m.zip(r.estimate_error_deg),
             nees: r.nees,
+            half_visible: half_visible(r.index),
         })
         .collect();
     let taken: usize = run.summary.frame_outcomes.values().sum();
@@ -139,6 +165,7 @@ pub fn frame_truths(run: &track::TrackRun) -> Vec<FrameTruth> {
         tracked: None,
         error: None,
         nees: None,
+        half_visible: None,
     }));
     frames
 }
@@ -178,7 +205,7 @@ fn run_one(
         scene: *scene,
         filter: name,
         bound,
-        score: score::score(&frame_truths(&run), &bound),
+        score: score::score(&frame_truths(&run, &unoccluded_shares(dataset)), &bound),
         summary: run.summary,
     })
 }

@@ -42,11 +42,11 @@ impl CorpusReport {
         }
         let _ = writeln!(
             s,
-            "| scene | filter | frames | right | judged | tracked | precision | recall | tracked beyond 2× | worst tracked | wrong stretches | reported ≤ {REPORT_WITHIN_FRAMES} frames | never reported | NEES tracked: mean, median, ≤ χ²₆ 95 % | NEES all |"
+            "| scene | filter | frames | right | judged | tracked | precision | recall | recall, half visible | tracked beyond 2× | worst tracked | wrong stretches | reported ≤ {REPORT_WITHIN_FRAMES} frames | never reported | NEES tracked: mean, median, ≤ χ²₆ 95 % | NEES all |"
         );
         let _ = writeln!(
             s,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
         );
         for r in &self.rows {
             let c = &r.score;
@@ -80,7 +80,7 @@ impl CorpusReport {
             };
             let _ = writeln!(
                 s,
-                "| {} | {}{} | {} | {} | {} | {} | {precision} | {} | {} | {worst} | {} | {in_time} | {never} | {} | {} |",
+                "| {} | {}{} | {} | {} | {} | {} | {precision} | {} | {} | {} | {worst} | {} | {in_time} | {never} | {} | {} |",
                 r.scene.name,
                 r.filter,
                 if r.summary.stopped_early { " †" } else { "" },
@@ -89,6 +89,7 @@ impl CorpusReport {
                 c.judged,
                 c.tracked,
                 percent(c.recall),
+                percent(c.recall_half_visible),
                 c.tracked_far,
                 c.report_delays.len(),
                 nees(c.nees_tracked),
@@ -102,7 +103,7 @@ impl CorpusReport {
             s,
             "\n- **right**: share of the frames with a pose whose error against the truth is within the bound (5 cm and 5°, or a tenth of the model's bounding-box diagonal if smaller), whatever the verdict said;\n\
              - **judged**: frames given a verdict; **tracked**: flagged tracked;\n\
-             - **precision**: share of the tracked frames that are right (of those with a truth to tell); **recall**: share of the right frames flagged tracked;\n\
+             - **precision**: share of the tracked frames that are right (of those with a truth to tell); **recall**: share of the right frames flagged tracked; **half visible**: of those with at least half of the model's own pixels in view, unoccluded (the goal's);\n\
              - **wrong stretches**: runs of consecutive wrong frames; **reported**: the verdict said \"not tracked\" within {REPORT_WITHIN_FRAMES} frames of the first (docs/VISION.md §10);\n\
              - **NEES**: the normalised estimation error squared of each pose by the core's covariance (eq. T6), over the tracked frames and over every frame with a pose: χ²₆ where calibrated (mean 6, median 5.3, 95 % below 12.6)."
         );

@@ -39,6 +39,9 @@ pub struct FrameTruth {
     pub error: Option<(f64, f64)>,
     /// That pose's normalised estimation error squared by the core's covariance (eq. T6).
     pub nees: Option<f64>,
+    /// Whether at least half of the model's own pixels are in view, no occluder hiding them
+    /// (`None`: the dataset does not say).
+    pub half_visible: Option<bool>,
 }
 
 /// χ²₆'s 95 % quantile: a calibrated covariance's NEES lies below it on 95 % of frames.
@@ -99,6 +102,13 @@ pub struct Score {
     pub precision: Option<f64>,
     /// Share of the right frames flagged tracked (`None`: none right).
     pub recall: Option<f64>,
+    /// Right frames with at least half of the model unoccluded.
+    pub right_half_visible: usize,
+    /// Of those, the ones flagged tracked.
+    pub tracked_right_half_visible: usize,
+    /// Share of the right frames with at least half of the model unoccluded that were flagged
+    /// tracked (the goal's recall; `None`: none, or the dataset does not say).
+    pub recall_half_visible: Option<f64>,
     /// Share of the frames with a truth that are right (the tracker's success, RBOT's
     /// measure, whatever the verdict said).
     pub success: Option<f64>,
@@ -142,6 +152,9 @@ pub fn score(frames: &[FrameTruth], bound: &Bound) -> Score {
         s.judged += usize::from(f.tracked.is_some());
         s.with_truth += usize::from(f.error.is_some());
         s.right += usize::from(is_right(f));
+        let counted = is_right(f) && f.half_visible == Some(true);
+        s.right_half_visible += usize::from(counted);
+        s.tracked_right_half_visible += usize::from(counted && flagged);
         if flagged {
             s.tracked += 1;
             s.tracked_right += usize::from(is_right(f));
@@ -156,6 +169,7 @@ pub fn score(frames: &[FrameTruth], bound: &Bound) -> Score {
     let share = |n: usize, of: usize| (of > 0).then(|| n as f64 / of as f64);
     s.precision = share(s.tracked_right, s.tracked - s.tracked_untold);
     s.recall = share(s.tracked_right, s.right);
+    s.recall_half_visible = share(s.tracked_right_half_visible, s.right_half_visible);
     s.success = share(s.right, s.with_truth);
     s.report_delays = report_delays(frames, &is_right);
     s.nees_tracked = Calibration::of(
@@ -204,6 +218,7 @@ mod tests {
             tracked,
             error,
             nees: None,
+            half_visible: Some(true),
         }
     }
 
@@ -256,6 +271,14 @@ mod tests {
         assert_eq!(s.recall, Some(2.0 / 3.0));
         assert_eq!(s.success, Some(0.6));
         assert_eq!(s.worst_tracked, Some([0.08, 12.0]));
+        // The goal's recall counts only the right frames with half the model in view.
+        assert_eq!(s.recall_half_visible, Some(2.0 / 3.0));
+        let mut hidden = frames;
+        hidden[2].half_visible = Some(false);
+        hidden[5].half_visible = None;
+        let s = score(&hidden, &Bound::for_size(1.0));
+        assert_eq!((s.right_half_visible, s.tracked_right_half_visible), (1, 1));
+        assert_eq!(s.recall_half_visible, Some(1.0));
     }
 
     #[test]

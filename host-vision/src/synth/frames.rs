@@ -115,6 +115,9 @@ pub struct SynthFrame {
     pub model_coverage: f64,
     /// Share of the image covered by occluders, mid-exposure.
     pub occluder_coverage: f64,
+    /// Share of the model's own pixels that no occluder hides, mid-exposure (`None` where the
+    /// model is out of view): how much of it a tracker can see.
+    pub model_unoccluded: Option<f64>,
     /// Lighting applied.
     pub light: LightState,
 }
@@ -343,7 +346,7 @@ impl FrameSynth {
         let n = self.subframe_count(scenario, t, exposure);
         self.accum.iter_mut().for_each(|a| *a = 0.0);
         let mid = n / 2;
-        let (mut model_coverage, mut occluder_coverage) = (0.0, 0.0);
+        let (mut model_coverage, mut occluder_coverage, mut model_unoccluded) = (0.0, 0.0, None);
         for i in 0..n {
             // Mid-points of n equal slots of the exposure.
             let ts = t + exposure * ((i as f64 + 0.5) / n as f64 - 0.5);
@@ -363,7 +366,7 @@ impl FrameSynth {
                 *a += g;
             }
             if i == mid {
-                (model_coverage, occluder_coverage) =
+                (model_coverage, occluder_coverage, model_unoccluded) =
                     self.coverage(scenario, ts, &r.depth, &r.occluded)?;
             }
         }
@@ -406,6 +409,7 @@ impl FrameSynth {
             image: out,
             model_coverage,
             occluder_coverage,
+            model_unoccluded,
             light,
         })
     }
@@ -428,27 +432,30 @@ impl FrameSynth {
         (pixels.ceil() as u32).clamp(lo, hi)
     }
 
-    /// Shares of the output image where the model is visible and where occluders are.
+    /// Shares of the output image where the model is visible and where occluders are, and
+    /// the share of the model's own pixels that are visible (`None` where it has none).
     fn coverage(
         &mut self,
         scenario: &Scenario,
         t: f64,
         live_depth: &[f32],
         occluded: &[bool],
-    ) -> Result<(f64, f64), SynthError> {
+    ) -> Result<(f64, f64, Option<f64>), SynthError> {
         let (c_w, q_cw) = scenario.camera_pose(t);
         let view = self.view(CameraPose { q_cw, c_w });
         let m = self.model.render(&view)?;
         let zm = m.depth.as_raw();
-        let (mut vis, mut occ) = (0usize, 0usize);
+        let (mut vis, mut occ, mut model) = (0usize, 0usize, 0usize);
         for &i in self.centres.iter().flatten() {
+            model += usize::from(zm[i] > 0.0);
             // The same surfaces rendered twice give the same depth; anything nearer in the
             // live world hides the model.
             vis += usize::from(zm[i] > 0.0 && live_depth[i] >= zm[i] * (1.0 - 1e-4));
             occ += usize::from(occluded[i]);
         }
         let total = self.centres.len().max(1) as f64;
-        Ok((vis as f64 / total, occ as f64 / total))
+        let unoccluded = (model > 0).then(|| vis as f64 / model as f64);
+        Ok((vis as f64 / total, occ as f64 / total, unoccluded))
     }
 }
 

@@ -8,7 +8,8 @@
 //! Output under the chosen folder:
 //! ```text
 //! manifest.json                      scenario, seed, all parameters, statistics
-//! frames.csv                         per frame: model coverage, occluder coverage, lighting
+//! frames.csv                         per frame: model coverage, occluder coverage, the
+//!                                    model's unoccluded share, lighting
 //! model/scene.obj, scene.mtl, *.png  the CAD model the tracker loads
 //! mav0/imu0/data.csv, sensor.yaml
 //! mav0/cam0/data.csv, sensor.yaml, data/<timestamp>.png
@@ -33,6 +34,13 @@ use rand::SeedableRng;
 use rand::rngs::StdRng;
 
 pub use frames::{FrameOptions, FrameSynth, SynthFrame, live_camera};
+
+/// What wrote a dataset (its manifest's `generator`): the version and the layout of its
+/// files, so that a cached dataset of another layout is made again (`eval::ensure_synth`).
+/// Layout 2: `frames.csv` has `model_unoccluded`.
+pub fn generator() -> String {
+    format!("host-vision synth {} (layout 2)", env!("CARGO_PKG_VERSION"))
+}
 pub use scene::{SceneModels, TextureOptions, UNTEXTURED_COLOUR, write_obj};
 pub use shading::Shading;
 
@@ -377,7 +385,7 @@ pub fn run(
     let total = indices.len() as u64;
     let mut csv = String::from("#timestamp [ns],filename\n");
     let mut stats = String::from(
-        "#timestamp [ns],model_coverage,occluder_coverage,gain,offset,gradient_u,gradient_v\n",
+        "#timestamp [ns],model_coverage,occluder_coverage,model_unoccluded,gain,offset,gradient_u,gradient_v\n",
     );
     let (mut visible, mut any, mut occluded) = (0usize, 0usize, 0usize);
     for (done, &k) in indices.iter().enumerate() {
@@ -401,8 +409,15 @@ pub fn run(
         let l = f.light;
         let _ = writeln!(
             stats,
-            "{stamp},{:.4},{:.4},{:.4},{:.3},{:.4},{:.4}",
-            f.model_coverage, f.occluder_coverage, l.gain, l.offset, l.gradient_u, l.gradient_v
+            "{stamp},{:.4},{:.4},{},{:.4},{:.3},{:.4},{:.4}",
+            f.model_coverage,
+            f.occluder_coverage,
+            f.model_unoccluded
+                .map_or(String::new(), |v| format!("{v:.4}")),
+            l.gain,
+            l.offset,
+            l.gradient_u,
+            l.gradient_v
         );
         visible += usize::from(f.model_coverage >= 0.10);
         any += usize::from(f.model_coverage > 0.0);
@@ -434,8 +449,7 @@ pub fn run(
     let names = |q: &[firmware_sim::sim::scenario::Quad]| -> Vec<String> {
         q.iter().map(|q| q.name.clone()).collect()
     };
-    manifest["generator"] =
-        serde_json::json!(format!("host-vision synth {}", env!("CARGO_PKG_VERSION")));
+    manifest["generator"] = serde_json::json!(generator());
     manifest["camera"] = serde_json::json!({
         "resolution": [cam.width, cam.height],
         "intrinsics": [cam.pinhole.fx, cam.pinhole.fy, cam.pinhole.cx, cam.pinhole.cy],

@@ -666,7 +666,7 @@ fn corpus(a: &CorpusArgs) -> Result<Done, Failure> {
             let c = &row.score;
             let share = |v: Option<f64>| v.map_or("-".into(), |v| format!("{:.1} %", 100.0 * v));
             bar.say(&format!(
-                "done: {} {}: {} frames, right {}, tracked {} (precision {}, recall {}), {} wrong stretches, {} never reported",
+                "done: {} {}: {} frames, right {}, tracked {} (precision {}, recall {}, half visible {}), {} wrong stretches, {} never reported",
                 row.scene.name,
                 row.filter,
                 c.frames,
@@ -674,6 +674,7 @@ fn corpus(a: &CorpusArgs) -> Result<Done, Failure> {
                 c.tracked,
                 share(c.precision),
                 share(c.recall),
+                share(c.recall_half_visible),
                 c.report_delays.len(),
                 c.unreported()
             ));
