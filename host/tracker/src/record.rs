@@ -145,16 +145,10 @@ impl Record {
         )
     }
 
-    /// A tracked pose's weak direction: its weakest, where that exceeds the rule's
-    /// `weak_sigma` (eq. T7).
-    pub fn weak(
-        &self,
-        pose: &CameraPose,
-        cov: Option<&PoseCovariance>,
-        tracked: bool,
-    ) -> Option<WeakDirection> {
-        let w = self.weakest(pose, cov.filter(|_| tracked)?);
-        (w.sigma > self.rule.weak_sigma).then_some(w)
+    /// A tracked pose's weak direction: its `weakest` ([`Self::weakest`]), where that exceeds
+    /// the rule's `weak_sigma` (eq. T7).
+    pub fn weak(&self, weakest: Option<WeakDirection>, tracked: bool) -> Option<WeakDirection> {
+        weakest.filter(|w| tracked && w.sigma > self.rule.weak_sigma)
     }
 
     /// Seconds since the run started.

@@ -506,24 +506,23 @@ impl<T: CoreTransport> Tracker<T> {
             None => 0,
         };
         // The verdict on the pose put out at the frame's time (docs/VISION.md §10).
-        let (pose, tracked) = match judged {
+        let (pose, tracked, weakest) = match judged {
             Some((mut a, Ok(pose))) => {
-                a.weakest_sigma = cov.as_ref().map(|c| self.record.weakest(&pose, c).sigma);
+                let weakest = cov.as_ref().map(|c| self.record.weakest(&pose, c));
+                a.weakest_sigma = weakest.map(|w| w.sigma);
                 self.record.assessments.insert(p.frame_id, a);
                 let tracked = self.verdicts.judge(&self.record.rule, &a);
                 self.record.verdicts.insert(p.frame_id, tracked);
-                (Some(pose), Some(tracked))
+                (Some(pose), Some(tracked), weakest)
             }
-            _ => (None, None),
+            _ => (None, None, None),
         };
         // The verdicts drive the state as in vision-only runs (docs/VISION.md §10): a frame
         // not judged tracked counts against the model.
         self.loss.frame(tracked == Some(true), p.trigger_us);
         self.tracked_since_start |= tracked == Some(true);
         let cov = pose.and(cov);
-        let weak = pose
-            .zip(tracked)
-            .and_then(|(pose, t)| self.record.weak(&pose, cov.as_ref(), t));
+        let weak = tracked.and_then(|t| self.record.weak(weakest, t));
         self.events.push_back(Event::Frame(FrameReport {
             index: p.index,
             t_us: p.trigger_us,

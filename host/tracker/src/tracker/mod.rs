@@ -72,6 +72,8 @@ pub struct Judged {
     pub frame_id: u32,
     /// The pose's covariance.
     pub cov: Option<camera::PoseCovariance>,
+    /// The direction it pins down least (eq. T7).
+    pub weakest: Option<camera::WeakDirection>,
 }
 
 /// A search on the search thread: its frame's index and time [µs], and since when the model
@@ -617,7 +619,8 @@ impl<T: CoreTransport> Tracker<T> {
             .map(|&s_i| f64::from(s_i) <= self.gate)
             .collect();
         let mut a = self.worker.assess(pose, applied)?;
-        a.weakest_sigma = cov.as_ref().map(|c| self.record.weakest(&pose, c).sigma);
+        let weakest = cov.as_ref().map(|c| self.record.weakest(&pose, c));
+        a.weakest_sigma = weakest.map(|w| w.sigma);
         self.record.assessments.insert(p.frame_id, a);
         let tracked = self.verdicts.judge(&self.record.rule, &a);
         self.record.verdicts.insert(p.frame_id, tracked);
@@ -627,6 +630,7 @@ impl<T: CoreTransport> Tracker<T> {
             tracked,
             frame_id: p.frame_id,
             cov,
+            weakest,
         }))
     }
 
@@ -675,7 +679,7 @@ impl<T: CoreTransport> Tracker<T> {
             tracked: judged.map(|j| j.tracked),
             correspondences,
             cov: judged.and_then(|j| j.cov),
-            weak: judged.and_then(|j| self.record.weak(&j.pose, j.cov.as_ref(), j.tracked)),
+            weak: judged.and_then(|j| self.record.weak(j.weakest, j.tracked)),
         }));
     }
 
