@@ -4,7 +4,7 @@
 //! onto a step that is not the contour, tens of pixels out, with a small variance. The
 //! frame's lines are judged together: a robust rigid pose fit through all of them along their
 //! normals, then the X84 rule on the residuals there. The same fit judges a pose by its lines
-//! (§9.4, eq. K10-K11).
+//! (docs/VISION.md §9.4, eq. K10-K11).
 
 use nalgebra::{Matrix6, Vector2, Vector6};
 
