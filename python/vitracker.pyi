@@ -176,8 +176,8 @@ class FrameReport:
     """Tracked, with one direction pinned down weakly (one σ beyond half the bound a right
     pose is held to, docs/VISION.md eq. T7): "depth", "sideways", "up-down" (the object's
     position in the camera), "tilt", "pan", "roll about the view" (its orientation); None
-    where every direction is pinned, and where not tracked (a σ beyond the whole bound is not
-    tracked, eq. T9)."""
+    where every direction is pinned, and where not tracked (vision-only, a σ beyond the whole
+    bound is not tracked, eq. T9)."""
     skipped: Optional[str]
     """Why the frame could not be used, where it could not (the tracker went on)."""
 

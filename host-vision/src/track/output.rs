@@ -609,7 +609,7 @@ impl fmt::Display for Summary {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
-                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features, their residuals' χ² by their covariances below its quantile at z = {}, and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {}, the pose pinned to {:.2} cm and {}° (1 σ) and within the χ²₆ quantile of the lines' own fit, on a track confirmed by {} frames with rms <= {} px and agreement >= {}; in either form, the σ of the pose's weakest direction at most {:.0} % of the bound",
+                "verified     {} of {} frames tracked ({:.1} %): rms <= {} px with >= {} features, their residuals' χ² by their covariances below its quantile at z = {}, and rendered-vs-live correlation >= {}; with fewer features, contour rms <= {} px with >= {} contours, silhouette agreement >= {}, the pose pinned to {:.2} cm and {}° (1 σ) and within the χ²₆ quantile of the lines' own fit, on a track confirmed by {} frames with rms <= {} px and agreement >= {}; vision-only, in either form, the σ of the pose's weakest direction at most {:.0} % of the bound",
                 t.tracked,
                 t.frames,
                 100.0 * t.share,

@@ -52,8 +52,8 @@ pub struct FrameReport {
     /// The covariance of `pose` (`[c_w, θ]`, docs/VISION.md eq. T6).
     pub cov: Option<PoseCovariance>,
     /// Tracked, with this direction pinned down weakly: its σ is more than half the bound
-    /// a right pose is held to (eq. T7); more than the whole bound and the frame is not
-    /// tracked (eq. T9). `None` where tracked with every direction pinned, and where not
+    /// a right pose is held to (eq. T7); vision-only, more than the whole bound and the frame
+    /// is not tracked (eq. T9). `None` where tracked with every direction pinned, and where not
     /// tracked.
     pub weak: Option<WeakDirection>,
 }

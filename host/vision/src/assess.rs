@@ -53,7 +53,7 @@ pub struct Assessment {
     pub prediction_offset: Option<[f64; 2]>,
     /// The standard deviation of the pose along the direction its covariance pins down least,
     /// in units of the bound (eq. T7's `σ_w`), set by the pose's estimator (the tracker, from
-    /// the core's covariance).
+    /// the core's covariance, for the pose estimated with the frame: vision-only runs).
     pub weakest_sigma: Option<f64>,
     /// The registrations' residuals at the pose weighed by their own covariances (eq. T8):
     /// `χ²` and its degrees of freedom `2n − 6`; `None` with fewer than 4.

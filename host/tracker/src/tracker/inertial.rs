@@ -507,9 +507,10 @@ impl<T: CoreTransport> Tracker<T> {
         };
         // The verdict on the pose put out at the frame's time (docs/VISION.md §10).
         let (pose, tracked, weakest) = match judged {
-            Some((mut a, Ok(pose))) => {
+            Some((a, Ok(pose))) => {
+                // Eq. T9 judges vision-only poses: a prediction's covariance holds the process
+                // noise of a hand-held camera's peak jerk, and eq. T4 holds it to its frame.
                 let weakest = cov.as_ref().map(|c| self.record.weakest(&pose, c));
-                a.weakest_sigma = weakest.map(|w| w.sigma);
                 self.record.assessments.insert(p.frame_id, a);
                 let tracked = self.verdicts.judge(&self.record.rule, &a);
                 self.record.verdicts.insert(p.frame_id, tracked);
