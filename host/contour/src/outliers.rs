@@ -141,7 +141,8 @@ fn huber_rho(u: f64) -> f64 {
 /// spread (eq. K10) it is distributed as χ² with 6 degrees of freedom (the likelihood ratio of
 /// the two poses); a pose the lines fit within a pixel but that sits many of their σ along a
 /// direction they do see (a prediction the lines pull back only by the filter's gain)
-/// exceeds it. Directions the lines do not see change neither sum. `None` with fewer than [`MIN_LINES`] lines or a fit that fails.
+/// exceeds it. Directions the lines do not see change neither sum. `None` with fewer than
+/// [`MIN_LINES`] lines or a fit that fails.
 pub fn fit_excess(pin: &Pinhole, pose: &CameraPose, lines: &[ContourMeasurement]) -> Option<f64> {
     if lines.len() < MIN_LINES {
         return None;
