@@ -25,8 +25,8 @@ use render::{RenderView, Renderer};
 
 use crate::VisionError;
 use crate::assess::{
-    Assessment, Contrast, RegistrationCov, contrast, masked_ncc, registration_chi2,
-    reprojection_rms,
+    Assessment, Contrast, RegistrationCov, contrast, registration_chi2, reprojection_rms,
+    textured_ncc,
 };
 use crate::contours::{ContourFrame, ContourState, Modality};
 
@@ -339,7 +339,7 @@ impl Vision {
             .unzip();
         let (features, rms_px) = reprojection_rms(&self.ideal, pose, &used);
         let consistency = registration_chi2(&self.ideal, pose, &used, &used_cov);
-        let (ncc_pixels, ncc) = masked_ncc(&rendering.gray, &last.live, &rendering.mask);
+        let (ncc_pixels, ncc) = textured_ncc(&rendering.gray, &last.live, &rendering.mask);
         let contour = if self.options.modality.contour() {
             let live = GrayF32::from_gray8(&last.live)?;
             self.contour.judge(

@@ -4,9 +4,10 @@
 //! - the **reprojection rms** of the frame's registered features at that pose: their model
 //!   points projected, against the pixels the KLT registered (self-consistency of the update);
 //! - the **rendered-vs-live correlation**: the textured model rendered at that pose against the
-//!   live image, a normalised cross-correlation over the model's mask. A low rms alone can be a
-//!   consistent but wrong pose (a few features agreeing on the wrong orientation); the rendering
-//!   shows whether the whole model sits where the image has it.
+//!   live image, a normalised cross-correlation over the model's pixels that have texture
+//!   (eq. T10). A low rms alone can be a consistent but wrong pose (a few features agreeing on
+//!   the wrong orientation); the rendering shows whether the whole model sits where the image
+//!   has it.
 //!
 //! A frame is **tracked** when both hold ([`TrackedRule`]). Where a frame has too few
 //! features (an object without texture), its contour judges it instead (docs/VISION.md §9.4):
@@ -27,9 +28,10 @@ pub struct Assessment {
     /// Their reprojection rms at the estimated pose [px].
     pub rms_px: Option<f64>,
     /// Normalised cross-correlation of the rendering at the estimated pose with the live
-    /// image over the rendered model's pixels (`None` when fewer than [`MIN_NCC_PIXELS`]).
+    /// image over the rendered model's pixels that have texture (eq. T10, [`textured_ncc`];
+    /// `None` when fewer than [`MIN_NCC_PIXELS`]).
     pub ncc: Option<f64>,
-    /// Model pixels the correlation ran over.
+    /// Model pixels with texture the correlation ran over.
     pub ncc_pixels: usize,
     /// Contour correspondences the core applied whose model point projects in front of the
     /// camera.
@@ -154,20 +156,49 @@ pub fn reprojection_rms(
     (n, (n > 0).then(|| (sum / n as f64).sqrt()))
 }
 
-/// `Σ(a−ā)(b−b̄) / √(Σ(a−ā)² Σ(b−b̄)²)` over the pixels where `mask` is set, with its pixel
-/// count; `None` below [`MIN_NCC_PIXELS`] or on a flat patch (zero variance).
-pub fn masked_ncc(
+/// A pixel of a rendering has texture where a shift of one pixel changes its grey by at least
+/// this [grey levels]: below it the rendering is flat to its own quantisation, and what the
+/// live image holds there is the sensor's noise and the light's gradient. Twice a sensor's read
+/// noise (4) left the cube video's fine texture only, which blur decorrelates (docs/VISION.md
+/// eq. T10).
+pub const TEXTURE_GREY_PER_PX: f64 = 1.0;
+
+/// Eq. T10 (docs/VISION.md §10): `Σ(a−ā)(b−b̄) / √(Σ(a−ā)² Σ(b−b̄)²)` over the pixels of
+/// `mask` where the rendering has texture (its gradient at least [`TEXTURE_GREY_PER_PX`],
+/// the four neighbours inside the mask), with their count; `None` below [`MIN_NCC_PIXELS`] or
+/// on a flat patch (zero variance). Over a flat face the live image holds only noise and the
+/// light's gradient, which would weigh against a pose however well its texture aligns.
+pub fn textured_ncc(
     rendered: &GrayImage,
     live: &GrayImage,
     mask: &GrayImage,
 ) -> (usize, Option<f64>) {
-    if mask.dimensions() != live.dimensions() {
+    let (w, h) = live.dimensions();
+    if mask.dimensions() != (w, h) || rendered.dimensions() != (w, h) {
         return (0, None);
     }
-    ncc_where(rendered, live, mask.pixels().map(|m| m.0[0] != 0))
+    let inside = |x: u32, y: u32| mask.get_pixel(x, y).0[0] != 0;
+    let grey = |x: u32, y: u32| f64::from(rendered.get_pixel(x, y).0[0]);
+    let textured = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| {
+            let interior = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
+            interior
+                && inside(x, y)
+                && [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]
+                    .iter()
+                    .all(|&(u, v)| inside(u, v))
+                && {
+                    let gx = (grey(x + 1, y) - grey(x - 1, y)) / 2.0;
+                    let gy = (grey(x, y + 1) - grey(x, y - 1)) / 2.0;
+                    gx.hypot(gy) >= TEXTURE_GREY_PER_PX
+                }
+        });
+    ncc_where(rendered, live, textured)
 }
 
-/// [`masked_ncc`] over the pixels where `within` (one flag per pixel, row by row) is set.
+/// The correlation of `rendered` with `live` over the pixels where `within` (one flag per
+/// pixel, row by row) is set.
 fn ncc_where(
     rendered: &GrayImage,
     live: &GrayImage,
@@ -479,8 +510,9 @@ mod tests {
             image::Luma([(f64::from(a.get_pixel(x, y).0[0]) * 0.5 + 40.0) as u8])
         });
         let mut mask = GrayImage::from_fn(w, h, |x, _| image::Luma([if x < 20 { 255 } else { 0 }]));
-        let (n, c) = masked_ncc(&a, &b, &mask);
-        assert_eq!(n, 600);
+        let (n, c) = textured_ncc(&a, &b, &mask);
+        // The mask's pixels with their four neighbours in it and inside the image.
+        assert_eq!(n, 18 * 28);
         assert!(c.unwrap() > 0.999, "{c:?}");
         // Outside the mask anything goes.
         let mut b2 = b.clone();
@@ -489,16 +521,49 @@ mod tests {
                 b2.put_pixel(x, y, image::Luma([((x * 31 + y * 17) % 256) as u8]));
             }
         }
-        assert_eq!(masked_ncc(&a, &b2, &mask).1, c);
+        assert_eq!(textured_ncc(&a, &b2, &mask).1, c);
         // An uncorrelated image.
         let noise = GrayImage::from_fn(w, h, |x, y| {
             image::Luma([((x.wrapping_mul(2654435761) ^ y.wrapping_mul(40503)) % 251) as u8])
         });
-        assert!(masked_ncc(&a, &noise, &mask).1.unwrap().abs() < 0.2);
+        assert!(textured_ncc(&a, &noise, &mask).1.unwrap().abs() < 0.2);
         // Too few pixels, or another size: no figure.
         mask.fill(0);
-        assert_eq!(masked_ncc(&a, &b, &mask), (0, None));
-        assert_eq!(masked_ncc(&a, &GrayImage::new(3, 3), &mask), (0, None));
+        assert_eq!(textured_ncc(&a, &b, &mask), (0, None));
+        assert_eq!(textured_ncc(&a, &GrayImage::new(3, 3), &mask), (0, None));
+    }
+
+    #[test]
+    fn eq_t10_correlates_where_the_rendering_has_texture_only() {
+        // Left half textured, right half flat; the live image is a copy whose flat half holds
+        // noise of ±20 grey levels and a gradient of light.
+        let (w, h) = (40, 30);
+        let a = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([if x < 20 {
+                ((x * 7 + y * 13) % 200) as u8
+            } else {
+                120
+            }])
+        });
+        let b = GrayImage::from_fn(w, h, |x, y| {
+            let noise = (x.wrapping_mul(2654435761) ^ y.wrapping_mul(40503)) % 41;
+            image::Luma([if x < 20 {
+                a.get_pixel(x, y).0[0]
+            } else {
+                (60 + 3 * x + noise) as u8
+            }])
+        });
+        let mask = GrayImage::from_pixel(w, h, image::Luma([255]));
+        let (n, c) = textured_ncc(&a, &b, &mask);
+        // The textured half's interior, and the column where it meets the flat half.
+        assert!((18 * 28..=20 * 28).contains(&n), "{n}");
+        assert!(c.unwrap() > 0.95, "{c:?}");
+        // Over every pixel of the mask the flat half's noise weighs against the pose.
+        let all = ncc_where(&a, &b, mask.pixels().map(|_| true)).1.unwrap();
+        assert!(all < c.unwrap() - 0.1, "{all} against {c:?}");
+        // A flat rendering has no texture to correlate.
+        let flat = GrayImage::from_pixel(w, h, image::Luma([120]));
+        assert_eq!(textured_ncc(&flat, &b, &mask), (0, None));
     }
 
     #[test]
