@@ -4,8 +4,8 @@
 //! §10), with each run's wall time, and written with the runs' outputs to
 //! `target/corpus-bench/out`. `cargo bench -p host-vision --bench corpus` (the README gives
 //! its time on 2 cores, the datasets' synthesis included and not); `-- --quick` runs the
-//! suite's form (`host-vision/tests/corpus.rs`). The bunny's scenes are skipped, saying so, without
-//! `../shared/data/meshes/bunny`.
+//! suite's form (`host-vision/tests/corpus.rs`). The bunny's scenes are skipped, saying so,
+//! without `../shared/data/meshes/bunny`.
 
 use std::path::PathBuf;
 use std::sync::Arc;
