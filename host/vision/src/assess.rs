@@ -177,23 +177,23 @@ pub fn textured_ncc(
     if mask.dimensions() != (w, h) || rendered.dimensions() != (w, h) {
         return (0, None);
     }
-    let inside = |x: u32, y: u32| mask.get_pixel(x, y).0[0] != 0;
-    let grey = |x: u32, y: u32| f64::from(rendered.get_pixel(x, y).0[0]);
-    let textured = (0..h)
-        .flat_map(|y| (0..w).map(move |x| (x, y)))
-        .map(|(x, y)| {
-            let interior = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
-            interior
-                && inside(x, y)
-                && [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)]
-                    .iter()
-                    .all(|&(u, v)| inside(u, v))
-                && {
-                    let gx = (grey(x + 1, y) - grey(x - 1, y)) / 2.0;
-                    let gy = (grey(x, y + 1) - grey(x, y - 1)) / 2.0;
-                    gx.hypot(gy) >= TEXTURE_GREY_PER_PX
-                }
-        });
+    let (m, g) = (mask.as_raw(), rendered.as_raw());
+    let (w, h) = (w as usize, h as usize);
+    // |∇a|² by central differences, (2|∇a|)² compared in whole grey levels.
+    let least = (2.0 * TEXTURE_GREY_PER_PX).powi(2);
+    let textured = (0..w * h).map(move |i| {
+        let (x, y) = (i % w, i / w);
+        x > 0
+            && y > 0
+            && x + 1 < w
+            && y + 1 < h
+            && [i, i - 1, i + 1, i - w, i + w].iter().all(|&k| m[k] != 0)
+            && {
+                let dx = i32::from(g[i + 1]) - i32::from(g[i - 1]);
+                let dy = i32::from(g[i + w]) - i32::from(g[i - w]);
+                f64::from(dx * dx + dy * dy) >= least
+            }
+    });
     ncc_where(rendered, live, textured)
 }
 
