@@ -9,12 +9,17 @@ use std::path::Path;
 mod common;
 use common::*;
 
+/// A frame's error against the truth `(m, °)`, where it has a pose and a truth.
+fn error(r: &BTreeMap<String, String>) -> Option<(f64, f64)> {
+    Some((
+        r["estimate_error_m"].parse().ok()?,
+        r["estimate_error_deg"].parse().ok()?,
+    ))
+}
+
 /// Whether a frame is right: its error within the bound `[m, °]`.
 fn is_right(r: &BTreeMap<String, String>, bound: [f64; 2]) -> bool {
-    let m: Option<f64> = r["estimate_error_m"].parse().ok();
-    let deg: Option<f64> = r["estimate_error_deg"].parse().ok();
-    m.zip(deg)
-        .is_some_and(|(m, deg)| m <= bound[0] && deg <= bound[1])
+    error(r).is_some_and(|(m, deg)| m <= bound[0] && deg <= bound[1])
 }
 
 /// `(right, tracked and right)` over the frames of a run whose dataset image has at least half
@@ -51,12 +56,6 @@ fn recount_half_visible(run: &Path, dataset: &Path, bound: [f64; 2]) -> (usize, 
 /// the bound `[m, °]`.
 fn recount(run: &Path, bound: [f64; 2]) -> (usize, usize, usize, usize) {
     let rows = frame_rows(run);
-    let error = |r: &BTreeMap<String, String>| -> Option<(f64, f64)> {
-        Some((
-            r["estimate_error_m"].parse().ok()?,
-            r["estimate_error_deg"].parse().ok()?,
-        ))
-    };
     let right = |r: &BTreeMap<String, String>| is_right(r, bound);
     let tracked = rows.iter().filter(|r| r["tracked"] == "1");
     (
