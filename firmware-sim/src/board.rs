@@ -21,13 +21,7 @@ use crate::sim::sensor_board::SimulatedImu;
 use crate::transport::{self, Duplex};
 
 /// Floating-point width of the simulated core.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum Precision {
-    /// `f32`, as on the Cortex-M4F.
-    F32,
-    /// `f64`, the PC reference.
-    F64,
-}
+pub use fusion_core::Precision;
 
 /// What the board did, over all its sessions.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -32,7 +32,7 @@ struct Cli {
     #[arg(long, default_value = "pty")]
     link: String,
     /// Scalar type of the core.
-    #[arg(long, value_enum, default_value = "f32")]
+    #[arg(long, default_value = "f32", value_parser = precision())]
     precision: Precision,
     /// Serve sessions until killed, one after another, with the same core: a host that
     /// restarts, or comes back after its cable was pulled, finds the core as the last one left
@@ -40,6 +40,15 @@ struct Cli {
     /// board then prints its report and exits). With pty, each session has a new device path.
     #[arg(long)]
     forever: bool,
+}
+
+/// `--precision`'s values (the library's `Precision` knows no command line).
+fn precision() -> impl clap::builder::TypedValueParser<Value = Precision> {
+    use clap::builder::TypedValueParser as _;
+    clap::builder::PossibleValuesParser::new(["f32", "f64"]).map(|s| match s.as_str() {
+        "f64" => Precision::F64,
+        _ => Precision::F32,
+    })
 }
 
 fn open(link: &str) -> anyhow::Result<transport::Duplex> {

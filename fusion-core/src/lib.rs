@@ -48,6 +48,16 @@ mod testutil;
 pub mod trig;
 
 pub use device::{Device, DeviceIo};
+
+/// The scalar a core is built with: what a host asks of a core it runs itself (the simulated
+/// board, the core called in-process).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Precision {
+    /// `f32`, as on the Cortex-M4F.
+    F32,
+    /// `f64`, the PC reference.
+    F64,
+}
 pub use kernels::Kernels;
 pub use protocol::{ModelKind, PROTOCOL_VERSION};
 pub use scalar::Scalar;

@@ -14,7 +14,6 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use firmware_sim::board::Precision;
 use firmware_sim::sim::scenario::ScenarioName;
 use host_vision::dataset::Dataset;
 use host_vision::synth::{FrameOptions, SynthOptions};
@@ -26,6 +25,7 @@ use nalgebra::Vector3;
 use protocol::{
     CoreToHost, Correspondence, Correspondences, HostToCore, Init, InitAttitude, PosePrediction,
 };
+use tracker::Precision;
 
 fn dataset(w: u32, h: u32) -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))

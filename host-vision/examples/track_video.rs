@@ -12,9 +12,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use firmware_sim::board::Precision;
 use host_vision::frames::{FrameInput, VideoOptions};
-use tracker::{CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
+use tracker::{Event, InProcessCore, Start, Tracker, TrackerConfig};
 
 fn main() -> anyhow::Result<()> {
     let data = PathBuf::from("../shared/data/visp-cube");
@@ -52,7 +51,7 @@ fn main() -> anyhow::Result<()> {
         locate::database::default_cache_dir(),
     );
     config.start = Start::Camera(camera::start_pose::read_start_pose(&pose)?);
-    let core = CoreLink::open(&LinkSpec::InProcess(Precision::F32))?;
+    let core = InProcessCore::default();
     let mut tracker = Tracker::new(config, &model::load(&model)?, core)?;
     println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
     let mut busy = Duration::ZERO;

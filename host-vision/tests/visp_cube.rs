@@ -342,7 +342,7 @@ fn the_cube_videos_contour_and_both_modalities_give_the_readmes_figures() {
 #[test]
 fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames() {
     use std::time::{Duration, Instant};
-    use tracker::{Answers, CoreLink, Event, LinkSpec, Start, Tracker, TrackerConfig};
+    use tracker::{Answers, Event, InProcessCore, Start, Tracker, TrackerConfig};
 
     let Some(dir) = data() else { return };
     let o = cube::vision_only(
@@ -363,7 +363,7 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
     config.tuning = o.tuning;
     config.answers = Answers::WhenReady;
     config.search_floor = Duration::from_millis(500);
-    let core = CoreLink::open(&LinkSpec::InProcess(firmware_sim::board::Precision::F32)).unwrap();
+    let core = InProcessCore::default();
     let mut tracker = Tracker::new(config, &model, core).unwrap();
 
     let frames = o

@@ -8,11 +8,12 @@ use std::str::FromStr;
 use std::sync::Mutex;
 
 use camera::start_pose::check_rigid;
+use core_link::{CoreLink, LinkSpec};
 use protocol::ModelKind;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use tracker::config::CoreTuning;
-use tracker::{Answers, CoreLink, Event, HandEye, ImuNoiseDensities, LinkSpec, Rig, Start};
+use tracker::{Answers, Event, HandEye, ImuNoiseDensities, Rig, Start};
 
 use crate::camera::Camera;
 use crate::error::{TrackerError, of_tracker, value_error};
@@ -164,7 +165,7 @@ impl FrameReport {
 pub struct Tracker {
     /// None once finished. In a mutex only so that Python may hand the tracker between its
     /// threads: every method borrows it mutably, so the lock is never taken.
-    inner: Mutex<Option<tracker::Tracker>>,
+    inner: Mutex<Option<tracker::Tracker<CoreLink>>>,
     /// The index the next frame gets by default.
     next_index: usize,
     /// Frame reports polled from the tracker and not yet returned by `poll`.
@@ -206,7 +207,7 @@ fn vector3(value: &Bound<'_, PyAny>, what: &str) -> PyResult<[f64; 3]> {
 }
 
 impl Tracker {
-    fn inner(&mut self) -> PyResult<&mut tracker::Tracker> {
+    fn inner(&mut self) -> PyResult<&mut tracker::Tracker<CoreLink>> {
         self.slot()?
             .as_mut()
             .ok_or_else(|| TrackerError::new_err("the tracker was finished: make a new one"))
@@ -264,7 +265,7 @@ impl Tracker {
         }
     }
 
-    fn slot(&mut self) -> PyResult<&mut Option<tracker::Tracker>> {
+    fn slot(&mut self) -> PyResult<&mut Option<tracker::Tracker<CoreLink>>> {
         self.inner
             .get_mut()
             .map_err(|_| TrackerError::new_err("the tracker failed inside: make a new one"))
@@ -336,9 +337,8 @@ impl Tracker {
             None => Start::Locate,
             Some(p) => Start::Camera(start_pose_of(p)?),
         };
-        let spec = LinkSpec::from_str(link).map_err(|e| {
-            value_error(format!("link: {e} (one of {})", tracker::link::LINK_FORMS))
-        })?;
+        let spec = LinkSpec::from_str(link)
+            .map_err(|e| value_error(format!("link: {e} (one of {})", core_link::LINK_FORMS)))?;
         if spec == LinkSpec::QemuDefault {
             return Err(value_error(
                 "link \"qemu\": name the firmware image, qemu:PATH (the command line finds the repository's)",

@@ -12,7 +12,6 @@
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use firmware_sim::board::Precision;
 use firmware_sim::sim::camera;
 use firmware_sim::sim::imu::ImuSim;
 use host_vision::track::{CoreLink, Incoming, LinkSpec, check_latency};
@@ -24,6 +23,7 @@ use protocol::{
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 use tests::harness::{Scenario, scenes};
+use tracker::Precision;
 
 /// IMU rate [Hz]: the paper's full rate.
 const IMU_RATE_HZ: f64 = 200.0;

@@ -508,10 +508,7 @@ fn tracking_over_the_firmware_under_qemu_matches_the_simulated_board() {
     let mut runs = Vec::new();
     for (name, link) in [
         ("qemu", track::LinkSpec::Qemu(image.clone())),
-        (
-            "sim",
-            track::LinkSpec::Sim(firmware_sim::board::Precision::F32),
-        ),
+        ("sim", track::LinkSpec::Sim(tracker::Precision::F32)),
     ] {
         let mut o = options(&ds, &format!("desktop-fast-{name}"), ModelKind::Acc);
         o.link = link;
@@ -999,7 +996,7 @@ fn a_serial_device_that_comes_back_under_another_name_is_found_again() {
     let mut o = options(&ds, "desktop-fast-serial-renamed", ModelKind::Acc);
     o.link = track::LinkSpec::Serial {
         path: format!("{}/tty-*", dir.display()),
-        baud: track::core::DEFAULT_BAUD,
+        baud: core_link::DEFAULT_BAUD,
     };
     o.duration = Some(8.0);
     o.faults.cut_link_at = Some(5.0);

@@ -185,7 +185,7 @@ fn run_one(
     let name = filter_name(filter);
     let mut o = options_for(dataset, options.out.join(scene.name).join(&name))?;
     o.filter = filter;
-    o.link = LinkSpec::InProcess(firmware_sim::board::Precision::F32);
+    o.link = LinkSpec::InProcess(tracker::Precision::F32);
     o.overlay_every = 0;
     let what = format!("{} {name}", scene.name);
     let run = track::run(&o, options.interrupt.clone(), &mut |done, total, _, _| {

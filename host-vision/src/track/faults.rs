@@ -6,11 +6,12 @@
 
 use std::time::Duration;
 
+use core_link::CoreLink;
 use nalgebra::Vector3;
 use protocol::{Correspondence, HostToCore};
 use rand::rngs::StdRng;
 use rand::{RngExt as _, SeedableRng};
-use tracker::{CoreLink, CoreTransport, Incoming, Tracker, TrackerError};
+use tracker::{CoreTransport, Incoming, Tracker, TrackerError};
 
 /// Faults injected by the host, for tests of the core's robustness.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

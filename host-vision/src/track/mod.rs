@@ -22,7 +22,6 @@ pub mod overlay;
 pub mod plot;
 pub use ::vision::analysis as vision;
 mod vision_only;
-pub use tracker::link as core;
 pub use tracker::tilt;
 
 use std::collections::BTreeMap;
@@ -37,11 +36,11 @@ use tracker::{Answers, Finished, ImuSample, Tracker, TrackerConfig, TrackerError
 
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
-pub use self::core::{CoreLink, LinkSpec};
 pub use self::faults::{Faults, FaultyLink};
 pub use self::frame_row::FrameRow;
 pub use self::output::Summary;
 pub use self::vision::{FrameImage, FrameJob, FrameResult, Vision, VisionOptions};
+pub use core_link::{CoreLink, LinkSpec};
 pub use tracker::Incoming;
 pub use tracker::log::CoreLog;
 pub use tracker::record::Record;
@@ -294,7 +293,7 @@ impl TrackOptions {
             dataset,
             model: None,
             out,
-            link: LinkSpec::Sim(firmware_sim::board::Precision::F32),
+            link: LinkSpec::Sim(tracker::Precision::F32),
             filter: ModelKind::Acc,
             tuning: CoreTuning::default(),
             vision: VisionOptions::default(),

@@ -20,9 +20,9 @@ use icm42688::{Odr, Settings};
 use tracker::{ImuOnCore, Tracker, TrackerConfig};
 use vision::FrameImage;
 
-use super::core::LinkSpec;
 use super::{FaultyLink, Pacing, Progress, Ran, TrackError, TrackOptions};
 use crate::dataset::Dataset;
+use core_link::LinkSpec;
 
 /// The dataset's frames as the core's trigger would take them: every `every`-th IMU sample
 /// from `first`. Returns `(first, every)`.

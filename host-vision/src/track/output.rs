@@ -126,7 +126,7 @@ pub(super) struct LinkEnd<'a> {
     /// The simulated board's report.
     pub board: Option<&'a BoardReport>,
     /// The bit errors injected on its line.
-    pub noise: Option<&'a super::core::LineNoise>,
+    pub noise: Option<&'a core_link::LineNoise>,
 }
 
 /// A run over a line with injected bit errors: what was damaged and what each end dropped.

@@ -14,9 +14,10 @@ pub enum TrackerError {
         "the model has no textured material: the cold start finds a model by its texture, so an untextured model is tracked by its contour from a start pose (give one), and cannot be searched for when lost"
     )]
     NeedsStartPose,
-    /// The transport to the core could not be opened.
+    /// The transport to the core could not be opened (a pty, a serial device, a TCP peer:
+    /// the transport's own error).
     #[error(transparent)]
-    Transport(#[from] firmware_sim::transport::TransportError),
+    Transport(Box<dyn std::error::Error + Send + Sync>),
     /// The core refused something, or answered what it should not.
     #[error("core: {0}")]
     Core(String),

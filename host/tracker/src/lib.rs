@@ -3,8 +3,11 @@
 //! The tracking engine as a library. The vision host's side of the paper's system: frames
 //! in, the fusion core behind a [`CoreTransport`], poses out.
 //!
+//! - [`builder`]: a [`Tracker`] from a camera, a model and what differs from the defaults
+//!   ([`TrackerBuilder`]);
 //! - [`rig`], [`config`]: the sensors, and the core's configuration that follows from them;
-//! - [`transport`], [`link`]: the core at the other end of a link, or called in-process;
+//! - [`transport`], [`in_process`]: the core behind a [`CoreTransport`], and the core called
+//!   in-process (the links to a board are the `core-link` crate's);
 //! - [`log`]: what the core said, and the exchanges that wait for its answers;
 //! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
 //! - [`search`], [`loss`], [`tilt`]: the searches, the loss rule that sends them, and the
@@ -21,11 +24,12 @@
 //!
 //! Errors: [`TrackerError`].
 
+pub mod builder;
 pub mod config;
 mod error;
 pub mod event;
+pub mod in_process;
 pub mod latency;
-pub mod link;
 pub mod live;
 pub mod log;
 pub mod loss;
@@ -38,8 +42,10 @@ pub mod tracker;
 pub mod transport;
 pub mod worker;
 
+pub use builder::TrackerBuilder;
 pub use error::TrackerError;
-pub use link::{CoreLink, LinkSpec};
+pub use fusion_core::Precision;
+pub use in_process::InProcessCore;
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
 pub use tracker::inertial::ImuSample;
 pub use tracker::{

@@ -1,8 +1,8 @@
 //! The core behind the tracker: a [`CoreTransport`] carries the wire protocol's messages
-//! (protocol/PROTOCOL.md) to a fusion core and its answers back. [`crate::link::CoreLink`]
-//! implements it for every link the tracker knows (the simulated board on a pty pair or
-//! called in-process, a serial or TCP board, the firmware under QEMU); a program with a link
-//! of its own implements it too.
+//! (protocol/PROTOCOL.md) to a fusion core and its answers back. [`crate::InProcessCore`]
+//! implements it for the core called in-process; the `core-link` crate's `CoreLink` for the
+//! links to a board (the simulated board on a pty pair or called in-process, a serial or TCP
+//! board, the firmware under QEMU); a program with a link of its own implements it too.
 
 use std::time::Duration;
 

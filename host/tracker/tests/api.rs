@@ -7,12 +7,11 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use camera::{Camera, CameraPose, Pinhole, pinhole_camera};
-use firmware_sim::board::Precision;
 use image::GrayImage;
 use nalgebra::Vector3;
 use protocol::HostToCore;
 use tracker::{
-    CoreLink, CoreTransport, Frame, Incoming, LinkSpec, Start, State, Tracker, TrackerConfig,
+    CoreTransport, Frame, InProcessCore, Incoming, Start, State, Tracker, TrackerConfig,
     TrackerError,
 };
 
@@ -35,8 +34,8 @@ fn config(cache: &std::path::Path) -> TrackerConfig {
     c
 }
 
-fn inproc() -> CoreLink {
-    CoreLink::open(&LinkSpec::InProcess(Precision::F32)).unwrap()
+fn inproc() -> InProcessCore {
+    InProcessCore::default()
 }
 
 fn frame(index: usize, t_ms: i64, width: u32, height: u32) -> Frame {
@@ -143,7 +142,7 @@ fn a_tracker_that_did_not_start_or_stopped_takes_no_frame() {
 
 /// A transport whose line can be cut from outside, as a pulled cable does.
 struct Cuttable {
-    link: CoreLink,
+    link: InProcessCore,
     cut: Arc<AtomicBool>,
 }
 

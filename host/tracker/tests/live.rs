@@ -6,11 +6,10 @@
 use std::time::Duration;
 
 use camera::{Camera, CameraPose, Pinhole, pinhole_camera};
-use firmware_sim::board::Precision;
 use nalgebra::Vector3;
 use render::{RenderView, Renderer};
 use tracker::live::{LiveFrames, Paced};
-use tracker::{Answers, CoreLink, Event, Frame, LinkSpec, Start, Tracker, TrackerConfig};
+use tracker::{Answers, Event, Frame, InProcessCore, Start, Tracker, TrackerConfig};
 
 /// The source's frame period [ms]: a thousand frames per second, faster than any analysis
 /// here.
@@ -63,7 +62,7 @@ fn a_source_faster_than_the_tracker_is_dropped_never_queued_and_the_poses_stay_t
     config.start = Start::Camera(truth(0.0));
     config.answers = Answers::WhenReady;
     config.timeout = Duration::from_secs(5);
-    let core = CoreLink::open(&LinkSpec::InProcess(Precision::F32)).unwrap();
+    let core = InProcessCore::default();
     let mut tracker = Tracker::new(config, &model, core).unwrap();
 
     let mut live = LiveFrames::start(Paced::new(frames.into_iter().map(Ok::<_, String>))).unwrap();

@@ -30,7 +30,7 @@ use super::imu::{ImuNoise, ImuReading, ImuSim};
 use super::trajectory::{Kinematics, Ramp, Sines, Trajectory};
 
 /// The scenarios.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ScenarioName {
     /// Robot arm, slow figure eight in front of the desktop target.
@@ -60,6 +60,37 @@ impl ScenarioName {
             ScenarioName::Room => "room",
             ScenarioName::Foyer => "foyer",
         }
+    }
+}
+
+impl ScenarioName {
+    /// What the scenario is, in a line (for help texts).
+    pub fn describe(&self) -> &'static str {
+        match self {
+            ScenarioName::DesktopSlow => {
+                "Robot arm, slow figure eight in front of the desktop target"
+            }
+            ScenarioName::DesktopFast => "Robot arm, fast figure eight with vibration",
+            ScenarioName::Room => "Hand-held walk in a room with three modelled walls",
+            ScenarioName::Foyer => "Hand-held off-centre rotations facing a large wall 7 m away",
+        }
+    }
+}
+
+impl std::str::FromStr for ScenarioName {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|n| n.as_str() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Self::ALL.iter().map(|n| n.as_str()).collect();
+                format!(
+                    "unknown scenario `{s}`: expected one of {}",
+                    names.join(", ")
+                )
+            })
     }
 }
 

@@ -139,7 +139,7 @@ pub struct EvalArgs {
     #[arg(long, default_value = "datasets")]
     pub cache: PathBuf,
     /// Scenarios (repeatable; default: all four).
-    #[arg(long = "scenario", value_enum)]
+    #[arg(long = "scenario", value_parser = scenario())]
     pub scenarios: Vec<ScenarioName>,
     /// Models (repeatable; default: gyro, gravity, acc and vision, the last with the IMU
     /// withheld).
@@ -426,7 +426,7 @@ impl From<FilterArg> for protocol::ModelKind {
 #[command(allow_negative_numbers = true)]
 pub struct SynthArgs {
     /// Test case.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = scenario())]
     pub scenario: ScenarioName,
     /// Output folder (created; must not already hold a dataset unless --overwrite).
     #[arg(long)]
@@ -502,6 +502,14 @@ pub struct SynthArgs {
     /// Replace a dataset already in the output folder.
     #[arg(long)]
     pub overwrite: bool,
+}
+
+/// `--scenario`'s values, with their descriptions (the simulator's names know no command
+/// line).
+fn scenario() -> impl clap::builder::TypedValueParser<Value = ScenarioName> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser as _};
+    let names = ScenarioName::ALL.map(|s| PossibleValue::new(s.as_str()).help(s.describe()));
+    PossibleValuesParser::new(names).try_map(|s| s.parse::<ScenarioName>())
 }
 
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {

@@ -41,7 +41,7 @@ use self::inertial::Inertial;
 use crate::config::vision_config;
 use crate::error::TrackerError;
 pub use crate::event::{Event, FrameReport, Pose, State};
-use crate::link::CoreLink;
+use crate::in_process::InProcessCore;
 use crate::loss::LossRule;
 use crate::record::Fate;
 use crate::record::Record;
@@ -96,7 +96,7 @@ struct InSearch {
 /// // error[E0381]: used binding `tracker` isn't initialized
 /// tracker.push_frame(tracker::Frame { index: 0, t_ns: 0, image: image::GrayImage::new(1, 1) });
 /// ```
-pub struct Tracker<T: CoreTransport = CoreLink> {
+pub struct Tracker<T: CoreTransport = InProcessCore> {
     pub(crate) config: TrackerConfig,
     pub(crate) core: T,
     pub(crate) worker: VisionWorker,

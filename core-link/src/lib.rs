@@ -1,7 +1,12 @@
-//! The host's connection to a fusion core: the simulated board in-process on a pty pair,
-//! the same board called directly (no pty, no thread), a serial device, a TCP peer, or the
+//! The host's links to a fusion core on a board, each a [`tracker::CoreTransport`]: the
+//! simulated board in-process on a pty pair, the same board called directly (no pty, no
+//! thread; with its reset line and a simulated IMU), a serial device, a TCP peer, or the
 //! firmware under QEMU. On a byte transport a reader thread decodes the core's frames as they
 //! arrive, so the core never blocks on a full line while the host is busy with a frame.
+//!
+//! The tracker itself knows none of them: it runs any transport, and its own in-process core
+//! ([`tracker::InProcessCore`]) needs no board. This crate is what an application adds to
+//! reach a board (`host-vision --link`, the Python module's `link=`).
 
 use std::cell::RefCell;
 use std::collections::VecDeque;
@@ -20,8 +25,7 @@ use firmware_sim::transport::{self, Duplex};
 use protocol::io::{FrameReader, FrameWriter, RecvError};
 use protocol::{CoreToHost, HostToCore};
 
-use crate::error::TrackerError;
-use crate::transport::{CoreTransport, Incoming};
+use tracker::{CoreTransport, Incoming, TrackerError};
 
 /// Where the core is.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -301,7 +305,7 @@ impl CoreLink {
         self.conn = None;
         let duplex = match &self.spec {
             LinkSpec::Sim(_) => {
-                let (mut host, mut board_end) = transport::pty_pair()?;
+                let (mut host, mut board_end) = transport::pty_pair().map_err(opening)?;
                 if let (Some((rate, seed)), Some(d)) = (self.noise, &self.damage) {
                     // Each connection's line garbles differently, and repeatably.
                     let seed = seed.wrapping_add(u64::from(self.connections));
@@ -337,7 +341,7 @@ impl CoreLink {
                 return Ok(());
             }
             LinkSpec::Serial { path, baud } => open_serial(path, *baud)?,
-            LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str())?,
+            LinkSpec::Tcp(addr) => transport::tcp_connect(addr.as_str()).map_err(opening)?,
             LinkSpec::Qemu(image) => {
                 // A new connection to QEMU's UART is a new QEMU: the board boots again.
                 self.qemu = None;
@@ -561,7 +565,7 @@ impl CoreLink {
 /// opens.
 fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackerError> {
     if !path.contains(['*', '?', '[']) {
-        return Ok(transport::serial(path, baud)?);
+        return transport::serial(path, baud).map_err(opening);
     }
     let matches = glob::glob(path)
         .map_err(|e| TrackerError::Config(format!("serial:{path}: bad pattern: {e}")))?;
@@ -578,6 +582,11 @@ fn open_serial(path: &str, baud: u32) -> Result<Duplex, TrackerError> {
     } else {
         format!("no device matching {path} opens: {}", failures.join("; "))
     }))
+}
+
+/// A transport that could not be opened.
+fn opening(e: transport::TransportError) -> TrackerError {
+    TrackerError::Transport(Box::new(e))
 }
 
 impl Connection {
