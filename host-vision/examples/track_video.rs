@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use host_vision::frames::{FrameInput, VideoOptions};
-use tracker::{Event, InProcessCore, Start, Tracker, TrackerConfig};
+use tracker::{Event, TrackerBuilder, camera, model};
 
 fn main() -> anyhow::Result<()> {
     let data = PathBuf::from("../shared/data/visp-cube");
@@ -45,14 +45,10 @@ fn main() -> anyhow::Result<()> {
         .map(|f| data.join(f)),
     };
     let frames = FrameInput::Video(video).open(&VideoOptions::default())?;
-    let mut config = TrackerConfig::new(
-        camera::read_camera_json(&camera)?,
-        frames.nominal_rate_hz().unwrap_or(30.0),
-        locate::database::default_cache_dir(),
-    );
-    config.start = Start::Camera(camera::start_pose::read_start_pose(&pose)?);
-    let core = InProcessCore::default();
-    let mut tracker = Tracker::new(config, &model::load(&model)?, core)?;
+    let mut tracker = TrackerBuilder::new(camera::read_camera_json(&camera)?, model::load(&model)?)
+        .frame_rate_hz(frames.nominal_rate_hz().unwrap_or(30.0))
+        .start_pose(camera::start_pose::read_start_pose(&pose)?)
+        .build()?;
     println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
     let mut busy = Duration::ZERO;
     let mut pushed = 0usize;

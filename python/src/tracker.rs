@@ -12,8 +12,7 @@ use core_link::{CoreLink, LinkSpec};
 use protocol::ModelKind;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use tracker::config::CoreTuning;
-use tracker::{Answers, Event, HandEye, ImuNoiseDensities, Rig, Start};
+use tracker::{Event, HandEye, ImuNoiseDensities, Rig, Start, TrackerBuilder};
 
 use crate::camera::Camera;
 use crate::error::{TrackerError, of_tracker, value_error};
@@ -271,9 +270,10 @@ impl Tracker {
             .map_err(|_| TrackerError::new_err("the tracker failed inside: make a new one"))
     }
 
-    /// The tracker's settings from the constructor's arguments.
+    /// The tracker of `model` from the constructor's arguments.
     #[allow(clippy::too_many_arguments)]
-    fn config(
+    fn builder(
+        model: &Model,
         camera: &Camera,
         start: Start,
         imu: Option<&Imu>,
@@ -281,19 +281,17 @@ impl Tracker {
         cache: Option<PathBuf>,
         live: bool,
         latency_s: f64,
-    ) -> PyResult<tracker::TrackerConfig> {
+    ) -> PyResult<TrackerBuilder> {
         let rate = rate_hz.or(camera.rate_hz).ok_or_else(|| {
             value_error("give the camera's frame rate (rate_hz=…): its calibration file has none")
         })?;
-        let cache = cache.unwrap_or_else(::locate::database::default_cache_dir);
-        let mut config = tracker::TrackerConfig::new(camera.inner, rate, cache);
-        config.start = start;
-        config.answers = if live {
-            Answers::WhenReady
-        } else {
-            Answers::AtNextFrame
-        };
-        config.session_id = tracker::settings::new_session_id();
+        let mut builder = TrackerBuilder::new(camera.inner, (*model.inner).clone())
+            .frame_rate_hz(rate)
+            .start(start)
+            .live(live);
+        if let Some(cache) = cache {
+            builder = builder.cache(cache);
+        }
         if let Some(imu) = imu {
             let t_bs = imu.t_bs.or(camera.t_bs).ok_or_else(|| {
                 value_error("the camera's mount on the IMU is needed: give Imu(t_bs=…) or a camera from a calibration file with T_BS")
@@ -301,17 +299,15 @@ impl Tracker {
             check_rigid(&t_bs).map_err(|e| value_error(format!("t_bs: {e}")))?;
             let hand_eye = HandEye::from_t_bs(&t_bs)
                 .ok_or_else(|| value_error("t_bs is not a rigid transform"))?;
-            config.model = imu.filter;
-            config.rig = Rig {
+            let rig = Rig {
                 imu_rate_hz: imu.rate_hz,
                 imu_noise: imu.noise,
                 camera_rate_hz: Some(rate),
                 hand_eye,
             };
-            config.tuning = CoreTuning::default();
-            config.latency_s = latency_s;
+            builder = builder.imu(imu.filter, rig).latency_s(latency_s);
         }
-        Ok(config)
+        Ok(builder)
     }
 }
 
@@ -344,13 +340,9 @@ impl Tracker {
                 "link \"qemu\": name the firmware image, qemu:PATH (the command line finds the repository's)",
             ));
         }
-        let config = Self::config(camera, start, imu, rate_hz, cache, live, latency_s)?;
-        let model = model.inner.clone();
+        let builder = Self::builder(model, camera, start, imu, rate_hz, cache, live, latency_s)?;
         let inner = py
-            .detach(move || {
-                let core = CoreLink::open(&spec)?;
-                tracker::Tracker::new(config, &model, core)
-            })
+            .detach(move || builder.build_with(CoreLink::open(&spec)?))
             .map_err(of_tracker)?;
         Ok(Tracker {
             inner: Mutex::new(Some(inner)),

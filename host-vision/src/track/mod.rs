@@ -32,7 +32,7 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{ModelKind, StateReport};
-use tracker::{Answers, Finished, ImuSample, Tracker, TrackerConfig, TrackerError};
+use tracker::{Finished, ImuSample, Tracker, TrackerBuilder, TrackerError};
 
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
@@ -796,8 +796,7 @@ fn track_imu(
     interrupt: &AtomicBool,
     progress: Progress,
 ) -> Result<Ran, TrackError> {
-    let config = inertial_config(options, dataset)?;
-    let mut tracker = Tracker::new(config, model, link)?;
+    let mut tracker = inertial_tracker(options, dataset, model)?.build_with(link)?;
     let stamp0 = dataset.imu[0].stamp;
     let triggers: BTreeMap<usize, usize> = dataset
         .triggers()
@@ -878,34 +877,34 @@ fn wind_up(
     Ran::of(finished, outcome)
 }
 
-/// The tracker's settings of a run with an IMU.
-fn inertial_config(options: &TrackOptions, dataset: &Dataset) -> Result<TrackerConfig, TrackError> {
+/// The tracker of a run with an IMU, to be built on the run's link.
+fn inertial_tracker(
+    options: &TrackOptions,
+    dataset: &Dataset,
+    model: &crate::model::Model,
+) -> Result<TrackerBuilder, TrackError> {
     let rig = dataset.rig();
-    Ok(TrackerConfig {
-        camera: dataset.camera.camera,
-        model: options.filter,
-        rig,
-        frame_rate_hz: rig.camera_rate_hz.unwrap_or(20.0),
-        start: if options.start.is_cold(dataset) {
-            tracker::Start::Locate
-        } else {
-            inertial_start(options, dataset)?
-        },
-        latency_s: options.latency,
-        attach: options.attach,
-        vision: options.vision,
-        tuning: options.tuning,
-        cache: options.cache.clone(),
-        timeout: options.timeout,
-        answers: match options.pacing {
-            Pacing::LockStep => Answers::AtNextFrame,
-            Pacing::RealTime => Answers::WhenReady,
-        },
-        keep_image_every: options.overlay_every,
-        session_id: tracker::settings::new_session_id(),
-        search_floor: Duration::ZERO,
-        imu_on_core: None,
-    })
+    let start = if options.start.is_cold(dataset) {
+        tracker::Start::Locate
+    } else {
+        inertial_start(options, dataset)?
+    };
+    let (vision, tuning, timeout) = (options.vision, options.tuning, options.timeout);
+    let (attach, overlay_every) = (options.attach, options.overlay_every);
+    Ok(TrackerBuilder::new(dataset.camera.camera, model.clone())
+        .frame_rate_hz(rig.camera_rate_hz.unwrap_or(20.0))
+        .imu(options.filter, rig)
+        .start(start)
+        .latency_s(options.latency)
+        .live(options.pacing == Pacing::RealTime)
+        .cache(options.cache.clone())
+        .configure(move |c| {
+            c.attach = attach;
+            c.vision = vision;
+            c.tuning = tuning;
+            c.timeout = timeout;
+            c.keep_image_every = overlay_every;
+        }))
 }
 
 /// Where a run with an IMU starts: the given camera pose, or the IMU's position and yaw as

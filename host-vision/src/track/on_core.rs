@@ -17,7 +17,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use firmware_sim::sim::scenario::euroc::IMU_HEADER;
 use firmware_sim::sim::sensor_board::odr_for;
 use icm42688::{Odr, Settings};
-use tracker::{ImuOnCore, Tracker, TrackerConfig};
+use tracker::{ImuOnCore, Tracker};
 use vision::FrameImage;
 
 use super::{FaultyLink, Pacing, Progress, Ran, TrackError, TrackOptions};
@@ -102,11 +102,9 @@ pub(super) fn track(
     check_options(options)?;
     let (first, every) = trigger_plan(dataset)?;
     link.link_mut().fit_simulated_imu(part_settings(dataset)?)?;
-    let config = TrackerConfig {
-        imu_on_core: Some(ImuOnCore::new(every, dataset.imu_rate_hz)),
-        ..super::inertial_config(options, dataset)?
-    };
-    let mut tracker = Tracker::new(config, model, link)?;
+    let mut tracker = super::inertial_tracker(options, dataset, model)?
+        .imu_on_core(ImuOnCore::new(every, dataset.imu_rate_hz))
+        .build_with(link)?;
     let stamp0 = dataset.imu[first].stamp;
     let cam = &dataset.camera.camera;
     let mut next_frame = 0;

@@ -12,7 +12,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use tracker::live::{LiveFrames, Paced};
-use tracker::{Answers, Finished, Tracker, TrackerConfig, TrackerError};
+use tracker::{Finished, Tracker, TrackerBuilder, TrackerError};
 use vision::FrameImage;
 
 use super::{FaultyLink, Progress, TrackError, TrackOptions};
@@ -113,24 +113,26 @@ pub(super) fn track_frames(
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
     let live = options.live();
-    let config = TrackerConfig {
-        start: vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0))
-            .map_or(tracker::Start::Locate, tracker::Start::Camera),
-        vision: options.vision,
-        tuning: options.tuning,
-        timeout: options.timeout,
-        answers: if live {
-            Answers::WhenReady
-        } else {
-            Answers::AtNextFrame
-        },
-        keep_image_every: options.overlay_every,
-        session_id: tracker::settings::new_session_id(),
-        ..TrackerConfig::new(*camera, rate, options.cache.clone())
-    };
+    let (vision, tuning, timeout) = (options.vision, options.tuning, options.timeout);
+    let overlay_every = options.overlay_every;
+    let tracker = TrackerBuilder::new(*camera, model.clone())
+        .frame_rate_hz(rate)
+        .start(
+            vision_start(options, dataset, u64::try_from(first.t_ns).unwrap_or(0))
+                .map_or(tracker::Start::Locate, tracker::Start::Camera),
+        )
+        .live(live)
+        .cache(options.cache.clone())
+        .configure(move |c| {
+            c.vision = vision;
+            c.tuning = tuning;
+            c.timeout = timeout;
+            c.keep_image_every = overlay_every;
+        })
+        .build_with(link)?;
     let mut run = FrameLoop {
         options,
-        tracker: Tracker::new(config, model, link)?,
+        tracker,
         t0_ns: first.t_ns,
         size: (w, h),
         total: source.len_hint().unwrap_or(0),

@@ -78,8 +78,8 @@ impl TrackerBuilder {
         }
     }
 
-    /// The frames' nominal rate [Hz] ([`TrackerConfig::frame_rate_hz`]; with an IMU, the
-    /// rig's camera rate where the rig gives none).
+    /// The frames' nominal rate [Hz] ([`TrackerConfig::frame_rate_hz`]; with an IMU, where
+    /// the rig gives no camera rate).
     pub fn frame_rate_hz(mut self, hz: f64) -> Self {
         self.frame_rate_hz = hz;
         self
@@ -165,11 +165,8 @@ impl TrackerBuilder {
         config.session_id = self.session_id.unwrap_or_else(new_session_id);
         if let Some((model, rig)) = self.inertial {
             config.model = model;
-            config.rig = Rig {
-                camera_rate_hz: rig.camera_rate_hz.or(Some(self.frame_rate_hz)),
-                ..rig
-            };
-            config.frame_rate_hz = config.rig.camera_rate_hz.unwrap_or(self.frame_rate_hz);
+            config.rig = rig;
+            config.frame_rate_hz = rig.camera_rate_hz.unwrap_or(self.frame_rate_hz);
             config.tuning = CoreTuning::default();
             config.latency_s = self.latency_s;
             config.imu_on_core = self.imu_on_core;

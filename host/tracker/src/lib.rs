@@ -22,7 +22,37 @@
 //!   [`tracker::inertial`] (`push_imu`), its cold start and its outages (a lost link or a
 //!   reset core noticed, reached again and brought up to date) in child modules.
 //!
-//! Errors: [`TrackerError`].
+//! Errors: [`TrackerError`]. The crates a program needs beside it are re-exported:
+//! [`camera`] (intrinsics, poses, their files), [`model`] (OBJ and glTF models) and
+//! [`image`] (the frames' pixels).
+//!
+//! # Example
+//!
+//! A program that owns its camera (the README's example; `tests/readme.rs` checks that the
+//! two agree):
+//!
+//! ```no_run
+//! # fn my_camera() -> impl Iterator<Item = (i64, tracker::image::GrayImage)> { std::iter::empty() }
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! use tracker::{Event, Frame, TrackerBuilder, camera, model};
+//!
+//! let camera = camera::read_camera_json("camera.json".as_ref())?;
+//! let start = camera::start_pose::read_start_pose("frame0_pose.json".as_ref())?;
+//! let model = model::load("cube.obj".as_ref())?;
+//! let mut tracker = TrackerBuilder::new(camera, model).frame_rate_hz(30.0).start_pose(start).build()?;
+//! // Grey frames of the camera's size, with their times [ns]; or .start(Start::Locate) to find the model first.
+//! for (index, (t_ns, image)) in my_camera().enumerate() {
+//!     tracker.push_frame(Frame::decoded(index, t_ns, image))?;
+//!     for event in tracker.poll() {
+//!         if let Event::Frame(f) = event {
+//!             println!("frame {index}: tracked {:?}, cMo {:?}", f.tracked, f.pose);
+//!         }
+//!     }
+//! }
+//! tracker.finish().result?;
+//! # Ok(())
+//! # }
+//! ```
 
 pub mod builder;
 pub mod config;
@@ -43,9 +73,12 @@ pub mod transport;
 pub mod worker;
 
 pub use builder::TrackerBuilder;
+pub use camera;
 pub use error::TrackerError;
 pub use fusion_core::Precision;
+pub use image;
 pub use in_process::InProcessCore;
+pub use model;
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
 pub use tracker::inertial::ImuSample;
 pub use tracker::{
