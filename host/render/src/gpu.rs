@@ -1,6 +1,13 @@
 //! Opening the wgpu device, and turning wgpu errors into [`RenderError`]s instead of panics.
+//!
+//! The renderers of a process share one device ([`Gpu::shared`]) and its textures
+//! ([`Gpu::texture`]): a tracker renders the same model on two threads (the frames', the
+//! searches'), and a 5083×3409 texture with its mipmaps is 92 MB on a software driver, in the
+//! process's memory, for each copy.
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, PoisonError, Weak};
+
+use image::RgbaImage;
 
 use super::RenderError;
 
@@ -12,11 +19,47 @@ pub(crate) struct Gpu {
     pub downlevel: wgpu::DownlevelCapabilities,
     /// Errors that escaped every error scope (wgpu would panic on them by default).
     uncaptured: Arc<Mutex<Vec<String>>>,
+    /// The textures uploaded, by the image they hold, while that image lives.
+    textures: Mutex<Vec<(Weak<RgbaImage>, wgpu::TextureView)>>,
 }
 
 impl Gpu {
+    /// The device every renderer of the process uses while one is alive: opened by the first,
+    /// closed with the last.
+    pub fn shared() -> Result<Arc<Self>, RenderError> {
+        static SHARED: Mutex<Weak<Gpu>> = Mutex::new(Weak::new());
+        let mut slot = SHARED.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(gpu) = slot.upgrade() {
+            return Ok(gpu);
+        }
+        let gpu = Arc::new(Self::open()?);
+        *slot = Arc::downgrade(&gpu);
+        Ok(gpu)
+    }
+
+    /// The texture of `image` on this device: uploaded by the first renderer that asks, the
+    /// same view for the others while the image lives.
+    pub fn texture(
+        &self,
+        image: &Arc<RgbaImage>,
+        upload: impl FnOnce() -> wgpu::TextureView,
+    ) -> wgpu::TextureView {
+        // Held during the upload: a second renderer asking for the same image waits for it.
+        let mut textures = self.textures.lock().unwrap_or_else(PoisonError::into_inner);
+        textures.retain(|(held, _)| held.strong_count() > 0);
+        if let Some((_, view)) = textures
+            .iter()
+            .find(|(held, _)| std::ptr::eq(held.as_ptr(), Arc::as_ptr(image)))
+        {
+            return view.clone();
+        }
+        let view = upload();
+        textures.push((Arc::downgrade(image), view.clone()));
+        view
+    }
+
     /// Opens the first adapter of the backends `WGPU_BACKEND` selects (all when unset).
-    pub fn open() -> Result<Self, RenderError> {
+    fn open() -> Result<Self, RenderError> {
         let desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
         let backends = desc.backends;
         let instance = wgpu::Instance::new(desc);
@@ -60,6 +103,7 @@ impl Gpu {
             info,
             downlevel,
             uncaptured,
+            textures: Mutex::default(),
         })
     }
 

@@ -13,6 +13,7 @@
 pub mod backproject;
 mod frame;
 mod gpu;
+mod mip;
 pub mod projection;
 pub mod region;
 mod scene;
@@ -127,7 +128,7 @@ pub struct RendererOptions {
 /// The offscreen renderer. Create once, [`Renderer::set_model`], then
 /// [`Renderer::render`] every frame.
 pub struct Renderer {
-    gpu: Gpu,
+    gpu: std::sync::Arc<Gpu>,
     targets: Targets,
     scene: Option<GpuScene>,
     /// The view of the rendering submitted and not yet read back, and the rectangle rendered.
@@ -148,7 +149,7 @@ impl Renderer {
 
     /// A renderer with explicit options.
     pub fn with_options(options: RendererOptions) -> Result<Self, RenderError> {
-        let gpu = Gpu::open()?;
+        let gpu = Gpu::shared()?;
         let max = gpu.device.limits().max_texture_dimension_2d;
         let (width, height) = (options.width, options.height);
         if width == 0 || height == 0 || width > max || height > max {
@@ -204,8 +205,7 @@ impl Renderer {
         model.check("model to render")?;
         let scene = self.gpu.scoped("uploading the model", || {
             GpuScene::upload(
-                &self.gpu.device,
-                &self.gpu.queue,
+                &self.gpu,
                 &self.targets.material_layout,
                 &self.targets.sampler,
                 model,

@@ -6,10 +6,10 @@ use std::collections::hash_map::Entry;
 use std::sync::Arc;
 
 use image::RgbaImage;
-use image::imageops::{FilterType, resize};
 use wgpu::util::DeviceExt;
 
 use super::RenderError;
+use super::gpu::Gpu;
 use model::Model;
 
 /// Interleaved vertex: position (m) then texture coordinates.
@@ -47,12 +47,12 @@ pub(crate) struct GpuScene {
 
 impl GpuScene {
     pub fn upload(
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
+        gpu: &Gpu,
         layout: &wgpu::BindGroupLayout,
         sampler: &wgpu::Sampler,
         model: &Model,
     ) -> Result<Self, RenderError> {
+        let (device, queue) = (&gpu.device, &gpu.queue);
         let limits = device.limits();
         let mut vertices = Vec::new();
         let mut indices = Vec::new();
@@ -119,7 +119,7 @@ impl GpuScene {
                             max,
                         });
                     }
-                    e.insert(upload_texture(device, queue, &image))
+                    e.insert(gpu.texture(&image, || upload_texture(device, queue, &image)))
                 }
             };
             let uniform = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -169,7 +169,7 @@ fn bounds(vertices: &[Vertex]) -> ([f32; 3], [f32; 3]) {
     bounds
 }
 
-/// Uploads an RGBA8 texture with a full mip chain (box-filtered on the CPU), so minified
+/// Uploads an RGBA8 texture with a full mip chain (triangle-filtered on the CPU, [`super::mip`]), so minified
 /// textures do not alias.
 fn upload_texture(
     device: &wgpu::Device,
@@ -192,34 +192,56 @@ fn upload_texture(
         usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     });
-    let mut level_image = image.clone();
-    for level in 0..levels {
-        if level > 0 {
-            let (w, h) = (
-                (level_image.width() / 2).max(1),
-                (level_image.height() / 2).max(1),
-            );
-            level_image = resize(&level_image, w, h, FilterType::Triangle);
-        }
+    write_level(device, queue, &texture, 0, image);
+    let mut smaller: Option<RgbaImage> = None;
+    for level in 1..levels {
+        let above = smaller.as_ref().unwrap_or(image);
+        let level_image = super::mip::half(above);
+        write_level(device, queue, &texture, level, &level_image);
+        smaller = Some(level_image);
+    }
+    texture.create_view(&wgpu::TextureViewDescriptor::default())
+}
+
+/// Most bytes staged at once: a texture goes up in bands of rows, each staging buffer freed
+/// before the next (a whole level would stage its full size, 69 MB for 5083×3409).
+const STAGING_BYTES: usize = 8 << 20;
+
+/// Writes `image` as mip `level` of `texture`, band by band, waiting for each.
+fn write_level(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    level: u32,
+    image: &RgbaImage,
+) {
+    let row_bytes = 4 * image.width() as usize;
+    let band = (STAGING_BYTES / row_bytes).max(1);
+    let rows: Vec<u32> = (0..image.height()).step_by(band).collect();
+    for y0 in rows {
+        let height = (image.height() - y0).min(band as u32);
+        let start = y0 as usize * row_bytes;
         queue.write_texture(
             wgpu::TexelCopyTextureInfo {
-                texture: &texture,
+                texture,
                 mip_level: level,
-                origin: wgpu::Origin3d::ZERO,
+                origin: wgpu::Origin3d { x: 0, y: y0, z: 0 },
                 aspect: wgpu::TextureAspect::All,
             },
-            level_image.as_raw(),
+            &image.as_raw()[start..start + height as usize * row_bytes],
             wgpu::TexelCopyBufferLayout {
                 offset: 0,
-                bytes_per_row: Some(4 * level_image.width()),
-                rows_per_image: Some(level_image.height()),
+                bytes_per_row: Some(row_bytes as u32),
+                rows_per_image: Some(height),
             },
             wgpu::Extent3d {
-                width: level_image.width(),
-                height: level_image.height(),
+                width: image.width(),
+                height,
                 depth_or_array_layers: 1,
             },
         );
+        // The staging buffer goes with the submission that copies it.
+        queue.submit([]);
+        let _ = device.poll(wgpu::PollType::wait_indefinitely());
     }
-    texture.create_view(&wgpu::TextureViewDescriptor::default())
 }
