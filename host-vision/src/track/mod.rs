@@ -32,7 +32,7 @@ use std::time::{Duration, Instant};
 
 use nalgebra::{UnitQuaternion, Vector3};
 use protocol::{ModelKind, StateReport};
-use tracker::{Finished, ImuSample, Tracker, TrackerBuilder, TrackerError};
+use tracker::{Finished, ImuSample, Tracker, TrackerBuilder, TrackerConfig, TrackerError};
 
 pub use self::assess::{Assessment, Contrast, TrackedRule};
 pub use self::config::{CoreTuning, check_latency, core_config};
@@ -889,8 +889,7 @@ fn inertial_tracker(
     } else {
         inertial_start(options, dataset)?
     };
-    let (vision, tuning, timeout) = (options.vision, options.tuning, options.timeout);
-    let (attach, overlay_every) = (options.attach, options.overlay_every);
+    let attach = options.attach;
     Ok(TrackerBuilder::new(dataset.camera.camera, model.clone())
         .frame_rate_hz(rig.camera_rate_hz.unwrap_or(20.0))
         .imu(options.filter, rig)
@@ -898,13 +897,21 @@ fn inertial_tracker(
         .latency_s(options.latency)
         .live(options.pacing == Pacing::RealTime)
         .cache(options.cache.clone())
-        .configure(move |c| {
-            c.attach = attach;
-            c.vision = vision;
-            c.tuning = tuning;
-            c.timeout = timeout;
-            c.keep_image_every = overlay_every;
-        }))
+        .configure(command_settings(options))
+        .configure(move |c| c.attach = attach))
+}
+
+/// The command's settings of a tracker that the builder has no method of its own for: the
+/// image analysis, the core's tuning, the wait for the core, the overlays' frames.
+fn command_settings(options: &TrackOptions) -> impl Fn(&mut TrackerConfig) + Send + Sync + 'static {
+    let (vision, tuning, timeout) = (options.vision, options.tuning, options.timeout);
+    let overlay_every = options.overlay_every;
+    move |c| {
+        c.vision = vision;
+        c.tuning = tuning;
+        c.timeout = timeout;
+        c.keep_image_every = overlay_every;
+    }
 }
 
 /// Where a run with an IMU starts: the given camera pose, or the IMU's position and yaw as

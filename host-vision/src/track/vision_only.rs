@@ -113,8 +113,6 @@ pub(super) fn track_frames(
         .filter(|r| r.is_finite() && *r > 0.0)
         .unwrap_or(DEFAULT_CAMERA_RATE_HZ);
     let live = options.live();
-    let (vision, tuning, timeout) = (options.vision, options.tuning, options.timeout);
-    let overlay_every = options.overlay_every;
     let tracker = TrackerBuilder::new(*camera, model.clone())
         .frame_rate_hz(rate)
         .start(
@@ -123,12 +121,7 @@ pub(super) fn track_frames(
         )
         .live(live)
         .cache(options.cache.clone())
-        .configure(move |c| {
-            c.vision = vision;
-            c.tuning = tuning;
-            c.timeout = timeout;
-            c.keep_image_every = overlay_every;
-        })
+        .configure(super::command_settings(options))
         .build_with(link)?;
     let mut run = FrameLoop {
         options,
