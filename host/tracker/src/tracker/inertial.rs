@@ -3,7 +3,7 @@
 //!
 //! 1. an outage in progress is worked on (`super::outage`): the sample waits until the core
 //!    is reached again;
-//! 2. [`Tracker::deliver_due`]: the correspondences of frames analysed since: in a replay
+//! 2. `deliver_due`: the correspondences of frames analysed since: in a replay
 //!    ([`Answers::AtNextFrame`]) exactly `latency` after their trigger, counted in samples,
 //!    waiting for the vision thread if needed, so that a replay is deterministic and the
 //!    core's delayed-update path is always exercised; live, as soon as they are ready;
@@ -455,7 +455,7 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// Delivers the frames due at sample `k` (in a replay), or those ready (live).
-    pub fn deliver_due(&mut self, k: usize, lock_step: bool) -> Result<(), TrackerError> {
+    pub(crate) fn deliver_due(&mut self, k: usize, lock_step: bool) -> Result<(), TrackerError> {
         loop {
             let Some(p) = self.imu_mut()?.pending.front().copied() else {
                 return Ok(());

@@ -7,20 +7,20 @@
 //! of a sample are in [`inertial`]. Without one (the vision-only model) the frames are
 //! the clock, and each frame goes through named steps (as M3T's tracker loop does), in this
 //! order:
-//! 1. [`Tracker::check_frame`]: its size and time against the camera and the frame before;
-//! 2. [`Tracker::start_step`]: while no pose is known (*locating*), a cold-start attempt on
+//! 1. `check_frame`: its size and time against the camera and the frame before;
+//! 2. `start_step`: while no pose is known (*locating*), a cold-start attempt on
 //!    the frame, whose verified pose initialises the core;
-//! 3. [`Tracker::take_answers`]: the answers of the search and the tilt check sent at an
+//! 3. `take_answers`: the answers of the search and the tilt check sent at an
 //!    earlier frame (a verified pose re-initialises the core);
-//! 4. [`Tracker::search_step`]: while *lost*, a search every few frames
+//! 4. `search_step`: while *lost*, a search every few frames
 //!    ([`crate::loss`]), on the search thread;
-//! 5. [`Tracker::tick`]: the core's clock to the frame's time, with the trigger: the core
+//! 5. `tick`: the core's clock to the frame's time, with the trigger: the core
 //!    answers with the frame's prediction;
-//! 6. [`Tracker::analyse`]: the frame at the prediction (rendering, KLT, correspondences),
+//! 6. `analyse`: the frame at the prediction (rendering, KLT, correspondences),
 //!    its correspondences to the core, the clock just past the frame, and the pose
 //!    estimated with it judged (the tracked rule);
-//! 7. [`Tracker::check_step`]: a tilt check of a tracked pose every few frames;
-//! 8. [`Tracker::judge`]: the loss rule, the state, and the events.
+//! 7. `check_step`: a tilt check of a tracked pose every few frames;
+//! 8. `judge`: the loss rule, the state, and the events.
 //!
 //! The core runs the vision-only model: its clock is the frames' (`Tick`s, protocol 2.1).
 
@@ -63,7 +63,7 @@ const TILT_CHECK_EVERY: usize = 5;
 
 /// A frame's pose estimated with it, and its judgement.
 #[derive(Debug, Clone, Copy)]
-pub struct Judged {
+pub(crate) struct Judged {
     /// The pose estimated with the frame.
     pub pose: CameraPose,
     /// Whether it counts as tracked (the tracked rule).
@@ -358,7 +358,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 1 (vision-only): the frame's pixels, size and time. Returns its time [µs from
     /// the first frame] and pixels.
-    pub fn check_frame(&mut self, frame: Frame) -> Result<(u64, GrayImage), TrackerError> {
+    fn check_frame(&mut self, frame: Frame) -> Result<(u64, GrayImage), TrackerError> {
         let image = match frame.image {
             FrameImage::Decoded(image) => image,
             FrameImage::File(path) => camera::read_frame(&path)
@@ -416,7 +416,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// does once a pose is verified, from that pose (found on its own frame and registered
     /// on this one, which measures the motion since: the vision-only model has no other
     /// sensor of it).
-    pub fn start_step(
+    fn start_step(
         &mut self,
         index: usize,
         image: &GrayImage,
@@ -467,7 +467,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// for ([`Answers::AtNextFrame`]) or taken if ready. A verified pose of a search
     /// re-initialises the core; so does a tilt check that found tracking on the other tilt of
     /// a face (`crate::tilt`).
-    pub fn take_answers(&mut self, t_us: u64) -> Result<(), TrackerError> {
+    fn take_answers(&mut self, t_us: u64) -> Result<(), TrackerError> {
         let block = self.config.answers == Answers::AtNextFrame;
         // Divergences since the last frame lose the model at once.
         self.loss.note_statuses(&self.record.log.statuses, t_us);
@@ -502,7 +502,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 4: while lost, a search on the frame every few frames (one at a time, and not
     /// beside a tilt check); while not, an open loss ends.
-    pub fn search_step(
+    fn search_step(
         &mut self,
         index: usize,
         image: &GrayImage,
@@ -532,7 +532,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 5: the core's clock to the frame at `t_us`, bridging long gaps, with the trigger;
     /// then everything the core answered.
-    pub fn tick(&mut self, t_us: u64) -> Result<(), TrackerError> {
+    fn tick(&mut self, t_us: u64) -> Result<(), TrackerError> {
         if let Some(mut at) = self.last_us {
             while t_us - at > MAX_TICK_GAP_US {
                 at += MAX_TICK_GAP_US;
@@ -555,7 +555,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// Step 6: the frame analysed at the core's prediction, its correspondences sent, the
     /// clock moved just past it, and the pose estimated with it judged. Returns that pose and
     /// whether it counts as tracked, where the frame was analysed.
-    pub fn analyse(
+    fn analyse(
         &mut self,
         index: usize,
         image: GrayImage,
@@ -636,7 +636,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 7: a tilt check of a tracked pose, when one is due (`image`: the frame, taken
     /// before its analysis).
-    pub fn check_step(
+    fn check_step(
         &mut self,
         image: Option<GrayImage>,
         judged: Option<Judged>,
@@ -654,7 +654,7 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// Step 8: the frame's judgement into the loss rule, the state, and the frame's event.
-    pub fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64) {
+    fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64) {
         let tracked = judged.is_some_and(|j| j.tracked);
         self.loss.frame(tracked, t_us);
         if tracked {

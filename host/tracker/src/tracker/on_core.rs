@@ -7,10 +7,10 @@
 //! 1. the sample's time on the input's clock (the first pair of frame and trigger sets the
 //!    offset);
 //! 2. the triggers fired up to it, to pair;
-//! 3. [`Tracker::deliver_due`]: the correspondences due before the core's next sample (in a
+//! 3. `deliver_due`: the correspondences due before the core's next sample (in a
 //!    replay exactly `latency` after their trigger, counted in samples, as with pushed
 //!    samples; live, those ready);
-//! 4. pairing ([`Tracker::pair_frames`]): each frame with the trigger before it, within the
+//! 4. pairing (`pair_frames`): each frame with the trigger before it, within the
 //!    delay bound, and the pair to the vision thread at the trigger's prediction;
 //! 5. the state after the sample.
 //!
@@ -235,7 +235,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 4: each waiting frame with its trigger, and each pair to the vision thread.
     /// Triggers no frame followed, and frames outside the bound, are reported.
-    pub fn pair_frames(&mut self, lock_step: bool) -> Result<(), TrackerError> {
+    pub(crate) fn pair_frames(&mut self, lock_step: bool) -> Result<(), TrackerError> {
         loop {
             let Some(on_core) = self.on_core_mut() else {
                 return Ok(());
