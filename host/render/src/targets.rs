@@ -1,11 +1,15 @@
 //! Pipelines, render targets and readback buffers, created once per renderer.
 
-use std::sync::mpsc;
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::time::{Duration, Instant};
 
 use super::projection::projection_matrix;
 use super::region::Region;
 use super::scene::{GpuScene, Vertex};
 use super::{DepthReadback, Frame, RenderError, RenderView};
+
+/// The longest a read-back waits for its mappings after the device went idle.
+const MAPPING_WAIT: Duration = Duration::from_secs(10);
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -442,16 +446,18 @@ impl Targets {
         let polled = device.poll(wgpu::PollType::wait_indefinitely());
         let mut mapped = [false; 2];
         let mut failure = polled.err().map(|e| e.to_string());
-        for (i, r) in rx.try_iter() {
-            match r {
-                Ok(()) => mapped[i] = true,
-                Err(e) => {
-                    failure.get_or_insert_with(|| e.to_string());
+        // The device is shared (`Gpu::shared`): another thread's poll may have taken our
+        // mappings' completion and call the callbacks a moment after ours returned.
+        let deadline = Instant::now() + MAPPING_WAIT;
+        while failure.is_none() && mapped != [true; 2] {
+            match rx.recv_timeout(Duration::from_millis(2)) {
+                Ok((i, Ok(()))) => mapped[i] = true,
+                Ok((_, Err(e))) => failure = Some(e.to_string()),
+                Err(RecvTimeoutError::Timeout) if Instant::now() < deadline => {
+                    let _ = device.poll(wgpu::PollType::Poll);
                 }
+                Err(_) => failure = Some("buffer mapping did not complete".into()),
             }
-        }
-        if failure.is_none() && mapped != [true; 2] {
-            failure = Some("buffer mapping did not complete".into());
         }
         let result = match failure {
             Some(f) => Err(RenderError::Readback(f)),

@@ -168,9 +168,10 @@ impl TrackerBuilder {
             config.rig = rig;
             config.frame_rate_hz = rig.camera_rate_hz.unwrap_or(self.frame_rate_hz);
             config.tuning = CoreTuning::default();
-            config.latency_s = self.latency_s;
-            config.imu_on_core = self.imu_on_core;
         }
+        // Given without an IMU, these are refused when the tracker starts, not dropped.
+        config.latency_s = self.latency_s;
+        config.imu_on_core = self.imu_on_core;
         for adjust in &self.adjust {
             adjust(&mut config);
         }

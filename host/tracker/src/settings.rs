@@ -202,6 +202,12 @@ pub(crate) fn check_config(config: &TrackerConfig) -> Result<(), TrackerError> {
                 "the core's own IMU is for the inertial models, not the vision-only one".into(),
             );
         }
+        if config.latency_s != 0.0 {
+            return bad(format!(
+                "a latency of the correspondences ({} s) is for runs with an IMU: the vision-only model sends them before its next tick",
+                config.latency_s
+            ));
+        }
         return Ok(());
     }
     let rate = config.rig.imu_rate_hz;

@@ -282,3 +282,28 @@ fn with_an_imu_frames_never_tracked_never_make_the_state_tracking() {
     }
     t.finish().result.unwrap();
 }
+
+/// What the builder is given and the vision-only model cannot use is refused by name when the
+/// tracker starts, not dropped.
+#[test]
+fn the_builder_refuses_imu_settings_without_an_imu() {
+    let cache = tempfile::tempdir().unwrap();
+    let builder = || {
+        tracker::TrackerBuilder::new(camera(), model::procedural::test_scene())
+            .cache(cache.path().to_owned())
+            .start(config(cache.path()).start)
+    };
+    let err = builder().latency_s(0.05).build().err().unwrap();
+    assert!(
+        matches!(&err, TrackerError::Config(m) if m.contains("latency")),
+        "{err:?}"
+    );
+    let on_core = tracker::ImuOnCore::new(4, 200.0);
+    let err = builder().imu_on_core(on_core).build().err().unwrap();
+    assert!(
+        matches!(&err, TrackerError::Config(m) if m.contains("own IMU")),
+        "{err:?}"
+    );
+    // The same builder without them starts.
+    assert_eq!(builder().build().unwrap().state(), State::Starting);
+}
