@@ -83,7 +83,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let began = Instant::now();
     let end_ns = (minutes * 60e9) as u64;
     let (mut frames, mut next_minute, mut first_minute) = (0usize, 1u64, None);
-    let (mut rss, mut refused) = (0.0, 0usize);
+    let mut refused = 0usize;
+    let print_events = std::env::var_os("MEMORY_EVENTS").is_some();
     'play: for lap in 0u64.. {
         for (k, row) in imu.iter().enumerate() {
             let t_ns = row.stamp - first + lap * span_ns;
@@ -108,14 +109,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 accel: row.accel.into(),
             })?;
             for event in tracker.poll() {
-                if std::env::var_os("MEMORY_EVENTS").is_some()
+                if print_events
                     && !matches!(event, tracker::Event::Frame(_) | tracker::Event::Pose(_))
                 {
                     println!("memory: {:.2} s: {event:?}", t_ns as f64 * 1e-9);
                 }
             }
             if t_ns >= next_minute * 60_000_000_000 {
-                rss = status_mb("VmRSS:");
+                let rss = status_mb("VmRSS:");
                 first_minute.get_or_insert(rss);
                 println!(
                     "| {next_minute} | {frames} | {rss:.1} | {:.0} |",
@@ -125,15 +126,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
     }
+    // At the end of the sensor time, the tracker still running.
+    let rss = status_mb("VmRSS:");
     let done = tracker.finish();
     done.result?;
     let at_one = first_minute.unwrap_or(f64::NAN);
+    let (tracked, judged) = done.record.tracked_count();
     println!(
-        "memory: VmRSS {at_one:.1} MB after one minute, {rss:.1} MB at the end ({:+.1} %); peak VmHWM {:.1} MB; {} frames judged, {} tracked",
+        "memory: VmRSS {at_one:.1} MB after one minute, {rss:.1} MB at the end ({:+.1} %); peak VmHWM {:.1} MB; {judged} frames judged, {tracked} tracked",
         100.0 * (rss / at_one - 1.0),
         status_mb("VmHWM:"),
-        done.record.tracked_count().1,
-        done.record.tracked_count().0
     );
     Ok(())
 }

@@ -217,8 +217,7 @@ fn write_level(
 ) {
     let row_bytes = 4 * image.width() as usize;
     let band = (STAGING_BYTES / row_bytes).max(1);
-    let rows: Vec<u32> = (0..image.height()).step_by(band).collect();
-    for y0 in rows {
+    for y0 in (0..image.height()).step_by(band) {
         let height = (image.height() - y0).min(band as u32);
         let start = y0 as usize * row_bytes;
         queue.write_texture(
