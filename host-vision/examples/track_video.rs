@@ -71,7 +71,7 @@ fn main() -> anyhow::Result<()> {
     done.result?;
     // The last frames' reports come with the end.
     done.events.iter().for_each(print_frame);
-    let (tracked, judged) = done.record.tracked_count();
+    let tracker::judge::Tally { tracked, judged } = done.tally;
     let share = 100.0 * tracked as f64 / judged.max(1) as f64;
     println!("# tracked {tracked} of {judged} frames judged: {share:.1} %");
     println!(

@@ -363,6 +363,8 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
     config.tuning = o.tuning;
     config.answers = Answers::WhenReady;
     config.search_floor = Duration::from_millis(500);
+    config.details = true;
+    let mut record = tracker::record::Record::default();
     let core = InProcessCore::default();
     let mut tracker = Tracker::new(config, &model, core).unwrap();
 
@@ -390,6 +392,7 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
         tracker.push_frame(frame.into()).unwrap();
         let took = pushed.elapsed();
         for e in tracker.poll() {
+            record.observe(&e);
             match e {
                 Event::Frame(r) => reports.push(r),
                 Event::Located { index, pose } => located = Some((index, pose)),
@@ -405,9 +408,10 @@ fn live_a_500_ms_search_never_holds_up_the_frames_and_its_pose_is_its_own_frames
     }
     let done = tracker.finish();
     done.result.unwrap();
+    record.observe_all(&done.events);
     let (found_at, pose) = located.expect("the search answered");
     let pose = pose.expect("the cube found");
-    let search = &done.record.recoveries[0].searches[0];
+    let search = &record.recoveries[0].searches[0];
     println!(
         "search on frame {found_at} ({:.0} ms on its thread), applied at {:?} s; {} frames pushed meanwhile, the longest push {:?}",
         search.ms,

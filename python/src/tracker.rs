@@ -259,7 +259,8 @@ impl Tracker {
                         cov: p.cov,
                     });
                 }
-                Event::Located { .. } | Event::State(_) => {}
+                // Details are told only to a tracker asked for them (this one is not).
+                Event::Located { .. } | Event::State(_) | Event::Detail(_) => {}
             }
         }
     }
@@ -451,7 +452,7 @@ impl Tracker {
         let mut done = py.detach(move || tracker.finish());
         self.keep(std::mem::take(&mut done.events));
         done.result.map_err(of_tracker)?;
-        let (tracked, judged) = done.record.tracked_count();
+        let tracker::judge::Tally { tracked, judged } = done.tally;
         let d = PyDict::new(py);
         d.set_item("tracked", tracked)?;
         d.set_item("judged", judged)?;

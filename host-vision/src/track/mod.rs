@@ -648,10 +648,10 @@ pub fn run(
     let options = &options.with_modality_for(&model, &model_path, &dataset)?;
     let ran = match frames.take() {
         Some(source) => {
-            let (finished, outcome) = vision_only::track_frames(
+            let (finished, record, outcome) = vision_only::track_frames(
                 options, &dataset, link, &model, source, &interrupt, progress,
             )?;
-            Ran::of(finished, outcome)
+            Ran::of(finished, record, outcome)
         }
         None if options.imu_on_core => {
             on_core::track(options, &dataset, link, &model, end, &interrupt, progress)?
@@ -764,9 +764,14 @@ struct Ran {
 }
 
 impl Ran {
-    /// What the tracker left, with the loop's `outcome`: an error of the loop before the
-    /// tracker's own.
-    fn of(finished: Finished<FaultyLink>, outcome: Result<bool, TrackError>) -> Self {
+    /// What the tracker left, with the loop's `record` of its events and `outcome`: an error
+    /// of the loop before the tracker's own.
+    fn of(
+        finished: Finished<FaultyLink>,
+        mut record: Record,
+        outcome: Result<bool, TrackError>,
+    ) -> Self {
+        record.observe_all(&finished.events);
         let outcome = match (outcome, finished.result) {
             (Err(e), _) => Err(e),
             (Ok(completed), Ok(())) => Ok(completed),
@@ -776,7 +781,7 @@ impl Ran {
             host: HostRecord {
                 injected_outliers: finished.core.injected,
             },
-            record: finished.record,
+            record,
             adapter: finished.adapter,
             outcome,
             link: finished.core.into_inner(),
@@ -797,6 +802,7 @@ fn track_imu(
     progress: Progress,
 ) -> Result<Ran, TrackError> {
     let mut tracker = inertial_tracker(options, dataset, model)?.build_with(link)?;
+    let mut record = Record::default();
     let stamp0 = dataset.imu[0].stamp;
     let triggers: BTreeMap<usize, usize> = dataset
         .triggers()
@@ -848,22 +854,32 @@ fn track_imu(
             outcome = Err(e.into());
             break;
         }
-        sample_progress(&tracker, k, end, progress);
+        sample_progress(&mut tracker, &mut record, k, end, progress);
     }
-    Ok(wind_up(tracker, outcome, end, progress))
+    Ok(wind_up(tracker, record, outcome, end, progress))
 }
 
-/// The progress bar after sample `k` of `end` (every 50th, and the last).
-fn sample_progress(tracker: &Tracker<FaultyLink>, k: usize, end: usize, progress: Progress) {
+/// The tracker's events since into the run's `record`, and the progress bar after sample `k`
+/// of `end` (every 50th, and the last).
+fn sample_progress(
+    tracker: &mut Tracker<FaultyLink>,
+    record: &mut Record,
+    k: usize,
+    end: usize,
+    progress: Progress,
+) {
+    for e in tracker.poll() {
+        record.observe(&e);
+    }
     if k.is_multiple_of(50) || k + 1 == end {
-        let r = tracker.record();
-        progress(k + 1, end, r.results.len(), r.log.mode());
+        progress(k + 1, end, record.results.len(), record.log.mode());
     }
 }
 
 /// The end of a run with an IMU: finished, or abandoned where interrupted (`Ok(false)`).
 fn wind_up(
     tracker: Tracker<FaultyLink>,
+    record: Record,
     outcome: Result<bool, TrackError>,
     end: usize,
     progress: Progress,
@@ -872,9 +888,10 @@ fn wind_up(
         Ok(false) => tracker.abandon(),
         _ => tracker.finish(),
     };
-    let r = &finished.record;
+    let ran = Ran::of(finished, record, outcome);
+    let r = &ran.record;
     progress(end, end, r.results.len(), r.log.mode());
-    Ran::of(finished, outcome)
+    ran
 }
 
 /// The tracker of a run with an IMU, to be built on the run's link.
@@ -911,6 +928,8 @@ fn command_settings(options: &TrackOptions) -> impl Fn(&mut TrackerConfig) + Sen
         c.tuning = tuning;
         c.timeout = timeout;
         c.keep_image_every = overlay_every;
+        // The outputs are written from the details' record.
+        c.details = true;
     }
 }
 

@@ -105,6 +105,7 @@ pub(super) fn track(
     let mut tracker = super::inertial_tracker(options, dataset, model)?
         .imu_on_core(ImuOnCore::new(every, dataset.imu_rate_hz))
         .build_with(link)?;
+    let mut record = super::Record::default();
     let stamp0 = dataset.imu[first].stamp;
     let cam = &dataset.camera.camera;
     let mut next_frame = 0;
@@ -140,9 +141,9 @@ pub(super) fn track(
             outcome = Err(e);
             break;
         }
-        super::sample_progress(&tracker, k, end, progress);
+        super::sample_progress(&mut tracker, &mut record, k, end, progress);
     }
-    Ok(super::wind_up(tracker, outcome, end, progress))
+    Ok(super::wind_up(tracker, record, outcome, end, progress))
 }
 
 /// The core fired the camera at sample `k`: the dataset's next frame, which the trigger plan

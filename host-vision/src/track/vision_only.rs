@@ -12,6 +12,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use tracker::live::{LiveFrames, Paced};
+use tracker::record::Record;
 use tracker::{Finished, Tracker, TrackerBuilder, TrackerError};
 use vision::FrameImage;
 
@@ -70,8 +71,8 @@ fn vision_start(options: &TrackOptions, dataset: &Dataset, first_stamp: u64) -> 
 }
 
 /// Tracks the frames of `source` with the library's tracker, the core behind `link`. Returns
-/// what the tracker leaves (its record, the link, and how it ended; `Ok(false)` when
-/// interrupted), or the error that kept it from starting.
+/// what the tracker leaves (the link, and how it ended; `Ok(false)` when interrupted) with
+/// the record of all its events, or the error that kept it from starting.
 ///
 /// A replay takes every frame in order. A live run (a camera, or `--pacing real-time`, which
 /// plays a recording at its own rate as a camera would) reads the source on a capture thread
@@ -85,7 +86,7 @@ pub(super) fn track_frames(
     mut source: FrameSource,
     interrupt: &AtomicBool,
     progress: Progress,
-) -> Result<(Finished<FaultyLink>, Result<bool, TrackError>), TrackError> {
+) -> Result<(Finished<FaultyLink>, Record, Result<bool, TrackError>), TrackError> {
     // The first frame fixes the clock (and, with a ground truth, the start pose).
     let first = match source.next() {
         Some(Ok(f)) => f,
@@ -131,6 +132,7 @@ pub(super) fn track_frames(
         total: source.len_hint().unwrap_or(0),
         frames: 0,
         progress,
+        record: Record::default(),
     };
     let outcome = if live {
         run.live(first, source, interrupt)
@@ -142,15 +144,21 @@ pub(super) fn track_frames(
         frames,
         total,
         progress,
+        mut record,
         ..
     } = run;
-    let finished = match outcome {
+    let mut finished = match outcome {
         Ok(false) => tracker.abandon(),
         _ => tracker.finish(),
     };
-    let r = &finished.record;
-    progress(frames, total.max(frames), r.results.len(), r.log.mode());
-    Ok((finished, outcome))
+    record.observe_all(&std::mem::take(&mut finished.events));
+    progress(
+        frames,
+        total.max(frames),
+        record.results.len(),
+        record.log.mode(),
+    );
+    Ok((finished, record, outcome))
 }
 
 /// A run's frames pushed into its tracker.
@@ -165,6 +173,8 @@ struct FrameLoop<'a, 'p> {
     /// Frames pushed and taken.
     frames: usize,
     progress: Progress<'p>,
+    /// The tracker's events so far.
+    record: Record,
 }
 
 /// What to do after a frame.
@@ -246,8 +256,11 @@ impl FrameLoop<'_, '_> {
             Err(TrackerError::TimeBackwards { .. } | TrackerError::ImageSize { .. }) => {}
             Err(e) => return Next::Stop(Err(e.into())),
         }
+        for e in self.tracker.poll() {
+            self.record.observe(&e);
+        }
         if self.frames.is_multiple_of(10) {
-            let r = self.tracker.record();
+            let r = &self.record;
             (self.progress)(self.frames, self.total, r.results.len(), r.log.mode());
         }
         Next::Go

@@ -139,6 +139,12 @@ impl TrackerBuilder {
         self
     }
 
+    /// Tell the details a run's report needs ([`TrackerConfig::details`]), for a
+    /// [`crate::record::Record`] to keep from the events; default: off.
+    pub fn details(self, on: bool) -> Self {
+        self.configure(move |c| c.details = on)
+    }
+
     /// Any other setting, applied last (in the order given) to the [`TrackerConfig`] built:
     /// `.configure(|c| c.keep_image_every = 10)`.
     pub fn configure(

@@ -6,6 +6,8 @@
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Instant;
 
+use crate::event::LatencyNote;
+
 /// One frame's ages [ms since its capture].
 #[derive(Debug, Clone, Copy)]
 pub struct FrameLatency {
@@ -88,8 +90,18 @@ fn ms(from: Instant, to: Instant) -> f64 {
 }
 
 impl Latencies {
-    /// A frame taken now, captured at `captured`.
-    pub fn taken(&mut self, index: usize, captured: Instant) {
+    /// Keeps what a note says happened at `now`.
+    pub fn apply(&mut self, note: LatencyNote, now: Instant) {
+        match note {
+            LatencyNote::Taken { index, captured } => self.taken(index, captured, now),
+            LatencyNote::Sent { index, after_us } => self.sent(index, after_us, now),
+            LatencyNote::SampleSent(t_us) => self.sample_sent(t_us, now),
+            LatencyNote::PoseOut(t_us) => self.pose_out(t_us, now),
+        }
+    }
+
+    /// A frame taken at `now`, captured at `captured`.
+    pub fn taken(&mut self, index: usize, captured: Instant, now: Instant) {
         // Indices count the input's frames from 0: the gaps are the frames never taken.
         let dropped_before = match self.last_index {
             Some(last) if index > last => index - last - 1,
@@ -101,7 +113,7 @@ impl Latencies {
             index,
             FrameLatency {
                 captured,
-                taken_ms: ms(captured, Instant::now()),
+                taken_ms: ms(captured, now),
                 sent_ms: None,
                 pose_ms: None,
                 dropped_before,
@@ -109,28 +121,27 @@ impl Latencies {
         );
     }
 
-    /// The correspondences of frame `index` sent now, after the clock message at
+    /// The correspondences of frame `index` sent at `now`, after the clock message at
     /// `after_us`: its pose is the core's first state report for a later time.
-    pub fn sent(&mut self, index: usize, after_us: u64) {
+    pub fn sent(&mut self, index: usize, after_us: u64, now: Instant) {
         if let Some(f) = self.frames.get_mut(&index) {
-            f.sent_ms = Some(ms(f.captured, Instant::now()));
+            f.sent_ms = Some(ms(f.captured, now));
             self.awaiting_pose.push((index, after_us));
         }
     }
 
-    /// A sample at `t_us` sent to the core now.
-    pub fn sample_sent(&mut self, t_us: u64) {
-        self.waiting.push_back((t_us, Instant::now()));
+    /// A sample at `t_us` sent to the core at `now`.
+    pub fn sample_sent(&mut self, t_us: u64, now: Instant) {
+        self.waiting.push_back((t_us, now));
         // A core that reports no state (or none for a while) must not grow this without end.
         if self.waiting.len() > 4096 {
             self.waiting.pop_front();
         }
     }
 
-    /// The core's state report for `t_us` arrived now: the pose of the samples up to it, and
-    /// of the frames whose correspondences went out before it.
-    pub fn pose_out(&mut self, t_us: u64) {
-        let now = Instant::now();
+    /// The core's state report for `t_us` came out at `now`: the pose of the samples up to
+    /// it, and of the frames whose correspondences went out before it.
+    pub fn pose_out(&mut self, t_us: u64, now: Instant) {
         while let Some(&(t, sent)) = self.waiting.front() {
             if t > t_us {
                 break;
@@ -199,7 +210,7 @@ mod tests {
         let mut l = Latencies::default();
         let now = Instant::now();
         for i in [2, 3, 6, 7, 11] {
-            l.taken(i, now);
+            l.taken(i, now, now);
         }
         assert_eq!(l.dropped(), 2 + 2 + 3);
         assert_eq!(l.frames[&2].dropped_before, 2);
@@ -209,20 +220,21 @@ mod tests {
     #[test]
     fn a_pose_closes_the_samples_up_to_it_and_the_frames_sent() {
         let mut l = Latencies::default();
-        l.taken(0, Instant::now());
-        l.sample_sent(10);
-        l.sample_sent(20);
-        l.sent(0, 10);
-        l.pose_out(10);
+        let now = Instant::now();
+        l.taken(0, now, now);
+        l.sample_sent(10, now);
+        l.sample_sent(20, now);
+        l.sent(0, 10, now);
+        l.pose_out(10, now);
         assert_eq!(l.samples_ms.len(), 1);
         assert!(
             l.frames[&0].pose_ms.is_none(),
             "the state at 10 µs came before the update"
         );
-        l.pose_out(20);
+        l.pose_out(20, now);
         assert!(l.frames[&0].pose_ms.is_some());
-        l.sample_sent(30);
-        l.pose_out(40);
+        l.sample_sent(30, now);
+        l.pose_out(40, now);
         assert_eq!(l.samples_ms.len(), 2, "no state for the sample at 30 µs");
     }
 }

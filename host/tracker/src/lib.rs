@@ -8,13 +8,16 @@
 //! - [`rig`], [`config`]: the sensors, and the core's configuration that follows from them;
 //! - [`transport`], [`in_process`]: the core behind a [`CoreTransport`], and the core called
 //!   in-process (the links to a board are the `core-link` crate's);
-//! - [`log`]: what the core said, and the exchanges that wait for its answers;
+//! - [`session`]: the exchanges with the core that wait for its answers, and the bounded
+//!   window of what it said that the steps need;
 //! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
-//! - [`search`], [`loss`], [`tilt`]: the searches, the loss rule that sends them, and the
-//!   tilt checks of tracked poses;
-//! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells;
-//! - [`record`]: everything a run saw, for its reports (outages included), and
-//!   [`latency`]: how old each pose was when it came out;
+//! - [`search`], [`loss`], [`tilt`], [`judge`]: the searches, the loss rule that sends them,
+//!   the tilt checks of tracked poses, and the verdicts;
+//! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells,
+//!   the details a report needs included;
+//! - [`record`], [`log`], [`latency`]: a run's report kept from the events (the tracker
+//!   keeps none of it): every frame, search and outage, what the core said, and how old each
+//!   pose was when it came out;
 //! - [`live`]: a camera's frames, of which only the newest is kept, and a recording played
 //!   at its own rate;
 //! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
@@ -59,6 +62,7 @@ pub mod config;
 mod error;
 pub mod event;
 pub mod in_process;
+pub mod judge;
 pub mod latency;
 pub mod live;
 pub mod log;
@@ -66,6 +70,7 @@ pub mod loss;
 pub mod record;
 pub mod rig;
 pub mod search;
+pub mod session;
 pub mod settings;
 pub mod tilt;
 pub mod tracker;

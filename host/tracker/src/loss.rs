@@ -5,6 +5,8 @@
 
 use protocol::{Mode, Status};
 
+use crate::session::Recent;
+
 /// Frames not tracked for this long [µs] (or a divergence) mean the model is lost: a hand
 /// hides an object for longer than half a second only when it means to.
 pub const LOST_AFTER_US: u64 = 500_000;
@@ -20,7 +22,7 @@ pub struct LossRule {
     untracked_since: Option<u64>,
     /// Whether the core diverged since a frame was last tracked.
     diverged: bool,
-    /// The core's statuses already looked at.
+    /// The core's statuses already looked at ([`Recent::mark`]).
     statuses_seen: usize,
     /// Frames since the last search while lost.
     since_search: usize,
@@ -44,13 +46,15 @@ impl Default for LossRule {
 impl LossRule {
     /// Takes the core's statuses not yet seen: a divergence at `t_us` loses the model at
     /// once.
-    pub fn note_statuses(&mut self, statuses: &[Status], t_us: u64) {
-        let new = &statuses[self.statuses_seen.min(statuses.len())..];
-        if new.iter().any(|s| s.mode == Mode::Diverged) {
+    pub fn note_statuses(&mut self, statuses: &Recent<Status>, t_us: u64) {
+        if statuses
+            .since(self.statuses_seen)
+            .any(|s| s.mode == Mode::Diverged)
+        {
             self.diverged = true;
             self.untracked_since.get_or_insert(t_us);
         }
-        self.statuses_seen = statuses.len();
+        self.statuses_seen = statuses.mark();
     }
 
     /// Whether the model is lost at `t_us`.
@@ -145,7 +149,9 @@ mod tests {
             mode: Mode::Diverged,
             reason: protocol::StatusReason::ResidualLowpass,
         };
-        rule.note_statuses(&[diverged], 1_000);
+        let mut statuses = Recent::default();
+        statuses.push(diverged);
+        rule.note_statuses(&statuses, 1_000);
         assert!(rule.lost(1_000));
         assert_eq!(rule.search_due(1_000, true), None);
         assert_eq!(rule.search_due(2_000, false), Some(1_000));

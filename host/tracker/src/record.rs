@@ -1,21 +1,25 @@
-//! What a tracking run saw, kept for its reports: every message of the core, every frame's
-//! analysis and judgement, the searches and the tilt checks.
+//! What a tracking run saw, kept for its reports from the tracker's events
+//! ([`Record::observe`]): every message of the core, every frame's analysis and judgement, the
+//! searches, the tilt checks, the outages and the latencies. The tracker keeps none of it: a
+//! program that wants it keeps a `Record` (a run's report grows with the run; the tracker
+//! does not).
 
 use std::collections::BTreeMap;
 use std::time::Instant;
 
 use camera::{CameraPose, PoseCovariance, WeakDirection};
 use nalgebra::Vector3;
+use protocol::Mode;
 use serde::Serialize;
 use vision::{Assessment, FrameResult, TrackedRule};
 
-use crate::error::TrackerError;
+pub use crate::event::{Fate, Outage, OutageKind};
+use crate::event::{Detail, Event};
 use crate::latency::Latencies;
 use crate::log::CoreLog;
 use crate::rig::HandEye;
 use crate::search::{Recovery, Search};
-use crate::tilt::TiltBranch;
-use crate::transport::CoreTransport;
+use crate::tilt::TiltRecord;
 
 /// Everything a run saw, in order.
 #[derive(Debug)]
@@ -58,7 +62,7 @@ pub struct Record {
     /// why).
     pub database: Option<locate::database::Provenance>,
     /// The tilt checks of tracked poses and their flips (vision-only runs).
-    pub tilt: TiltBranch,
+    pub tilt: TiltRecord,
     /// This run's name for its configuration of the core (`Config::session`): a core that
     /// reports it in its `HelloAck` kept the state this run gave it.
     pub session_id: u32,
@@ -72,6 +76,13 @@ pub struct Record {
     pub started: Instant,
     /// How old the poses were when they came out, and the frames dropped.
     pub latency: Latencies,
+}
+
+impl Default for Record {
+    /// An empty record, for the events of a run to fill ([`Detail::Started`] first).
+    fn default() -> Self {
+        Self::new(HandEye::IDENTITY, 0, (Vector3::zeros(), 0.0))
+    }
 }
 
 impl Record {
@@ -93,7 +104,7 @@ impl Record {
             searches: Vec::new(),
             recoveries: Vec::new(),
             database: None,
-            tilt: TiltBranch::default(),
+            tilt: TiltRecord::default(),
             session_id,
             outages: Vec::new(),
             attached_at: None,
@@ -103,9 +114,91 @@ impl Record {
         }
     }
 
-    /// The run's time origin, set by the first frame or sample (later ones keep it) [ns].
-    pub fn origin(&mut self, t_ns: i64) -> i64 {
-        *self.origin_ns.get_or_insert(t_ns)
+    /// Keeps what `event` tells of the run (its details; the other events repeat them).
+    pub fn observe(&mut self, event: &Event) {
+        if let Event::Detail(d) = event {
+            self.keep(d);
+        }
+    }
+
+    /// Keeps what the events tell, in order.
+    pub fn observe_all<'a>(&mut self, events: impl IntoIterator<Item = &'a Event>) {
+        for e in events {
+            self.observe(e);
+        }
+    }
+
+    /// Keeps one detail.
+    fn keep(&mut self, detail: &Detail) {
+        match detail {
+            Detail::Started {
+                core_hand_eye,
+                session_id,
+                axes,
+                rule,
+                at,
+            } => {
+                self.core_hand_eye = *core_hand_eye;
+                self.session_id = *session_id;
+                self.axes = *axes;
+                self.rule = *rule;
+                self.started = *at;
+            }
+            Detail::Origin(t_ns) => self.origin_ns = Some(*t_ns),
+            Detail::Clock(t_ns) => self.clock.push(*t_ns),
+            Detail::Core(item) => self.log.take(item.clone()),
+            Detail::HellosResent(n) => self.log.resent_hellos += n,
+            Detail::Taken { index, t_ns } => self.take_frame(*index, *t_ns),
+            Detail::Settled { index, fate } => self.settle(*index, *fate),
+            Detail::Analysed {
+                frame_id,
+                result,
+                sent,
+            } => {
+                self.sent_correspondences += sent;
+                self.push_result(*frame_id, (**result).clone());
+            }
+            Detail::FrameError(why) => self.frame_errors.push((self.results.len(), why.clone())),
+            Detail::Judged {
+                frame_id,
+                assessment,
+                tracked,
+            } => {
+                self.assessments.insert(*frame_id, *assessment);
+                self.verdicts.insert(*frame_id, *tracked);
+            }
+            Detail::Search { lost_at, search } => self.record_search(*lost_at, *search),
+            Detail::Database(from) => self.keep_provenance(Some(from.clone())),
+            Detail::RecoveryEnded(t_us) => self.end_recovery(*t_us),
+            Detail::Tilt(note) => self.tilt.apply(note),
+            Detail::Outage(o) => self.outages.push(o.clone()),
+            Detail::AttachedAt(k) => self.attached_at = Some(*k),
+            Detail::AttachNote(note) => self.attach_note = Some(note.clone()),
+            Detail::Session(id) => self.session_id = *id,
+            Detail::Latency(note, at) => self.latency.apply(*note, *at),
+            Detail::End { interrupted } => {
+                if !interrupted {
+                    self.close_outages();
+                }
+            }
+        }
+    }
+
+    /// Fills in, from the statuses, when the core reported `Tracking` again after each
+    /// outage.
+    fn close_outages(&mut self) {
+        for o in &mut self.outages {
+            let Some(resumed) = o.resumed_s else {
+                continue;
+            };
+            o.tracking_s = self
+                .log
+                .statuses
+                .iter()
+                .map(|s| (s.t_us as f64 / 1e6, s.mode))
+                .find(|&(t, m)| t >= resumed && m == Mode::Tracking)
+                .map(|(t, _)| t);
+        }
     }
 
     /// A frame taken: its fate is [`Fate::Unsettled`] until [`Self::settle`] says more.
@@ -136,19 +229,7 @@ impl Record {
     /// The direction `pose`, of covariance `cov`, is pinned down least, in units of the
     /// rule's bounds, about the model's centre (docs/VISION.md eq. T7).
     pub fn weakest(&self, pose: &CameraPose, cov: &PoseCovariance) -> WeakDirection {
-        let rule = &self.rule;
-        cov.weakest(
-            pose,
-            &self.axes.0,
-            rule.max_offset_m,
-            rule.max_offset_deg.to_radians(),
-        )
-    }
-
-    /// A tracked pose's weak direction: its `weakest` ([`Self::weakest`]), where that exceeds
-    /// the rule's `weak_sigma` (eq. T7).
-    pub fn weak(&self, weakest: Option<WeakDirection>, tracked: bool) -> Option<WeakDirection> {
-        weakest.filter(|w| tracked && w.sigma > self.rule.weak_sigma)
+        crate::judge::weakest(&self.rule, &self.axes.0, pose, cov)
     }
 
     /// Seconds since the run started.
@@ -203,50 +284,13 @@ impl Record {
         }
     }
 
-    /// Sends the correspondences of the frame `frame_id` (the input's frame `index`) triggered
-    /// at `trigger_us` to the core and keeps its result. A frame whose image cannot be used
-    /// is skipped (the core dead-reckons) and reported; any other error stops the run.
-    pub fn deliver(
-        &mut self,
-        link: &mut impl CoreTransport,
-        (frame_id, index): (u32, usize),
-        trigger_us: u64,
-        result: Result<FrameResult, TrackerError>,
-    ) -> Result<(), TrackerError> {
-        let result = match result {
-            Ok(r) => r,
-            Err(
-                e @ TrackerError::Vision(
-                    vision::VisionError::Image { .. } | vision::VisionError::ImageSize { .. },
-                ),
-            ) => {
-                self.frame_errors.push((self.results.len(), e.to_string()));
-                self.settle(index, Fate::Unusable);
-                return Ok(());
-            }
-            Err(e) => return Err(e),
-        };
-        let (points, contours) = (&result.correspondences, &result.contours);
-        if !points.is_empty() || !contours.is_empty() {
-            let core_id = self.log.core_frame_id(frame_id);
-            let parts = protocol::frame_messages(core_id, trigger_us, points, contours)
-                .map_err(|e| TrackerError::Core(format!("frame {frame_id}: {e}")))?;
-            for part in parts {
-                link.send(&part)?;
-            }
-            self.sent_correspondences += points.len() + contours.len();
-        }
-        self.push_result(frame_id, result);
-        Ok(())
-    }
-
     /// Whether the frame `frame_id` counts as tracked: judged so by the run
     /// ([`Self::verdicts`]), and not withheld by the tilt branch. `None` where it was not
     /// judged.
     pub fn tracked(&self, frame_id: u32) -> Option<bool> {
         self.verdicts
             .get(&frame_id)
-            .map(|&t| t && !self.tilt.record.withheld.contains(&frame_id))
+            .map(|&t| t && !self.tilt.withheld.contains(&frame_id))
     }
 
     /// How many of the frames judged count as tracked ([`Self::tracked`]): `(tracked,
@@ -270,92 +314,6 @@ pub struct TakenFrame {
     pub t_ns: i64,
     /// What became of it.
     pub fate: Fate,
-}
-
-/// What became of a frame the tracker took: every frame taken ends as one of these, so that a
-/// run's outputs account for each.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Fate {
-    /// Not settled when the run ended: it waited for its trigger, its prediction or its
-    /// analysis (an interrupted run, an outage, the input's last frame).
-    Unsettled,
-    /// A search for the model (the cold start, or a recovery) ran on it instead of an
-    /// analysis: the core had no pose to predict it at.
-    Searched,
-    /// The core predicted no pose for it: not initialised yet (the model not found, the
-    /// search still running), or its prediction did not come in time.
-    NoPrediction,
-    /// Its image could not be used, or it was refused (size, time, no trigger): why is
-    /// among [`Record::frame_errors`].
-    Unusable,
-    /// Analysed at the core's prediction: its result is among [`Record::results`].
-    Analysed,
-}
-
-impl Fate {
-    /// Its name in the outputs.
-    pub fn name(self) -> &'static str {
-        match self {
-            Fate::Unsettled => "unsettled",
-            Fate::Searched => "searched",
-            Fate::NoPrediction => "no_prediction",
-            Fate::Unusable => "unusable",
-            Fate::Analysed => "analysed",
-        }
-    }
-
-    /// Whether this outcome replaces `earlier`: anything replaces "unsettled"; an analysis
-    /// or a refusal replaces anything; a frame searched stays so when no prediction came.
-    pub fn replaces(self, earlier: &Fate) -> bool {
-        match self {
-            Fate::Analysed | Fate::Unusable => true,
-            Fate::Searched | Fate::NoPrediction => *earlier == Fate::Unsettled,
-            Fate::Unsettled => false,
-        }
-    }
-}
-
-/// What an outage of the link or the core turned out to be once the host reached the core
-/// again (protocol/PROTOCOL.md §8).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OutageKind {
-    /// The core had lost its configuration (reset, or never configured by us): configured and
-    /// initialised again from the last good pose.
-    CoreReset,
-    /// The core kept its state: it was sent the samples it missed and went on.
-    LinkLost,
-    /// Not resolved by the end of the run.
-    Unresolved,
-}
-
-/// One outage of the link or the core, from its notice to the core's return.
-#[derive(Debug, Clone, Serialize)]
-pub struct Outage {
-    /// What it was.
-    pub kind: OutageKind,
-    /// What revealed it.
-    pub cause: String,
-    /// The input's time of the sample being sent when it was noticed [s].
-    pub noticed_s: f64,
-    /// For an injected fault: when it was injected [s], and the wall-clock time until the
-    /// host noticed it [ms].
-    pub injected_s: Option<f64>,
-    /// Wall-clock time from the injection to the notice [ms] (injected faults).
-    pub notice_wall_ms: Option<f64>,
-    /// Reconnection attempts (the last one succeeded, if it did).
-    pub attempts: u32,
-    /// Why the last failed attempt failed.
-    pub last_failure: Option<String>,
-    /// When the host reached the core again [s].
-    pub resumed_s: Option<f64>,
-    /// The device or address it reached it on (a serial pattern's match, say).
-    pub resumed_on: Option<String>,
-    /// Samples the core missed and was sent on its return (it dead-reckoned through them).
-    pub backlog: usize,
-    /// When the core reported `Tracking` again after the return [s].
-    pub tracking_s: Option<f64>,
 }
 
 #[cfg(test)]

@@ -36,6 +36,22 @@ pub struct TiltFlip {
     pub held: Option<bool>,
 }
 
+/// What a tilt check found and what the branch did, as told ([`crate::event::Detail::Tilt`]):
+/// the branch keeps none of it, a [`TiltRecord`] does.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TiltNote {
+    /// A check was sent.
+    Checked,
+    /// These frames (by id) are withheld.
+    Withheld(Vec<u32>),
+    /// A flip was applied.
+    Flip(TiltFlip),
+    /// The last flip held, or did not.
+    Held(bool),
+    /// The check of this frame found a flip that was not applied: the last one had not held.
+    Refused(usize),
+}
+
 /// The tilt checks of a run and what came of them.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
 pub struct TiltRecord {
@@ -49,6 +65,23 @@ pub struct TiltRecord {
     /// disfavours, or flipped and never confirmed.
     #[serde(skip)]
     pub withheld: BTreeSet<u32>,
+}
+
+impl TiltRecord {
+    /// Keeps what a note says.
+    pub fn apply(&mut self, note: &TiltNote) {
+        match note {
+            TiltNote::Checked => self.checks += 1,
+            TiltNote::Withheld(ids) => self.withheld.extend(ids),
+            TiltNote::Flip(f) => self.flips.push(*f),
+            TiltNote::Held(held) => {
+                if let Some(f) = self.flips.last_mut() {
+                    f.held = Some(*held);
+                }
+            }
+            TiltNote::Refused(frame) => self.refused.push(*frame),
+        }
+    }
 }
 
 /// Where the tracked tilt stands.
@@ -78,8 +111,8 @@ struct InFlight {
 pub struct TiltBranch {
     state: Branch,
     in_flight: Option<InFlight>,
-    /// What the checks found and what was done.
-    pub record: TiltRecord,
+    /// What the checks found and what was done, until taken ([`Self::take_notes`]).
+    notes: Vec<TiltNote>,
 }
 
 impl Default for TiltBranch {
@@ -87,12 +120,17 @@ impl Default for TiltBranch {
         Self {
             state: Branch::Settled,
             in_flight: None,
-            record: TiltRecord::default(),
+            notes: Vec::new(),
         }
     }
 }
 
 impl TiltBranch {
+    /// What the checks found and what was done since the last call, in order.
+    pub fn take_notes(&mut self) -> Vec<TiltNote> {
+        std::mem::take(&mut self.notes)
+    }
+
     /// Whether a check is in flight.
     pub fn in_flight(&self) -> bool {
         self.in_flight.is_some()
@@ -100,7 +138,7 @@ impl TiltBranch {
 
     /// A check was sent for frame `frame` (id `frame_id`), tracked at `pose`.
     pub fn sent(&mut self, frame: usize, frame_id: u32, pose: CameraPose) {
-        self.record.checks += 1;
+        self.notes.push(TiltNote::Checked);
         self.in_flight = Some(InFlight {
             frame,
             pose,
@@ -118,9 +156,7 @@ impl TiltBranch {
         match &mut self.state {
             Branch::Settled => {}
             Branch::Provisional(frames) => frames.push(frame_id),
-            Branch::Doubted => {
-                self.record.withheld.insert(frame_id);
-            }
+            Branch::Doubted => self.notes.push(TiltNote::Withheld(vec![frame_id])),
         }
     }
 
@@ -132,13 +168,13 @@ impl TiltBranch {
         let state = std::mem::replace(&mut self.state, Branch::Settled);
         match (state, against) {
             (Branch::Provisional(frames), true) => {
-                self.record.withheld.extend(frames);
-                self.resolve_last(false);
+                self.notes.push(TiltNote::Withheld(frames));
+                self.notes.push(TiltNote::Held(false));
                 self.refuse_or_doubt(check, &sent);
                 None
             }
             (Branch::Provisional(_), false) => {
-                self.resolve_last(true);
+                self.notes.push(TiltNote::Held(true));
                 None
             }
             (Branch::Doubted, true) => {
@@ -156,8 +192,8 @@ impl TiltBranch {
                     return None;
                 };
                 // The frames since the check are on the tilt the image disfavours.
-                self.record.withheld.extend(&sent.frames);
-                self.record.flips.push(TiltFlip {
+                self.notes.push(TiltNote::Withheld(sent.frames.clone()));
+                self.notes.push(TiltNote::Flip(TiltFlip {
                     frame: sent.frame,
                     at_s,
                     jump_m: (pose.c_w - sent.pose.c_w).norm(),
@@ -165,7 +201,7 @@ impl TiltBranch {
                     tracked_vs_mirror: first,
                     flipped_vs_tracked: second,
                     held: None,
-                });
+                }));
                 self.state = Branch::Provisional(Vec::new());
                 Some(pose)
             }
@@ -177,7 +213,7 @@ impl TiltBranch {
     /// flip not yet confirmed never held, and its frames are withheld.
     pub fn restart(&mut self) {
         if let Branch::Provisional(frames) = std::mem::replace(&mut self.state, Branch::Settled) {
-            self.record.withheld.extend(frames);
+            self.notes.push(TiltNote::Withheld(frames));
         }
         self.in_flight = None;
     }
@@ -185,18 +221,11 @@ impl TiltBranch {
     /// The checks favour the other tilt after a flip that did not hold: the frames since the
     /// check are withheld, and a flip found is refused.
     fn refuse_or_doubt(&mut self, check: &TiltCheck, sent: &InFlight) {
-        self.record.withheld.extend(&sent.frames);
+        self.notes.push(TiltNote::Withheld(sent.frames.clone()));
         if check.flip.is_some() {
-            self.record.refused.push(sent.frame);
+            self.notes.push(TiltNote::Refused(sent.frame));
         }
         self.state = Branch::Doubted;
-    }
-
-    /// The last flip held, or did not.
-    fn resolve_last(&mut self, held: bool) {
-        if let Some(f) = self.record.flips.last_mut() {
-            f.held = Some(held);
-        }
     }
 }
 
@@ -239,8 +268,40 @@ mod tests {
         }
     }
 
+    /// A branch and the record of its notes.
+    #[derive(Default)]
+    struct Tested {
+        branch: TiltBranch,
+        record: TiltRecord,
+    }
+
+    impl Tested {
+        fn sync(&mut self) {
+            for n in self.branch.take_notes() {
+                self.record.apply(&n);
+            }
+        }
+        fn sent(&mut self, frame: usize, frame_id: u32, pose: CameraPose) {
+            self.branch.sent(frame, frame_id, pose);
+            self.sync();
+        }
+        fn judged(&mut self, frame_id: u32) {
+            self.branch.judged(frame_id);
+            self.sync();
+        }
+        fn answer(&mut self, check: &TiltCheck, at_s: f64) -> Option<CameraPose> {
+            let pose = self.branch.answer(check, at_s);
+            self.sync();
+            pose
+        }
+        fn restart(&mut self) {
+            self.branch.restart();
+            self.sync();
+        }
+    }
+
     /// Frames `ids` judged, with a check sent at the first.
-    fn frames(b: &mut TiltBranch, ids: std::ops::RangeInclusive<u32>) {
+    fn frames(b: &mut Tested, ids: std::ops::RangeInclusive<u32>) {
         let first = *ids.start();
         b.sent(first as usize, first, pose(0.0));
         for id in ids {
@@ -250,7 +311,7 @@ mod tests {
 
     #[test]
     fn a_flip_that_holds_withholds_only_the_frame_it_found_wrong() {
-        let mut b = TiltBranch::default();
+        let mut b = Tested::default();
         frames(&mut b, 10..=10);
         assert_eq!(b.answer(&check(true, Some(0.1)), 0.37), Some(pose(0.1)));
         let f = b.record.flips[0];
@@ -268,7 +329,7 @@ mod tests {
 
     #[test]
     fn a_flip_that_does_not_hold_is_not_repeated_and_its_frames_are_not_tracked() {
-        let mut b = TiltBranch::default();
+        let mut b = Tested::default();
         frames(&mut b, 10..=10);
         assert!(b.answer(&check(true, Some(0.1)), 0.37).is_some());
         // Tracking walked back: the next check favours the mirror again.
@@ -290,7 +351,7 @@ mod tests {
 
     #[test]
     fn evidence_not_confirmed_changes_nothing_and_an_unconfirmed_flip_is_withheld_at_a_restart() {
-        let mut b = TiltBranch::default();
+        let mut b = Tested::default();
         frames(&mut b, 10..=10);
         // The mirror was favoured, but did not verify: the tracked pose stands.
         assert_eq!(b.answer(&check(true, None), 0.37), None);

@@ -11,7 +11,7 @@ use protocol::{CoreToHost, DecodeError, HostToCore};
 use crate::error::TrackerError;
 
 /// What the reader thread passes on.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub enum Incoming {
     /// A message from the core.
     Message(CoreToHost),

@@ -62,6 +62,8 @@ fn a_source_faster_than_the_tracker_is_dropped_never_queued_and_the_poses_stay_t
     config.start = Start::Camera(truth(0.0));
     config.answers = Answers::WhenReady;
     config.timeout = Duration::from_secs(5);
+    config.details = true;
+    let mut record = tracker::record::Record::default();
     let core = InProcessCore::default();
     let mut tracker = Tracker::new(config, &model, core).unwrap();
 
@@ -72,15 +74,18 @@ fn a_source_faster_than_the_tracker_is_dropped_never_queued_and_the_poses_stay_t
         // No frame waits behind another: the one taken is the newest delivered.
         assert_eq!(c.frame.index + 1, c.delivered, "frame {}", c.frame.index);
         tracker.push_frame(c.frame).unwrap();
-        reports.extend(tracker.poll().filter_map(|e| match e {
-            Event::Frame(r) => Some(r),
-            _ => None,
-        }));
+        for e in tracker.poll() {
+            record.observe(&e);
+            if let Event::Frame(r) = e {
+                reports.push(r);
+            }
+        }
     }
     let counts = live.counts();
     let done = tracker.finish();
     done.result.unwrap();
-    let latency = &done.record.latency;
+    record.observe_all(&done.events);
+    let latency = &record.latency;
     println!(
         "{} delivered, {} taken, {} dropped; age when taken: {:?}; capture -> pose: {:?}",
         counts.delivered,

@@ -23,7 +23,7 @@
 //! the dead-reckoned displacement of a lost filter is what cannot be trusted.
 
 use nalgebra::UnitQuaternion;
-use protocol::{HostToCore, Init, InitAttitude, Mode, StateReport};
+use protocol::{HostToCore, Init, InitAttitude, Mode};
 
 use camera::CameraPose;
 
@@ -71,7 +71,11 @@ pub(crate) enum AtTrigger {
 impl Searcher {
     /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says what
     /// to do.
-    pub fn at_trigger(&mut self, statuses: &[protocol::Status], t_us: u64) -> AtTrigger {
+    pub fn at_trigger(
+        &mut self,
+        statuses: &crate::session::Recent<protocol::Status>,
+        t_us: u64,
+    ) -> AtTrigger {
         self.loss.note_statuses(statuses, t_us);
         if !self.started {
             return match self.job {
@@ -114,12 +118,6 @@ impl Searcher {
     }
 }
 
-/// The core's state report at or just before `t_us`.
-fn state_at(states: &[StateReport], t_us: u64) -> Option<&StateReport> {
-    let i = states.partition_point(|s| s.t_us <= t_us);
-    i.checked_sub(1).and_then(|i| states.get(i))
-}
-
 impl<T: CoreTransport> Tracker<T> {
     /// Applies the attempt with the search thread if it is due: in lock-step
     /// (`lock_step_k`, the IMU sample now) once its due sample is reached, waiting for it; in
@@ -143,7 +141,9 @@ impl<T: CoreTransport> Tracker<T> {
                 None => return Ok(()),
             },
         };
-        self.record.keep_provenance(from);
+        if let Some(from) = from {
+            self.tell(crate::event::Detail::Database(from));
+        }
         if let Some(s) = self.searcher_mut() {
             s.job = None;
         }
@@ -158,7 +158,7 @@ impl<T: CoreTransport> Tracker<T> {
         now_us: u64,
     ) -> Result<(), TrackerError> {
         let search = Search::new(job.index, job.t_us, attempt).applied(now_us);
-        self.record.record_search(job.lost_at, search);
+        self.tell_search(job.lost_at, search, None);
         self.tell_located(job.index, attempt.pose);
         let Some(pose) = attempt.pose else {
             return Ok(());
@@ -179,8 +179,8 @@ impl<T: CoreTransport> Tracker<T> {
     fn keep_tilt_init(&self, pose: &CameraPose, frame_us: u64, now_us: u64) -> Init {
         let (s_w, q_sw) = self.config.rig.hand_eye.sensor_pose_of_camera(pose);
         let q_ws_found = q_sw.inverse();
-        let states = &self.record.log.states;
-        let q_ws = match (state_at(states, frame_us), state_at(states, now_us)) {
+        let s = &self.session;
+        let q_ws = match (s.state_at(frame_us), s.state_at(now_us)) {
             (Some(then), Some(now)) if then.t_us < now.t_us => {
                 let (_, q_then) = crate::rig::state_pose(then);
                 let (_, q_now) = crate::rig::state_pose(now);

@@ -26,6 +26,7 @@ use super::on_core::OnCore;
 use super::outage::{Attempt, MAX_BACKLOG_US, Open};
 use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::error::TrackerError;
+use crate::event::{Detail, LatencyNote};
 use crate::record::Fate;
 use crate::transport::CoreTransport;
 
@@ -132,15 +133,12 @@ impl<T: CoreTransport> Tracker<T> {
     /// buffers, an attach to a running core if asked, the `Configure`, and the `Init` where a
     /// start pose is given.
     pub(crate) fn start_inertial(&mut self) -> Result<(), TrackerError> {
-        let ack = self
-            .record
-            .log
-            .handshake(&mut self.core, self.config.timeout)?;
+        let ack = self.session.handshake(&mut self.core, self.config.timeout)?;
         let core_config = crate::config::core_config(
             &self.config.rig,
             self.config.model,
             &self.config.tuning,
-            self.record.session_id,
+            self.session_id,
         );
         crate::config::check_latency(self.config.latency_s, &ack.capacities, &core_config)?;
         let attached = if self.config.attach {
@@ -217,7 +215,7 @@ impl<T: CoreTransport> Tracker<T> {
         if let Some(last) = self.imu_mut()?.last_ns
             && sample.t_ns <= last
         {
-            let t0 = self.record.origin_ns.unwrap_or(0);
+            let t0 = self.origin_ns.unwrap_or(0);
             return Err(TrackerError::TimeBackwards {
                 what: "IMU sample".into(),
                 t_us: (sample.t_ns as i64 - t0) / 1000,
@@ -234,11 +232,8 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// [`Self::push_imu`]'s steps for a sample in order.
     fn imu_step(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
-        let t0 = u64::try_from(
-            self.record
-                .origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)),
-        )
-        .unwrap_or(0);
+        let t0 = u64::try_from(self.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)))
+            .unwrap_or(0);
         let inertial = self.imu_mut()?;
         inertial.last_ns = Some(sample.t_ns);
         let t_us = (sample.t_ns - t0) / 1000;
@@ -258,7 +253,7 @@ impl<T: CoreTransport> Tracker<T> {
                 )));
             }
             inertial.attached_after_us = None;
-            self.record.attached_at = Some(k);
+            self.tell(Detail::AttachedAt(k));
         }
         let inertial = self.imu_mut()?;
         inertial.recent.push_back(Sent {
@@ -275,16 +270,23 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let mut open = inertial.open.take();
         let deferred = inertial.deferred.take();
-        let refusals = self.record.log.errors.len();
+        let refusals = self.session.errors.mark();
         // While the core is not there, the sample waits for an attempt to reach it.
         let ready = match (open.as_mut(), deferred) {
             (None, Some(e)) => Err(TrackerError::Link(e)),
             (None, None) => Ok(true),
-            (Some(o), _) => match self.attempt_resume(o, t_us)? {
-                Attempt::Waiting => Ok(false),
-                Attempt::Resumed => {
-                    open = None;
+            (Some(o), _) => match self.attempt_resume(o, t_us) {
+                Ok(Attempt::Waiting) => Ok(false),
+                Ok(Attempt::Resumed) => {
+                    if let Some(o) = open.take() {
+                        self.tell(Detail::Outage(o.outage));
+                    }
                     Ok(true)
+                }
+                Err(e) => {
+                    // Told at the end, as it stood when the run stopped.
+                    self.imu_mut()?.open = open;
+                    return Err(e);
                 }
             },
         };
@@ -329,22 +331,22 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.imu_mut()?.last_sent_us = Some(t_us);
         let Some(frame) = frame else {
-            return self.record.log.drain(&mut self.core);
+            return self.session.drain(&mut self.core);
         };
         if lock_step {
             self.barrier()?;
         } else {
             // Live: the prediction is usually back within a millisecond.
             let deadline = Instant::now() + Duration::from_millis(20);
-            while !self.record.log.predictions.contains_key(&t_us) && Instant::now() < deadline {
+            while !self.session.has_prediction(t_us) && Instant::now() < deadline {
                 if let Ok(item) = self.core.recv(Duration::from_millis(2)) {
-                    self.record.log.take(item);
+                    self.session.take(item);
                 }
             }
         }
         let due = k + self.imu_mut()?.latency_samples.max(1);
         self.attempt_step(&frame, t_us, due)?;
-        if !lock_step && !self.record.log.predictions.contains_key(&t_us) {
+        if !lock_step && !self.session.has_prediction(t_us) {
             self.imu_mut()?.late = Some((frame, t_us, due));
             return Ok(());
         }
@@ -357,7 +359,7 @@ impl<T: CoreTransport> Tracker<T> {
         let Some((frame, t_us, due)) = self.imu_mut()?.late.take() else {
             return Ok(());
         };
-        if self.record.log.predictions.contains_key(&t_us) || trigger {
+        if self.session.has_prediction(t_us) || trigger {
             return self.frame_step(frame, t_us, due);
         }
         self.imu_mut()?.late = Some((frame, t_us, due));
@@ -366,13 +368,13 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// At a trigger: the loss rule, and an attempt on the frame where it asks for one.
     fn attempt_step(&mut self, frame: &Frame, t_us: u64, due: usize) -> Result<(), TrackerError> {
-        let statuses = &self.record.log.statuses;
+        let statuses = &self.session.statuses;
         let step = match self.inertial.as_mut().and_then(|i| i.searcher.as_mut()) {
             Some(s) => s.at_trigger(statuses, t_us),
             None => AtTrigger::Wait,
         };
         if step == AtTrigger::Tracking {
-            self.record.end_recovery(t_us);
+            self.tell(Detail::RecoveryEnded(t_us));
         }
         let AtTrigger::Attempt(lost_at) = step else {
             return Ok(());
@@ -389,7 +391,7 @@ impl<T: CoreTransport> Tracker<T> {
         match image {
             Ok(image) => {
                 search.send_locate(image, self.config.cache.clone())?;
-                self.record.settle(frame.index, Fate::Searched);
+                self.settle(frame.index, Fate::Searched);
                 if let Some(s) = self.searcher_mut() {
                     s.sent(LocateJob {
                         index: frame.index,
@@ -401,10 +403,7 @@ impl<T: CoreTransport> Tracker<T> {
             }
             // An unreadable frame is no attempt, as it is no analysis: reported, and the
             // next frame is tried.
-            Err(e) => self
-                .record
-                .frame_errors
-                .push((self.record.results.len(), e)),
+            Err(e) => self.tell(Detail::FrameError(e)),
         }
         Ok(())
     }
@@ -416,8 +415,8 @@ impl<T: CoreTransport> Tracker<T> {
         t_us: u64,
         due: usize,
     ) -> Result<(), TrackerError> {
-        let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
-            self.record.settle(frame.index, Fate::NoPrediction);
+        let Some(p) = self.session.take_prediction(t_us) else {
+            self.settle(frame.index, Fate::NoPrediction);
             return Ok(());
         };
         let omega_c = self.omega_c(t_us);
@@ -449,8 +448,8 @@ impl<T: CoreTransport> Tracker<T> {
             accel: f32s(s.sample.accel),
             trigger: s.trigger,
         }))?;
-        self.record.clock.push(s.sample.t_ns);
-        self.record.latency.sample_sent(s.t_us);
+        self.tell(Detail::Clock(s.sample.t_ns));
+        self.latency(LatencyNote::SampleSent(s.t_us));
         Ok(())
     }
 
@@ -482,8 +481,6 @@ impl<T: CoreTransport> Tracker<T> {
         p: Pending,
         result: Result<vision::FrameResult, TrackerError>,
     ) -> Result<(), TrackerError> {
-        let results = self.record.results.len();
-        let ok = result.is_ok();
         let judged = match &result {
             Ok(r) => r
                 .at_prediction
@@ -495,26 +492,27 @@ impl<T: CoreTransport> Tracker<T> {
             .as_ref()
             .ok()
             .and_then(|r| camera::PoseCovariance::from_upper(&r.job.prediction.cov));
-        self.record
-            .deliver(&mut self.core, (p.frame_id, p.index), p.trigger_us, result)?;
-        if ok {
+        let delivered = self.deliver((p.frame_id, p.index), p.trigger_us, result)?;
+        if delivered.is_ok() {
             let after = self.imu_mut()?.last_sent_us.unwrap_or(p.trigger_us);
-            self.record.latency.sent(p.index, after);
+            self.latency(LatencyNote::Sent {
+                index: p.index,
+                after_us: after,
+            });
         }
-        let correspondences = match self.record.results.get(results) {
-            Some((_, r)) => r.correspondences.len() + r.contours.len(),
-            None => 0,
-        };
+        let correspondences = delivered.unwrap_or(0);
         // The verdict on the pose put out at the frame's time (docs/VISION.md §10).
         let (pose, tracked, weakest) = match judged {
             Some((a, Ok(pose))) => {
                 // Eq. T9 judges vision-only poses: a prediction's covariance holds the process
                 // noise of a hand-held camera's peak jerk, and eq. T4 holds it to its frame.
-                let weakest = cov.as_ref().map(|c| self.record.weakest(&pose, c));
-                self.record.assessments.insert(p.frame_id, a);
-                let tracked = self.verdicts.judge(&self.record.rule, &a);
-                self.record.verdicts.insert(p.frame_id, tracked);
-                (Some(pose), Some(tracked), weakest)
+                let v = self.judge.judge(p.frame_id, a, &pose, cov.as_ref(), false);
+                self.tell(Detail::Judged {
+                    frame_id: p.frame_id,
+                    assessment: v.assessment,
+                    tracked: v.tracked,
+                });
+                (Some(pose), Some(v.tracked), v.weakest)
             }
             _ => (None, None, None),
         };
@@ -523,7 +521,7 @@ impl<T: CoreTransport> Tracker<T> {
         self.loss.frame(tracked == Some(true), p.trigger_us);
         self.tracked_since_start |= tracked == Some(true);
         let cov = pose.and(cov);
-        let weak = tracked.and_then(|t| self.record.weak(weakest, t));
+        let weak = tracked.and_then(|t| self.judge.weak(weakest, t));
         self.events.push_back(Event::Frame(FrameReport {
             index: p.index,
             t_us: p.trigger_us,
@@ -543,14 +541,14 @@ impl<T: CoreTransport> Tracker<T> {
     fn attach(&mut self, ack: &protocol::HelloAck) -> Result<Option<u64>, TrackerError> {
         let model = self.config.model;
         if ack.session == 0 || ack.model != Some(model) {
-            self.record.attach_note = Some(match (ack.model, ack.session) {
+            self.tell(Detail::AttachNote(match (ack.model, ack.session) {
                 (_, 0) | (None, _) => "the core ran no session: configured anew".to_string(),
                 (Some(m), s) => format!(
                     "the core ran a session ({s:#010x}) of the {} model, not of the {}: configured anew",
                     m.name(),
                     model.name()
                 ),
-            });
+            }));
             return Ok(None);
         }
         let Some((mode, last_us)) = self.query()? else {
@@ -559,17 +557,18 @@ impl<T: CoreTransport> Tracker<T> {
             ));
         };
         if !matches!(mode, Mode::Tracking | Mode::DeadReckoning) {
-            self.record.attach_note = Some(format!(
+            self.tell(Detail::AttachNote(format!(
                 "the core was {mode:?}, not tracking: configured and initialised anew"
-            ));
+            )));
             return Ok(None);
         }
-        self.record.session_id = ack.session;
-        self.record.attach_note = Some(format!(
+        self.session_id = ack.session;
+        self.tell(Detail::Session(ack.session));
+        self.tell(Detail::AttachNote(format!(
             "attached to session {:#010x}, {mode:?} at t = {:.3} s: went on from there",
             ack.session,
             last_us as f64 * 1e-6
-        ));
+        )));
         Ok(Some(last_us))
     }
 
@@ -592,7 +591,7 @@ impl<T: CoreTransport> Tracker<T> {
                 let r = self.worker.recv()?;
                 if interrupted {
                     if let Ok(r) = r {
-                        self.record.push_result(p.frame_id, r);
+                        self.tell_analysed(p.frame_id, r, 0);
                     }
                 } else {
                     self.deliver_frame(p, r)?;
@@ -606,13 +605,15 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.finish_on_core();
         if interrupted {
+            // Told as it stands at the end.
+            self.imu_mut()?.open = open;
             return Ok(());
         }
-        self.close_outages();
         // An outage that the input outlasted is a failed run, as one that outlasts the retry
         // window is: the samples after it were never tracked.
         if let Some(o) = open {
-            let outage = &self.record.outages[o.index];
+            let outage = o.outage.clone();
+            self.tell(Detail::Outage(o.outage));
             let end_us = self
                 .inertial
                 .as_ref()
@@ -636,8 +637,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// tracking while the core tracks (or dead-reckons a short stretch) after a tracked
     /// frame; starting before.
     pub(crate) fn judge_inertial(&mut self, t_us: u64) {
-        self.loss.note_statuses(&self.record.log.statuses, t_us);
-        let mode = self.record.log.mode();
+        self.loss.note_statuses(&self.session.statuses, t_us);
+        let mode = self.session.mode();
         let searching = self.inertial.as_ref().and_then(|i| i.searcher.as_ref());
         let state = match searching.map(|s| (s.started(), s.lost(t_us))) {
             Some((false, _)) => State::Locating,

@@ -35,20 +35,23 @@ use std::time::Instant;
 use camera::CameraPose;
 use image::GrayImage;
 use protocol::{HostToCore, Init, InitAttitude, ModelKind, StatusReason, Tick};
-use vision::{FrameImage, FrameJob, TrackedRule};
+use vision::{FrameImage, FrameJob};
 
 use self::inertial::Inertial;
 use crate::config::vision_config;
 use crate::error::TrackerError;
+use crate::event::{Detail, LatencyNote};
 pub use crate::event::{Event, FrameReport, Pose, State};
 use crate::in_process::InProcessCore;
+use crate::judge::{Judge, Tally};
 use crate::loss::LossRule;
 use crate::record::Fate;
-use crate::record::Record;
 use crate::rig::HandEye;
 use crate::search::Search;
+use crate::session::CoreSession;
 use crate::settings::check_config;
 pub use crate::settings::{Answers, Frame, ImuOnCore, Start, TrackerConfig};
+use crate::tilt::{TiltBranch, TiltNote};
 use crate::transport::CoreTransport;
 use crate::worker::{VisionWorker, is_textured};
 
@@ -103,11 +106,21 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     /// The searches' vision thread: vision-only runs, and inertial runs that start cold.
     pub(crate) search: Option<VisionWorker>,
     adapter: String,
-    pub(crate) record: Record,
+    /// The exchanges with the core, and what the steps need of what it said.
+    pub(crate) session: CoreSession,
+    /// The input's time [ns] the run's times [µs] count from: its first IMU sample, or
+    /// (vision-only) the first frame taken.
+    pub(crate) origin_ns: Option<i64>,
+    /// The mount the core was configured with: the rig's, or none (vision-only).
+    pub(crate) core_hand_eye: HandEye,
+    /// This run's name for its configuration of the core (an attach takes the core's).
+    pub(crate) session_id: u32,
     /// The core's outlier gate on `s_i`.
     gate: f64,
-    /// The run's verdicts so far (the contour form's confirmation).
-    verdicts: vision::Verdicts,
+    /// The verdicts.
+    pub(crate) judge: Judge,
+    /// Vision-only: the tilt checks of tracked poses and their flips.
+    tilt: TiltBranch,
     /// Vision-only: the last tick's time [µs].
     last_us: Option<u64>,
     /// Vision-only: whether the core has a pose.
@@ -129,16 +142,14 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     pub(crate) events: VecDeque<Event>,
     pub(crate) state: State,
     latest: Option<Pose>,
-    /// The core's state reports already told as events.
-    states_told: usize,
     /// Why the tracker stopped, once it did.
     pub(crate) stopped: Option<String>,
 }
 
 /// What [`Tracker::finish`] leaves.
 pub struct Finished<T> {
-    /// Everything the run saw.
-    pub record: Record,
+    /// How many frames were judged, and how many count as tracked.
+    pub tally: Tally,
     /// The core's transport, to close.
     pub core: T,
     /// The renderer's adapter.
@@ -179,9 +190,16 @@ impl<T: CoreTransport> Tracker<T> {
         } else {
             config.rig.hand_eye
         };
+        let judge = Judge::new(model.diagonal(), ready.axes.0);
+        let rule = *judge.rule();
         let mut tracker = Self {
             gate: 0.0,
-            verdicts: vision::Verdicts::default(),
+            judge,
+            session: CoreSession::new(config.details),
+            origin_ns: None,
+            core_hand_eye: hand_eye,
+            session_id: config.session_id,
+            tilt: TiltBranch::default(),
             last_us: None,
             started: config.start != Start::Locate,
             tracked_since_start: false,
@@ -194,18 +212,20 @@ impl<T: CoreTransport> Tracker<T> {
             events: VecDeque::new(),
             state: State::Locating,
             latest: None,
-            states_told: 0,
             stopped: None,
             adapter: ready.adapter,
-            record: Record {
-                rule: TrackedRule::for_object(model.diagonal()),
-                ..Record::new(hand_eye, config.session_id, ready.axes)
-            },
             config,
             core,
             worker,
             search,
         };
+        tracker.tell(Detail::Started {
+            core_hand_eye: hand_eye,
+            session_id: tracker.session_id,
+            axes: ready.axes,
+            rule,
+            at: Instant::now(),
+        });
         if vision_only {
             tracker.start_vision()?;
         } else {
@@ -218,9 +238,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// the start pose is given. Correspondences go out before the next tick: no latency to
     /// check against the core's buffers.
     fn start_vision(&mut self) -> Result<(), TrackerError> {
-        self.record
-            .log
-            .handshake(&mut self.core, self.config.timeout)?;
+        self.session.handshake(&mut self.core, self.config.timeout)?;
         let c = &self.config;
         let core_config = vision_config(c.frame_rate_hz, &c.tuning, c.session_id);
         self.gate = f64::from(core_config.gate);
@@ -245,9 +263,9 @@ impl<T: CoreTransport> Tracker<T> {
         Ok(())
     }
 
-    /// Sends `Hello` and logs everything the core says up to its answer.
+    /// Sends `Hello` and takes everything the core says up to its answer.
     pub(crate) fn barrier(&mut self) -> Result<(), TrackerError> {
-        self.record.log.barrier(&mut self.core, self.config.timeout)
+        self.session.barrier(&mut self.core, self.config.timeout)
     }
 
     /// Sends a `Configure` or `Init` and logs the answers (confirmed on a lossy line).
@@ -256,22 +274,20 @@ impl<T: CoreTransport> Tracker<T> {
         msg: &HostToCore,
         reason: StatusReason,
     ) -> Result<(), TrackerError> {
-        self.record
-            .log
+        self.session
             .send_confirmed(&mut self.core, msg, reason, self.config.timeout)
     }
 
-    /// The first refusal of the core logged from error `from` on: on a lossy line, its noise
-    /// ([`crate::log::is_line_noise`]), which [`Self::send_confirmed`] resends past, is none
-    /// (issue 54: `--line-errors 0.002` failed a run as "refused the configuration").
+    /// The first refusal of the core since the mark `from` ([`crate::session::Recent::mark`]):
+    /// on a lossy line, its noise ([`crate::session::is_line_noise`]), which
+    /// [`Self::send_confirmed`] resends past, is none (issue 54: `--line-errors 0.002` failed
+    /// a run as "refused the configuration").
     pub(crate) fn refusal(&self, from: usize) -> Option<String> {
         let lossy = self.core.lossy();
-        self.record
-            .log
+        self.session
             .errors
-            .iter()
-            .skip(from)
-            .find(|e| !(lossy && crate::log::is_line_noise(&e.code)))
+            .since(from)
+            .find(|e| !(lossy && crate::session::is_line_noise(&e.code)))
             .map(|e| e.code.to_string())
     }
 
@@ -293,25 +309,26 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let index = frame.index;
         let captured = frame.captured.unwrap_or_else(Instant::now);
-        self.record.take_frame(index, frame.t_ns);
+        self.tell(Detail::Taken {
+            index,
+            t_ns: frame.t_ns,
+        });
         let checked = match &self.inertial {
             Some(_) => self.queue_frame(frame).map(|()| None),
             None => self.check_frame(frame).map(Some),
         };
         if checked.is_ok() {
-            self.record.latency.taken(index, captured);
+            self.latency(LatencyNote::Taken { index, captured });
         }
         let (t_us, image) = match checked {
             Ok(Some(c)) => c,
             Ok(None) if self.imu_on_core() => return self.pump(),
             Ok(None) => return Ok(()),
             Err(e) => {
-                // Refused, and recorded as a frame that could not be used.
-                self.record.settle(index, Fate::Unusable);
+                // Refused, and told as a frame that could not be used.
+                self.settle(index, Fate::Unusable);
                 let why = e.to_string();
-                self.record
-                    .frame_errors
-                    .push((self.record.results.len(), format!("{why}: skipped")));
+                self.tell(Detail::FrameError(format!("{why}: skipped")));
                 self.events.push_back(Event::FrameSkipped { index, why });
                 return Err(e);
             }
@@ -366,7 +383,7 @@ impl<T: CoreTransport> Tracker<T> {
                 .into_luma8(),
         };
         self.check_size(frame.index, &image)?;
-        let t0 = self.record.origin(frame.t_ns);
+        let t0 = self.origin(frame.t_ns);
         let t_us = frame.t_ns.saturating_sub(t0) / 1000;
         // The frame's tick must come after the last tick, which is 1 µs past the last frame.
         if let Some(last) = self.last_us
@@ -392,20 +409,20 @@ impl<T: CoreTransport> Tracker<T> {
             } else {
                 Fate::NoPrediction
             };
-            self.record.settle(index, fate);
+            self.settle(index, fate);
             return Ok(());
         }
         self.take_answers(t_us)?;
         self.search_step(index, &image, t_us)?;
         self.tick(t_us)?;
         let check_due = self.since_check >= TILT_CHECK_EVERY
-            && !self.record.tilt.in_flight()
+            && !self.tilt.in_flight()
             && self.in_search.is_none()
             && self.loss.untracked_since().is_none();
         let check_image = check_due.then(|| image.clone());
-        let analysed = self.analyse(index, image, t_us)?;
+        let (analysed, correspondences) = self.analyse(index, image, t_us)?;
         self.check_step(check_image, analysed, index)?;
-        self.judge(analysed, index, t_us);
+        self.judge(analysed, index, t_us, correspondences);
         Ok(())
     }
 
@@ -440,9 +457,7 @@ impl<T: CoreTransport> Tracker<T> {
             }
         };
         if let Some((a, from, at, at_us)) = answer {
-            self.record.keep_provenance(from);
-            self.record
-                .record_search(None, Search::new(at, at_us, a).applied(t_us));
+            self.tell_search(None, Search::new(at, at_us, a).applied(t_us), from);
             self.tell_located(at, a.pose);
             if let Some(pose) = a.pose {
                 self.core.send(&HostToCore::Init(init_at(&pose)))?;
@@ -470,7 +485,7 @@ impl<T: CoreTransport> Tracker<T> {
     fn take_answers(&mut self, t_us: u64) -> Result<(), TrackerError> {
         let block = self.config.answers == Answers::AtNextFrame;
         // Divergences since the last frame lose the model at once.
-        self.loss.note_statuses(&self.record.log.statuses, t_us);
+        self.loss.note_statuses(&self.session.statuses, t_us);
         if let Some(s) = self.in_search {
             let done = if block {
                 Some(self.searcher()?.locate_result()?)
@@ -479,23 +494,26 @@ impl<T: CoreTransport> Tracker<T> {
             };
             if let Some((a, from)) = done {
                 self.in_search = None;
-                self.record.keep_provenance(from);
                 let search = Search::new(s.index, s.t_us, a).applied(t_us);
-                self.record.record_search(s.lost_at, search);
+                self.tell_search(s.lost_at, search, from);
                 self.tell_located(s.index, a.pose);
                 if let Some(pose) = a.pose {
                     self.core.send(&HostToCore::Init(init_at(&pose)))?;
-                    self.record.tilt.restart();
+                    self.tilt.restart();
+                    self.tell_tilt();
                     self.loss.found(None);
                     self.tracked_since_start = false;
                 }
             }
         }
-        if self.record.tilt.in_flight()
+        if self.tilt.in_flight()
             && let Some(check) = self.searcher()?.tilt_result(block)?
-            && let Some(pose) = self.record.tilt.answer(&check, t_us as f64 * 1e-6)
         {
-            self.core.send(&HostToCore::Init(init_at(&pose)))?;
+            let flip = self.tilt.answer(&check, t_us as f64 * 1e-6);
+            self.tell_tilt();
+            if let Some(pose) = flip {
+                self.core.send(&HostToCore::Init(init_at(&pose)))?;
+            }
         }
         Ok(())
     }
@@ -509,7 +527,7 @@ impl<T: CoreTransport> Tracker<T> {
         t_us: u64,
     ) -> Result<(), TrackerError> {
         if !self.loss.lost(t_us) {
-            self.record.end_recovery(t_us);
+            self.tell(Detail::RecoveryEnded(t_us));
             return Ok(());
         }
         self.set_state(State::Lost);
@@ -517,7 +535,7 @@ impl<T: CoreTransport> Tracker<T> {
             // An untextured model: lost until its contour is found again, never searched.
             return Ok(());
         }
-        let busy = self.in_search.is_some() || self.record.tilt.in_flight();
+        let busy = self.in_search.is_some() || self.tilt.in_flight();
         if let Some(lost_at) = self.loss.search_due(t_us, busy) {
             self.searcher()?
                 .send_locate(image.clone(), self.config.cache.clone())?;
@@ -540,34 +558,35 @@ impl<T: CoreTransport> Tracker<T> {
             }
         }
         self.send_tick(t_us, true)?;
-        self.record.log.barrier(&mut self.core, self.config.timeout)
+        self.barrier()
     }
 
     /// Sends one tick at `t_us` and records its stamp.
     fn send_tick(&mut self, t_us: u64, trigger: bool) -> Result<(), TrackerError> {
         self.core.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
-        let t0 = u64::try_from(self.record.origin_ns.unwrap_or(0)).unwrap_or(0);
-        self.record.clock.push(t0 + t_us * 1000);
+        let t0 = u64::try_from(self.origin_ns.unwrap_or(0)).unwrap_or(0);
+        self.tell(Detail::Clock(t0 + t_us * 1000));
         self.last_us = Some(t_us);
         Ok(())
     }
 
     /// Step 6: the frame analysed at the core's prediction, its correspondences sent, the
     /// clock moved just past it, and the pose estimated with it judged. Returns that pose and
-    /// whether it counts as tracked, where the frame was analysed.
+    /// whether it counts as tracked, where the frame was analysed, and the correspondences
+    /// sent.
     fn analyse(
         &mut self,
         index: usize,
         image: GrayImage,
         t_us: u64,
-    ) -> Result<Option<Judged>, TrackerError> {
-        let Some(p) = self.record.log.predictions.get(&t_us).copied() else {
-            self.record.settle(index, Fate::NoPrediction);
-            return Ok(None);
+    ) -> Result<(Option<Judged>, usize), TrackerError> {
+        let Some(p) = self.session.take_prediction(t_us) else {
+            self.settle(index, Fate::NoPrediction);
+            return Ok((None, 0));
         };
         let every = self.config.keep_image_every;
         let omega_c = self.omega_c(t_us);
-        let t0 = u64::try_from(self.record.origin_ns.unwrap_or(0)).unwrap_or(0);
+        let t0 = u64::try_from(self.origin_ns.unwrap_or(0)).unwrap_or(0);
         self.worker.send(FrameJob {
             index,
             stamp: t0 + t_us * 1000,
@@ -577,61 +596,57 @@ impl<T: CoreTransport> Tracker<T> {
             omega_c,
         })?;
         let result = self.worker.recv()?;
-        let ok = result.is_ok();
-        let errors = self.record.frame_errors.len();
-        self.record
-            .deliver(&mut self.core, (p.frame_id, index), t_us, result)?;
-        if ok {
-            self.record.latency.sent(index, t_us);
-        }
-        if let Some((_, why)) = self.record.frame_errors.get(errors) {
-            self.events.push_back(Event::FrameSkipped {
-                index,
-                why: why.clone(),
-            });
-        }
+        let delivered = match self.deliver((p.frame_id, index), t_us, result)? {
+            Ok(n) => {
+                self.latency(LatencyNote::Sent {
+                    index,
+                    after_us: t_us,
+                });
+                Some(n)
+            }
+            Err(why) => {
+                self.events.push_back(Event::FrameSkipped { index, why });
+                None
+            }
+        };
         // The pose estimated with this frame, just after it.
         self.send_tick(t_us + 1, false)?;
-        self.record
-            .log
-            .barrier(&mut self.core, self.config.timeout)?;
+        self.barrier()?;
         // The pose out at once, before its judgement.
         self.tell_poses();
-        let updated = self.record.log.states.last().filter(|s| s.t_us == t_us + 1);
-        let (true, Some(s)) = (ok, updated) else {
-            return Ok(None);
+        let updated = self.session.last_state().filter(|s| s.t_us == t_us + 1);
+        let correspondences = delivered.unwrap_or(0);
+        let (true, Some(s)) = (delivered.is_some(), updated) else {
+            return Ok((None, correspondences));
         };
         let pose = pose_of_state(s);
         let cov = camera::PoseCovariance::from_upper(&s.cov);
         // Which correspondences the core applied: its reports' residuals, part by part in
         // the order sent, within the gate.
-        let mut reports = self
-            .record
-            .log
-            .updates
-            .get(&p.frame_id)
-            .cloned()
-            .unwrap_or_default();
-        reports.sort_by_key(|r| r.part);
-        let applied: Vec<bool> = reports
+        let applied: Vec<bool> = self
+            .session
+            .take_updates(p.frame_id)
             .iter()
             .flat_map(|r| r.residuals.iter())
             .map(|&s_i| f64::from(s_i) <= self.gate)
             .collect();
-        let mut a = self.worker.assess(pose, applied)?;
-        let weakest = cov.as_ref().map(|c| self.record.weakest(&pose, c));
-        a.weakest_sigma = weakest.map(|w| w.sigma);
-        self.record.assessments.insert(p.frame_id, a);
-        let tracked = self.verdicts.judge(&self.record.rule, &a);
-        self.record.verdicts.insert(p.frame_id, tracked);
-        self.record.tilt.judged(p.frame_id);
-        Ok(Some(Judged {
+        let a = self.worker.assess(pose, applied)?;
+        let v = self.judge.judge(p.frame_id, a, &pose, cov.as_ref(), true);
+        self.tell(Detail::Judged {
+            frame_id: p.frame_id,
+            assessment: v.assessment,
+            tracked: v.tracked,
+        });
+        self.tilt.judged(p.frame_id);
+        self.tell_tilt();
+        let judged = Judged {
             pose,
-            tracked,
+            tracked: v.tracked,
             frame_id: p.frame_id,
             cov,
-            weakest,
-        }))
+            weakest: v.weakest,
+        };
+        Ok((Some(judged), correspondences))
     }
 
     /// Step 7: a tilt check of a tracked pose, when one is due (`image`: the frame, taken
@@ -645,7 +660,8 @@ impl<T: CoreTransport> Tracker<T> {
         match (image, judged) {
             (Some(image), Some(j)) if j.tracked && self.search.is_some() => {
                 self.searcher()?.send_tilt_check(image, j.pose)?;
-                self.record.tilt.sent(index, j.frame_id, j.pose);
+                self.tilt.sent(index, j.frame_id, j.pose);
+                self.tell_tilt();
                 self.since_check = 0;
             }
             _ => self.since_check += 1,
@@ -654,7 +670,13 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// Step 8: the frame's judgement into the loss rule, the state, and the frame's event.
-    fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64) {
+    fn judge(
+        &mut self,
+        judged: Option<Judged>,
+        index: usize,
+        t_us: u64,
+        correspondences: usize,
+    ) {
         let tracked = judged.is_some_and(|j| j.tracked);
         self.loss.frame(tracked, t_us);
         if tracked {
@@ -668,10 +690,6 @@ impl<T: CoreTransport> Tracker<T> {
             State::Starting
         };
         self.set_state(state);
-        let correspondences = match self.record.results.last() {
-            Some((_, r)) if r.job.index == index => r.correspondences.len() + r.contours.len(),
-            _ => 0,
-        };
         self.events.push_back(Event::Frame(FrameReport {
             index,
             t_us,
@@ -679,7 +697,7 @@ impl<T: CoreTransport> Tracker<T> {
             tracked: judged.map(|j| j.tracked),
             correspondences,
             cov: judged.and_then(|j| j.cov),
-            weak: judged.and_then(|j| self.record.weak(j.weakest, j.tracked)),
+            weak: judged.and_then(|j| self.judge.weak(j.weakest, j.tracked)),
         }));
     }
 
@@ -699,7 +717,7 @@ impl<T: CoreTransport> Tracker<T> {
             }
             match self.core.recv_within(left) {
                 Ok(Some(item)) => {
-                    self.record.log.take(item);
+                    self.session.take(item);
                     self.tell_poses();
                 }
                 // Nothing came: a threaded link waited until the deadline, an in-process
@@ -754,9 +772,14 @@ impl<T: CoreTransport> Tracker<T> {
         Ok(())
     }
 
-    /// Everything seen so far.
-    pub fn record(&self) -> &Record {
-        &self.record
+    /// How many frames were judged so far, and how many count as tracked.
+    pub fn tally(&self) -> Tally {
+        self.judge.tally()
+    }
+
+    /// The current mode of the core (its last status).
+    pub fn core_mode(&self) -> Option<protocol::Mode> {
+        self.session.mode()
     }
 
     /// The renderer's adapter.
@@ -784,13 +807,18 @@ impl<T: CoreTransport> Tracker<T> {
             None if interrupted => self.barrier(),
             None => self.wind_down(),
         };
+        if let Some(open) = self.inertial.as_mut().and_then(|i| i.open.take()) {
+            // An outage the run ended in.
+            self.tell(Detail::Outage(open.outage));
+        }
         self.tell_poses();
+        self.tell(Detail::End { interrupted });
         self.worker.stop();
         if let Some(s) = &mut self.search {
             s.stop();
         }
         Finished {
-            record: self.record,
+            tally: self.judge.tally(),
             core: self.core,
             adapter: self.adapter,
             result,
@@ -800,15 +828,14 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// See [`Self::finish`] (vision-only).
     fn wind_down(&mut self) -> Result<(), TrackerError> {
-        if self.record.tilt.in_flight() {
+        if self.tilt.in_flight() {
             self.searcher()?.tilt_result(true)?;
         }
-        self.record.tilt.restart();
+        self.tilt.restart();
+        self.tell_tilt();
         if let Some(s) = self.in_search.take() {
             let (a, from) = self.searcher()?.locate_result()?;
-            self.record.keep_provenance(from);
-            self.record
-                .record_search(s.lost_at, Search::new(s.index, s.t_us, a));
+            self.tell_search(s.lost_at, Search::new(s.index, s.t_us, a), from);
         }
         self.barrier()
     }
@@ -830,8 +857,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// The camera's angular rate at the trigger at `t_us` (the core's state there, through
     /// the mount), for the motion blur's share of a frame's covariance.
     pub(crate) fn omega_c(&self, t_us: u64) -> Option<nalgebra::Vector3<f64>> {
-        let s = self.record.log.states.last().filter(|s| s.t_us == t_us)?;
-        Some(self.record.core_hand_eye.q_cs * nalgebra::Vector3::from(s.omega_s.map(f64::from)))
+        let s = self.session.last_state().filter(|s| s.t_us == t_us)?;
+        Some(self.core_hand_eye.q_cs * nalgebra::Vector3::from(s.omega_s.map(f64::from)))
     }
 
     /// Tells a search's answer.
@@ -839,26 +866,138 @@ impl<T: CoreTransport> Tracker<T> {
         self.events.push_back(Event::Located { index, pose });
     }
 
-    /// Tells the core's new state reports as poses.
+    /// Tells what the core said since: its new state reports as poses, and (with details)
+    /// everything it said.
     pub(crate) fn tell_poses(&mut self) {
-        let log = &self.record.log;
-        let hand_eye = self.record.core_hand_eye;
-        for s in &log.states[self.states_told.min(log.states.len())..] {
-            self.record.latency.pose_out(s.t_us);
-            let (c_w, q_wc) = hand_eye.camera_of_state(s);
+        if self.config.details {
+            for item in self.session.take_outbox() {
+                self.tell(Detail::Core(item));
+            }
+            let resent = self.session.take_resent();
+            if resent > 0 {
+                self.tell(Detail::HellosResent(resent));
+            }
+        }
+        let hand_eye = self.core_hand_eye;
+        let mode = self.session.mode();
+        let states: Vec<_> = self.session.take_untold().collect();
+        for s in states {
+            self.latency(LatencyNote::PoseOut(s.t_us));
+            let (c_w, q_wc) = hand_eye.camera_of_state(&s);
             let pose = Pose {
                 t_us: s.t_us,
                 camera: CameraPose {
                     q_cw: q_wc.inverse(),
                     c_w,
                 },
-                mode: log.mode(),
+                mode,
                 cov: camera::PoseCovariance::from_upper(&s.cov),
             };
             self.latest = Some(pose);
             self.events.push_back(Event::Pose(pose));
         }
-        self.states_told = log.states.len();
+    }
+
+    /// Tells a detail, where the tracker was asked for them.
+    pub(crate) fn tell(&mut self, detail: Detail) {
+        if self.config.details {
+            self.events.push_back(Event::Detail(Box::new(detail)));
+        }
+    }
+
+    /// Tells what became of the frame `index`.
+    pub(crate) fn settle(&mut self, index: usize, fate: Fate) {
+        self.tell(Detail::Settled { index, fate });
+    }
+
+    /// Tells a latency's moment, now.
+    pub(crate) fn latency(&mut self, note: LatencyNote) {
+        if self.config.details {
+            self.tell(Detail::Latency(note, Instant::now()));
+        }
+    }
+
+    /// Tells a search's attempt, and where its database came from.
+    pub(crate) fn tell_search(
+        &mut self,
+        lost_at: Option<u64>,
+        search: Search,
+        from: Option<locate::database::Provenance>,
+    ) {
+        if let Some(from) = from {
+            self.tell(Detail::Database(from));
+        }
+        self.tell(Detail::Search { lost_at, search });
+    }
+
+    /// Tells what the tilt branch did, and takes its withheld frames off the tally.
+    fn tell_tilt(&mut self) {
+        for note in self.tilt.take_notes() {
+            if let TiltNote::Withheld(ids) = &note {
+                self.judge.withhold(ids);
+            }
+            self.tell(Detail::Tilt(note));
+        }
+    }
+
+    /// The run's time origin, set by the first frame or sample (later ones keep it) [ns].
+    pub(crate) fn origin(&mut self, t_ns: i64) -> i64 {
+        match self.origin_ns {
+            Some(t0) => t0,
+            None => {
+                self.origin_ns = Some(t_ns);
+                self.tell(Detail::Origin(t_ns));
+                t_ns
+            }
+        }
+    }
+
+    /// Sends the correspondences of the frame `frame_id` (the input's frame `index`)
+    /// triggered at `trigger_us` to the core, and tells its analysis. Returns how many went,
+    /// or why a frame whose image cannot be used was skipped (the core dead-reckons); any
+    /// other error stops the run.
+    pub(crate) fn deliver(
+        &mut self,
+        (frame_id, index): (u32, usize),
+        trigger_us: u64,
+        result: Result<vision::FrameResult, TrackerError>,
+    ) -> Result<Result<usize, String>, TrackerError> {
+        let result = match result {
+            Ok(r) => r,
+            Err(
+                e @ TrackerError::Vision(
+                    vision::VisionError::Image { .. } | vision::VisionError::ImageSize { .. },
+                ),
+            ) => {
+                let why = e.to_string();
+                self.tell(Detail::FrameError(why.clone()));
+                self.settle(index, Fate::Unusable);
+                return Ok(Err(why));
+            }
+            Err(e) => return Err(e),
+        };
+        let (points, contours) = (&result.correspondences, &result.contours);
+        let n = points.len() + contours.len();
+        if n > 0 {
+            let core_id = self.session.core_frame_id(frame_id);
+            let parts = protocol::frame_messages(core_id, trigger_us, points, contours)
+                .map_err(|e| TrackerError::Core(format!("frame {frame_id}: {e}")))?;
+            for part in parts {
+                self.core.send(&part)?;
+            }
+        }
+        self.tell_analysed(frame_id, result, n);
+        Ok(Ok(n))
+    }
+
+    /// Tells a frame's analysis (`sent`: the correspondences that went to the core).
+    pub(crate) fn tell_analysed(&mut self, frame_id: u32, result: vision::FrameResult, sent: usize) {
+        // Its fate (analysed) goes with it.
+        self.tell(Detail::Analysed {
+            frame_id,
+            result: Box::new(result),
+            sent,
+        });
     }
 }
 

@@ -29,6 +29,7 @@ use protocol::{ErrorCode, HostToCore, SampleSource, Sampling, SamplingEvent};
 
 use super::{Event, Frame, Tracker};
 use crate::error::TrackerError;
+use crate::event::{Detail, LatencyNote};
 use crate::settings::{Answers, ImuOnCore};
 use crate::transport::CoreTransport;
 
@@ -56,9 +57,6 @@ struct Waiting {
 #[derive(Debug)]
 pub(crate) struct OnCore {
     config: ImuOnCore,
-    /// Entries of the log's `raw_imu` and `triggers` taken so far.
-    raw_seen: usize,
-    triggers_seen: usize,
     triggers: VecDeque<Fired>,
     frames: VecDeque<Waiting>,
     /// The input's clock less the core's [ns], from the first pair.
@@ -73,8 +71,6 @@ impl OnCore {
     pub(crate) fn new(config: ImuOnCore) -> Self {
         OnCore {
             config,
-            raw_seen: 0,
-            triggers_seen: 0,
             triggers: VecDeque::new(),
             frames: VecDeque::new(),
             offset_ns: None,
@@ -111,7 +107,7 @@ impl<T: CoreTransport> Tracker<T> {
     /// Asks the core to sample its own IMU, fire the camera and stream its samples; a core
     /// with no IMU of its own is named.
     pub(crate) fn start_sampling(&mut self, config: ImuOnCore) -> Result<(), TrackerError> {
-        let errors = self.record.log.errors.len();
+        let errors = self.session.errors.mark();
         self.core.send(&HostToCore::Sampling(Sampling {
             source: SampleSource::Core {
                 trigger_every: config.trigger_every,
@@ -121,7 +117,7 @@ impl<T: CoreTransport> Tracker<T> {
             raw_imu: true,
         }))?;
         self.barrier()?;
-        if let Some(e) = self.record.log.errors[errors..].first() {
+        if let Some(e) = self.session.errors.since(errors).next() {
             let why = match e.code {
                 ErrorCode::NoOnboardImu => "it has no IMU of its own".to_string(),
                 code => format!("{code}"),
@@ -132,10 +128,8 @@ impl<T: CoreTransport> Tracker<T> {
             )));
         }
         let started = self
-            .record
-            .log
-            .sampling
-            .last()
+            .session
+            .last_sampling()
             .is_some_and(|r| r.event == SamplingEvent::Started);
         if !started {
             return Err(TrackerError::Core(format!(
@@ -179,26 +173,28 @@ impl<T: CoreTransport> Tracker<T> {
                 "the core does not sample its own IMU in this run: push the IMU's samples".into(),
             ));
         }
-        self.record.log.drain(&mut self.core)?;
+        self.session.drain(&mut self.core)?;
         let lock_step = self.config.answers == Answers::AtNextFrame;
         loop {
-            let Some(on_core) = self.inertial.as_mut().and_then(|i| i.on_core.as_mut()) else {
+            if !self.imu_on_core() {
                 return Ok(());
-            };
-            let Some(&s) = self.record.log.raw_imu.get(on_core.raw_seen) else {
+            }
+            let Some(s) = self.session.next_raw_imu() else {
                 break;
             };
-            on_core.raw_seen += 1;
+            let Some(on_core) = self.on_core_mut() else {
+                return Ok(());
+            };
             on_core.last_us = Some(s.t_us);
             match on_core.offset_ns {
-                Some(offset) => self.record.clock.push(input_ns(offset, s.t_us)),
+                Some(offset) => self.tell(Detail::Clock(input_ns(offset, s.t_us))),
                 None => on_core.unclocked.push(s.t_us),
             }
             let inertial = self.imu_mut()?;
             let k = inertial.k;
             inertial.k += 1;
             inertial.last_sent_us = Some(s.t_us);
-            self.record.latency.sample_sent(s.t_us);
+            self.latency(LatencyNote::SampleSent(s.t_us));
             self.take_triggers(k, s.t_us);
             // The core takes its next sample after this one: what is due by then goes now.
             self.deliver_due(k + 1, lock_step)?;
@@ -215,15 +211,10 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Step 2: the triggers the core fired up to the sample `k` at `t_us`.
     fn take_triggers(&mut self, k: usize, t_us: u64) {
-        let log = &self.record.log;
         let Some(on_core) = self.inertial.as_mut().and_then(|i| i.on_core.as_mut()) else {
             return;
         };
-        while let Some(t) = log.triggers.get(on_core.triggers_seen) {
-            if t.t_us > t_us {
-                break;
-            }
-            on_core.triggers_seen += 1;
+        while let Some(t) = self.session.next_trigger_by(t_us) {
             on_core.triggers.push_back(Fired {
                 frame_id: t.frame_id,
                 t_us: t.t_us,
@@ -254,9 +245,7 @@ impl<T: CoreTransport> Tracker<T> {
                         t.t_us as f64 * 1e-6,
                         on_core.config.max_delay_s * 1e3
                     );
-                    self.record
-                        .frame_errors
-                        .push((self.record.results.len(), why));
+                    self.tell(Detail::FrameError(why));
                 }
                 Pairing::FrameRefused(why) => {
                     let w = on_core.frames.pop_front().expect("a frame in front");
@@ -278,7 +267,9 @@ impl<T: CoreTransport> Tracker<T> {
                             .drain(..)
                             .map(|us| input_ns(offset, us))
                             .collect();
-                        self.record.clock.extend(clock);
+                        for t_ns in clock {
+                            self.tell(Detail::Clock(t_ns));
+                        }
                     }
                     let due = t.k + self.imu_mut()?.latency_samples.max(1);
                     self.frame_step(w.frame, t.t_us, due)?;
@@ -326,11 +317,8 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// A frame refused with its reason: recorded and told.
     fn refuse(&mut self, index: usize, why: String) {
-        self.record.settle(index, crate::record::Fate::Unusable);
-        self.record.frame_errors.push((
-            self.record.results.len(),
-            format!("frame {index}: {why}: skipped"),
-        ));
+        self.settle(index, crate::record::Fate::Unusable);
+        self.tell(Detail::FrameError(format!("frame {index}: {why}: skipped")));
         self.events.push_back(Event::FrameSkipped { index, why });
     }
 

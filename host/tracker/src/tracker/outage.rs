@@ -33,10 +33,10 @@ pub const MAX_BACKLOG_US: u64 = 5_000_000;
 /// device turns by more within a fraction of a second.
 const RESUME_WITHIN_US: u64 = 500_000;
 
-/// An outage in progress: the record, and when to try again.
+/// An outage in progress: what is known of it so far, and when to try again.
 #[derive(Debug)]
 pub(crate) struct Open {
-    pub(crate) index: usize,
+    pub(crate) outage: Outage,
     next_attempt_us: u64,
     backoff_us: u64,
     since_us: u64,
@@ -54,8 +54,9 @@ impl<T: CoreTransport> Tracker<T> {
     /// Whether the core refused a message for want of a handshake or a configuration since
     /// `seen` refusals: it was reset.
     pub(crate) fn core_forgot(&self, seen: usize) -> bool {
-        self.record.log.errors[seen.min(self.record.log.errors.len())..]
-            .iter()
+        self.session
+            .errors
+            .since(seen)
             .any(|e| matches!(e.code, ErrorCode::NoHandshake | ErrorCode::NotConfigured))
     }
 
@@ -67,14 +68,14 @@ impl<T: CoreTransport> Tracker<T> {
         self.imu_mut()?.late = None;
         while let Some(p) = self.imu_mut()?.pending.pop_front() {
             if let Ok(r) = self.worker.recv()? {
-                self.record.push_result(p.frame_id, r);
+                self.tell_analysed(p.frame_id, r, 0);
             }
         }
         let (injected_s, notice_wall_ms) = match self.injected.take() {
             Some((at, wall)) => (Some(at), Some(wall.elapsed().as_secs_f64() * 1e3)),
             None => (None, None),
         };
-        self.record.outages.push(Outage {
+        let outage = Outage {
             kind: OutageKind::Unresolved,
             cause,
             noticed_s: seconds(t_us),
@@ -86,9 +87,9 @@ impl<T: CoreTransport> Tracker<T> {
             resumed_on: None,
             backlog: 0,
             tracking_s: None,
-        });
+        };
         Ok(Open {
-            index: self.record.outages.len() - 1,
+            outage,
             next_attempt_us: t_us,
             backoff_us: FIRST_BACKOFF_US,
             since_us: t_us,
@@ -107,29 +108,29 @@ impl<T: CoreTransport> Tracker<T> {
         if t_us < open.next_attempt_us {
             return Ok(Attempt::Waiting);
         }
-        let outage = open.index;
+        let outage = &mut open.outage;
         if t_us.saturating_sub(open.since_us) > GIVE_UP_US {
             return Err(TrackerError::Link(format!(
                 "link {}: the core could not be reached for {:.1} s ({} attempts): {}",
                 self.core.name(),
                 GIVE_UP_US as f64 * 1e-6,
-                self.record.outages[outage].attempts,
-                self.record.outages[outage].cause
+                outage.attempts,
+                outage.cause
             )));
         }
-        self.record.outages[outage].attempts += 1;
+        outage.attempts += 1;
         let reached = self
             .reach()
             .and_then(|ack| self.bring_up_to_date(outage, &ack, t_us));
         match reached {
             Ok(()) => {
-                self.record.outages[outage].resumed_s = Some(seconds(t_us));
-                self.record.outages[outage].resumed_on = Some(self.core.name().to_string());
+                outage.resumed_s = Some(seconds(t_us));
+                outage.resumed_on = Some(self.core.name().to_string());
                 Ok(Attempt::Resumed)
             }
             // Not there, or lost again on the way: the next attempt starts over.
             Err(TrackerError::Link(e)) => {
-                self.record.outages[outage].last_failure = Some(e);
+                outage.last_failure = Some(e);
                 self.core.disconnect();
                 open.next_attempt_us = t_us + open.backoff_us;
                 if self.config.answers == Answers::AtNextFrame {
@@ -148,11 +149,11 @@ impl<T: CoreTransport> Tracker<T> {
     /// session the samples it missed, or configures and initialises one that lost it.
     fn bring_up_to_date(
         &mut self,
-        outage: usize,
+        outage: &mut Outage,
         ack: &protocol::HelloAck,
         t_us: u64,
     ) -> Result<(), TrackerError> {
-        let kept = if ack.session == self.record.session_id {
+        let kept = if ack.session == self.session_id {
             self.query()?
         } else {
             None
@@ -175,12 +176,12 @@ impl<T: CoreTransport> Tracker<T> {
                     self.send_sample(s)?;
                 }
                 self.barrier()?;
-                self.record.outages[outage].backlog = missed.len();
-                self.record.outages[outage].kind = OutageKind::LinkLost;
+                outage.backlog = missed.len();
+                outage.kind = OutageKind::LinkLost;
             }
             None => {
                 self.configure_again(t_us)?;
-                self.record.outages[outage].kind = OutageKind::CoreReset;
+                outage.kind = OutageKind::CoreReset;
             }
         }
         Ok(())
@@ -191,18 +192,18 @@ impl<T: CoreTransport> Tracker<T> {
         if !self.core.is_connected() {
             self.core.reconnect()?;
         }
-        self.record
-            .log
-            .handshake(&mut self.core, self.config.timeout)
+        self.session.handshake(&mut self.core, self.config.timeout)
     }
 
     /// Asks a core for its mode and the time of its last sample.
     pub(crate) fn query(&mut self) -> Result<Option<(Mode, u64)>, TrackerError> {
-        let seen = self.record.log.statuses.len();
+        let seen = self.session.statuses.mark();
         self.core.send(&HostToCore::Query)?;
         self.barrier()?;
-        Ok(self.record.log.statuses[seen..]
-            .iter()
+        Ok(self
+            .session
+            .statuses
+            .since(seen)
             .rev()
             .find(|s| s.reason == StatusReason::Queried)
             .map(|s| (s.mode, s.t_us)))
@@ -217,26 +218,19 @@ impl<T: CoreTransport> Tracker<T> {
             &self.config.rig,
             self.config.model,
             &self.config.tuning,
-            self.record.session_id,
+            self.session_id,
         );
-        let errors = self.record.log.errors.len();
+        let errors = self.session.errors.mark();
         self.send_confirmed(&HostToCore::Configure(config), StatusReason::Configured)?;
         // The new core numbers its frames from 0 again.
-        self.record.log.new_core();
-        let last_good = self
-            .record
-            .log
-            .states
-            .iter()
-            .rev()
-            .find(|s| s.health.mode == Mode::Tracking);
-        let start = match last_good {
+        self.session.new_core();
+        let start = match self.session.last_tracking().copied() {
             Some(s) if t_us.saturating_sub(s.t_us) <= RESUME_WITHIN_US => {
-                HostToCore::Resume(Resume::of(s))
+                HostToCore::Resume(Resume::of(&s))
             }
             Some(s) => {
                 // The yaw of the sensor in the world, as `Init` takes it (`q_ws`, not `q_sw`).
-                let (_, q_ws) = crate::rig::state_pose(s);
+                let (_, q_ws) = crate::rig::state_pose(&s);
                 HostToCore::Init(Init {
                     position: s.s_w,
                     attitude: InitAttitude::GravityAndYaw(q_ws.euler_angles().2 as f32),
@@ -251,23 +245,5 @@ impl<T: CoreTransport> Tracker<T> {
             )));
         }
         Ok(())
-    }
-
-    /// Fills in, from the statuses, when the core reported `Tracking` again after each
-    /// outage.
-    pub(crate) fn close_outages(&mut self) {
-        for o in &mut self.record.outages {
-            let Some(resumed) = o.resumed_s else {
-                continue;
-            };
-            o.tracking_s = self
-                .record
-                .log
-                .statuses
-                .iter()
-                .map(|s| (seconds(s.t_us), s.mode))
-                .find(|&(t, m)| t >= resumed && m == Mode::Tracking)
-                .map(|(t, _)| t);
-        }
     }
 }
