@@ -259,8 +259,9 @@ impl Tracker {
                         cov: p.cov,
                     });
                 }
-                // Details are told only to a tracker asked for them (this one is not).
-                Event::Located { .. } | Event::State(_) | Event::Detail(_) => {}
+                // Details are told only to a tracker asked for them (this one is not); none
+                // is missed, as this module polls after every push.
+                Event::Located { .. } | Event::State(_) | Event::Detail(_) | Event::Missed(_) => {}
             }
         }
     }

@@ -647,12 +647,9 @@ pub fn run(
     let model = crate::model::load(&model_path)?;
     let options = &options.with_modality_for(&model, &model_path, &dataset)?;
     let ran = match frames.take() {
-        Some(source) => {
-            let (finished, record, outcome) = vision_only::track_frames(
-                options, &dataset, link, &model, source, &interrupt, progress,
-            )?;
-            Ran::of(finished, record, outcome)
-        }
+        Some(source) => vision_only::track_frames(
+            options, &dataset, link, &model, source, &interrupt, progress,
+        )?,
         None if options.imu_on_core => {
             on_core::track(options, &dataset, link, &model, end, &interrupt, progress)?
         }

@@ -13,10 +13,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use tracker::live::{LiveFrames, Paced};
 use tracker::record::Record;
-use tracker::{Finished, Tracker, TrackerBuilder, TrackerError};
+use tracker::{Tracker, TrackerBuilder, TrackerError};
 use vision::FrameImage;
 
-use super::{FaultyLink, Progress, TrackError, TrackOptions};
+use super::{FaultyLink, Progress, Ran, TrackError, TrackOptions};
 
 use crate::camera::CameraPose;
 use crate::dataset::Dataset;
@@ -71,8 +71,8 @@ fn vision_start(options: &TrackOptions, dataset: &Dataset, first_stamp: u64) -> 
 }
 
 /// Tracks the frames of `source` with the library's tracker, the core behind `link`. Returns
-/// what the tracker leaves (the link, and how it ended; `Ok(false)` when interrupted) with
-/// the record of all its events, or the error that kept it from starting.
+/// what the run leaves (the record of the tracker's events, the link, and how it ended;
+/// `Ok(false)` when interrupted), or the error that kept it from starting.
 ///
 /// A replay takes every frame in order. A live run (a camera, or `--pacing real-time`, which
 /// plays a recording at its own rate as a camera would) reads the source on a capture thread
@@ -86,7 +86,7 @@ pub(super) fn track_frames(
     mut source: FrameSource,
     interrupt: &AtomicBool,
     progress: Progress,
-) -> Result<(Finished<FaultyLink>, Record, Result<bool, TrackError>), TrackError> {
+) -> Result<Ran, TrackError> {
     // The first frame fixes the clock (and, with a ground truth, the start pose).
     let first = match source.next() {
         Some(Ok(f)) => f,
@@ -158,7 +158,7 @@ pub(super) fn track_frames(
         record.results.len(),
         record.log.mode(),
     );
-    Ok((finished, record, outcome))
+    Ok(Ran::of(finished, record, outcome))
 }
 
 /// A run's frames pushed into its tracker.

@@ -91,6 +91,9 @@ pub enum Event {
         /// Why.
         why: String,
     },
+    /// This many events were lost before this poll: the program did not poll for longer
+    /// than [`crate::tracker::MAX_EVENTS`] events take (the oldest went).
+    Missed(usize),
     /// What a run's report needs beyond the events above, in the order it happened: told
     /// only by a tracker asked for them ([`crate::TrackerBuilder::details`]), and kept by a
     /// [`crate::record::Record`] ([`crate::record::Record::observe`]).
@@ -164,7 +167,7 @@ pub enum Detail {
         /// Since when the model was lost [µs].
         lost_at: Option<u64>,
         /// The attempt.
-        search: Search,
+        search: Box<Search>,
     },
     /// Where the searches' database came from.
     Database(locate::database::Provenance),

@@ -13,8 +13,8 @@ use protocol::Mode;
 use serde::Serialize;
 use vision::{Assessment, FrameResult, TrackedRule};
 
-pub use crate::event::{Fate, Outage, OutageKind};
 use crate::event::{Detail, Event};
+pub use crate::event::{Fate, Outage, OutageKind};
 use crate::latency::Latencies;
 use crate::log::CoreLog;
 use crate::rig::HandEye;
@@ -167,7 +167,7 @@ impl Record {
                 self.assessments.insert(*frame_id, *assessment);
                 self.verdicts.insert(*frame_id, *tracked);
             }
-            Detail::Search { lost_at, search } => self.record_search(*lost_at, *search),
+            Detail::Search { lost_at, search } => self.record_search(*lost_at, **search),
             Detail::Database(from) => self.keep_provenance(Some(from.clone())),
             Detail::RecoveryEnded(t_us) => self.end_recovery(*t_us),
             Detail::Tilt(note) => self.tilt.apply(note),

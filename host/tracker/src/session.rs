@@ -473,6 +473,9 @@ mod tests {
             r.push(i);
         }
         assert_eq!(r.since(mark).count(), KEPT);
-        assert_eq!(r.since(r.mark() - 2).copied().collect::<Vec<_>>(), [KEPT + 3, KEPT + 4]);
+        assert_eq!(
+            r.since(r.mark() - 2).copied().collect::<Vec<_>>(),
+            [KEPT + 3, KEPT + 4]
+        );
     }
 }

@@ -131,7 +131,8 @@ pub struct TrackerConfig {
     pub search_floor: Duration,
     /// Inertial models: the core samples its own IMU and fires the camera; `None`: the
     /// program pushes the IMU's samples ([`crate::Tracker::push_imu`]).
-    pub imu_on_core: Option<ImuOnCore>,    /// Tell what a run's report needs beyond the poses and frames
+    pub imu_on_core: Option<ImuOnCore>,
+    /// Tell what a run's report needs beyond the poses and frames
     /// ([`crate::event::Event::Detail`]: every message of the core, every frame's analysis,
     /// the searches, the tilt checks, the outages, the latencies), for a
     /// [`crate::record::Record`] to keep. Off, the tracker tells only what a live program

@@ -45,7 +45,7 @@ pub enum TiltNote {
     /// These frames (by id) are withheld.
     Withheld(Vec<u32>),
     /// A flip was applied.
-    Flip(TiltFlip),
+    Flip(Box<TiltFlip>),
     /// The last flip held, or did not.
     Held(bool),
     /// The check of this frame found a flip that was not applied: the last one had not held.
@@ -73,7 +73,7 @@ impl TiltRecord {
         match note {
             TiltNote::Checked => self.checks += 1,
             TiltNote::Withheld(ids) => self.withheld.extend(ids),
-            TiltNote::Flip(f) => self.flips.push(*f),
+            TiltNote::Flip(f) => self.flips.push(**f),
             TiltNote::Held(held) => {
                 if let Some(f) = self.flips.last_mut() {
                     f.held = Some(*held);
@@ -193,7 +193,7 @@ impl TiltBranch {
                 };
                 // The frames since the check are on the tilt the image disfavours.
                 self.notes.push(TiltNote::Withheld(sent.frames.clone()));
-                self.notes.push(TiltNote::Flip(TiltFlip {
+                self.notes.push(TiltNote::Flip(Box::new(TiltFlip {
                     frame: sent.frame,
                     at_s,
                     jump_m: (pose.c_w - sent.pose.c_w).norm(),
@@ -201,7 +201,7 @@ impl TiltBranch {
                     tracked_vs_mirror: first,
                     flipped_vs_tracked: second,
                     held: None,
-                }));
+                })));
                 self.state = Branch::Provisional(Vec::new());
                 Some(pose)
             }

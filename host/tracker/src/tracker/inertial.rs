@@ -133,7 +133,9 @@ impl<T: CoreTransport> Tracker<T> {
     /// buffers, an attach to a running core if asked, the `Configure`, and the `Init` where a
     /// start pose is given.
     pub(crate) fn start_inertial(&mut self) -> Result<(), TrackerError> {
-        let ack = self.session.handshake(&mut self.core, self.config.timeout)?;
+        let ack = self
+            .session
+            .handshake(&mut self.core, self.config.timeout)?;
         let core_config = crate::config::core_config(
             &self.config.rig,
             self.config.model,
@@ -232,8 +234,8 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// [`Self::push_imu`]'s steps for a sample in order.
     fn imu_step(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
-        let t0 = u64::try_from(self.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX)))
-            .unwrap_or(0);
+        let t0 =
+            u64::try_from(self.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX))).unwrap_or(0);
         let inertial = self.imu_mut()?;
         inertial.last_ns = Some(sample.t_ns);
         let t_us = (sample.t_ns - t0) / 1000;
@@ -522,7 +524,7 @@ impl<T: CoreTransport> Tracker<T> {
         self.tracked_since_start |= tracked == Some(true);
         let cov = pose.and(cov);
         let weak = tracked.and_then(|t| self.judge.weak(weakest, t));
-        self.events.push_back(Event::Frame(FrameReport {
+        self.emit(Event::Frame(FrameReport {
             index: p.index,
             t_us: p.trigger_us,
             pose,

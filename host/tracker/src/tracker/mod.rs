@@ -60,6 +60,11 @@ use crate::worker::{VisionWorker, is_textured};
 /// second.
 const MAX_TICK_GAP_US: u64 = 500_000;
 
+/// Events queued at most between two polls: about four minutes of an IMU's poses at 200 Hz.
+/// A program that polls after each push never comes near it; one that never polls keeps
+/// bounded memory. (Eight in the crate's unit tests, which test the bound.)
+pub const MAX_EVENTS: usize = if cfg!(test) { 8 } else { 50_000 };
+
 /// While tracked, one tilt check every this many frames at most (docs/notes/issue15-cold-start.md
 /// §5.2): it runs on the search thread, one at a time, and costs about as much as an attempt.
 const TILT_CHECK_EVERY: usize = 5;
@@ -140,6 +145,8 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     /// clock.
     pub(crate) injected: Option<(f64, Instant)>,
     pub(crate) events: VecDeque<Event>,
+    /// Events lost since the last poll (the oldest, beyond [`MAX_EVENTS`]).
+    missed: usize,
     pub(crate) state: State,
     latest: Option<Pose>,
     /// Why the tracker stopped, once it did.
@@ -210,6 +217,7 @@ impl<T: CoreTransport> Tracker<T> {
             model: spare,
             injected: None,
             events: VecDeque::new(),
+            missed: 0,
             state: State::Locating,
             latest: None,
             stopped: None,
@@ -238,7 +246,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// the start pose is given. Correspondences go out before the next tick: no latency to
     /// check against the core's buffers.
     fn start_vision(&mut self) -> Result<(), TrackerError> {
-        self.session.handshake(&mut self.core, self.config.timeout)?;
+        self.session
+            .handshake(&mut self.core, self.config.timeout)?;
         let c = &self.config;
         let core_config = vision_config(c.frame_rate_hz, &c.tuning, c.session_id);
         self.gate = f64::from(core_config.gate);
@@ -329,7 +338,7 @@ impl<T: CoreTransport> Tracker<T> {
                 self.settle(index, Fate::Unusable);
                 let why = e.to_string();
                 self.tell(Detail::FrameError(format!("{why}: skipped")));
-                self.events.push_back(Event::FrameSkipped { index, why });
+                self.emit(Event::FrameSkipped { index, why });
                 return Err(e);
             }
         };
@@ -605,7 +614,7 @@ impl<T: CoreTransport> Tracker<T> {
                 Some(n)
             }
             Err(why) => {
-                self.events.push_back(Event::FrameSkipped { index, why });
+                self.emit(Event::FrameSkipped { index, why });
                 None
             }
         };
@@ -670,13 +679,7 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// Step 8: the frame's judgement into the loss rule, the state, and the frame's event.
-    fn judge(
-        &mut self,
-        judged: Option<Judged>,
-        index: usize,
-        t_us: u64,
-        correspondences: usize,
-    ) {
+    fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64, correspondences: usize) {
         let tracked = judged.is_some_and(|j| j.tracked);
         self.loss.frame(tracked, t_us);
         if tracked {
@@ -690,7 +693,7 @@ impl<T: CoreTransport> Tracker<T> {
             State::Starting
         };
         self.set_state(state);
-        self.events.push_back(Event::Frame(FrameReport {
+        self.emit(Event::Frame(FrameReport {
             index,
             t_us,
             pose: judged.map(|j| j.pose),
@@ -734,9 +737,14 @@ impl<T: CoreTransport> Tracker<T> {
         }
     }
 
-    /// The events since the last poll, in order.
+    /// The events since the last poll, in order: first, where events were lost because the
+    /// queue was not polled, how many ([`Event::Missed`]).
     pub fn poll(&mut self) -> impl Iterator<Item = Event> + '_ {
-        self.events.drain(..)
+        let missed = std::mem::take(&mut self.missed);
+        (missed > 0)
+            .then_some(Event::Missed(missed))
+            .into_iter()
+            .chain(self.events.drain(..))
     }
 
     /// The core's latest pose.
@@ -822,7 +830,14 @@ impl<T: CoreTransport> Tracker<T> {
             core: self.core,
             adapter: self.adapter,
             result,
-            events: self.events.into(),
+            events: {
+                let missed = self.missed;
+                (missed > 0)
+                    .then_some(Event::Missed(missed))
+                    .into_iter()
+                    .chain(self.events)
+                    .collect()
+            },
         }
     }
 
@@ -850,7 +865,7 @@ impl<T: CoreTransport> Tracker<T> {
     pub(crate) fn set_state(&mut self, state: State) {
         if self.state != state {
             self.state = state;
-            self.events.push_back(Event::State(state));
+            self.emit(Event::State(state));
         }
     }
 
@@ -863,7 +878,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// Tells a search's answer.
     pub(crate) fn tell_located(&mut self, index: usize, pose: Option<CameraPose>) {
-        self.events.push_back(Event::Located { index, pose });
+        self.emit(Event::Located { index, pose });
     }
 
     /// Tells what the core said since: its new state reports as poses, and (with details)
@@ -894,14 +909,24 @@ impl<T: CoreTransport> Tracker<T> {
                 cov: camera::PoseCovariance::from_upper(&s.cov),
             };
             self.latest = Some(pose);
-            self.events.push_back(Event::Pose(pose));
+            self.emit(Event::Pose(pose));
         }
+    }
+
+    /// Queues an event for [`Self::poll`]. A program that never polls loses the oldest beyond
+    /// [`MAX_EVENTS`], and is told how many ([`Event::Missed`]).
+    pub(crate) fn emit(&mut self, event: Event) {
+        if self.events.len() >= MAX_EVENTS {
+            self.events.pop_front();
+            self.missed += 1;
+        }
+        self.events.push_back(event);
     }
 
     /// Tells a detail, where the tracker was asked for them.
     pub(crate) fn tell(&mut self, detail: Detail) {
         if self.config.details {
-            self.events.push_back(Event::Detail(Box::new(detail)));
+            self.emit(Event::Detail(Box::new(detail)));
         }
     }
 
@@ -927,7 +952,10 @@ impl<T: CoreTransport> Tracker<T> {
         if let Some(from) = from {
             self.tell(Detail::Database(from));
         }
-        self.tell(Detail::Search { lost_at, search });
+        self.tell(Detail::Search {
+            lost_at,
+            search: Box::new(search),
+        });
     }
 
     /// Tells what the tilt branch did, and takes its withheld frames off the tally.
@@ -991,7 +1019,12 @@ impl<T: CoreTransport> Tracker<T> {
     }
 
     /// Tells a frame's analysis (`sent`: the correspondences that went to the core).
-    pub(crate) fn tell_analysed(&mut self, frame_id: u32, result: vision::FrameResult, sent: usize) {
+    pub(crate) fn tell_analysed(
+        &mut self,
+        frame_id: u32,
+        result: vision::FrameResult,
+        sent: usize,
+    ) {
         // Its fate (analysed) goes with it.
         self.tell(Detail::Analysed {
             frame_id,
@@ -1041,5 +1074,49 @@ fn init_at(pose: &CameraPose) -> Init {
     Init {
         position: [s_w.x as f32, s_w.y as f32, s_w.z as f32],
         attitude: InitAttitude::Full([q.w as f32, q.i as f32, q.j as f32, q.k as f32]),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Issue 57: a program that never polls keeps bounded memory, and is told what it lost.
+    #[test]
+    fn events_not_polled_are_bounded_and_the_loss_is_told() {
+        let camera =
+            camera::pinhole_camera(320, 240, camera::Pinhole::new(300.0, 300.0, 160.0, 120.0))
+                .unwrap();
+        let cache = std::env::temp_dir().join("tracker-events-bound");
+        let mut config = TrackerConfig::new(camera, 30.0, cache);
+        config.start = Start::Camera(
+            CameraPose::look_at(
+                nalgebra::Vector3::new(1.2, -1.2, 1.0),
+                nalgebra::Vector3::new(0.0, 0.0, 0.2),
+                nalgebra::Vector3::z(),
+            )
+            .unwrap(),
+        );
+        let model = model::procedural::test_scene();
+        let mut t = Tracker::new(config, &model, InProcessCore::default()).unwrap();
+        let image = GrayImage::from_fn(320, 240, |x, y| {
+            image::Luma([((x * 7 + y * 3) % 251) as u8])
+        });
+        for i in 0..6 {
+            t.push_frame(Frame::decoded(i, i as i64 * 33_000_000, image.clone()))
+                .unwrap();
+        }
+        assert_eq!(t.events.len(), MAX_EVENTS);
+        let events: Vec<_> = t.poll().collect();
+        let Some(Event::Missed(n)) = events.first() else {
+            panic!("{events:?}")
+        };
+        assert!(*n > 0);
+        assert_eq!(events.len(), MAX_EVENTS + 1);
+        // Polled, nothing is missed.
+        t.push_frame(Frame::decoded(6, 6 * 33_000_000, image))
+            .unwrap();
+        assert!(!t.poll().any(|e| matches!(e, Event::Missed(_))));
+        t.finish().result.unwrap();
     }
 }

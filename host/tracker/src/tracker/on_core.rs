@@ -319,7 +319,7 @@ impl<T: CoreTransport> Tracker<T> {
     fn refuse(&mut self, index: usize, why: String) {
         self.settle(index, crate::record::Fate::Unusable);
         self.tell(Detail::FrameError(format!("frame {index}: {why}: skipped")));
-        self.events.push_back(Event::FrameSkipped { index, why });
+        self.emit(Event::FrameSkipped { index, why });
     }
 
     /// The end of a run with the core's own IMU: frames that never got a trigger are
