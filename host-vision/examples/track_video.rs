@@ -1,55 +1,45 @@
-//! The tracker embedded in a program: a video (default: the shared cube video, else `VIDEO
-//! CAMERA MODEL POSE`: its `camera.json`, a textured OBJ/glTF, the start pose `cMo` as JSON)
-//! tracked with the in-process core, one line per frame, and the tracker's time per frame.
-//! `--frames N` stops after N frames; `--decode-first` decodes them first, so that the time is
-//! the tracker's alone (python/bench_overhead.py compares it; python/tests/test_cube.py the poses).
+//! The tracker embedded in a program: a video tracked with the in-process core, one line per
+//! frame, and the tracker's time per frame. `--decode-first` decodes the frames first, so that
+//! the time is the tracker's alone (python/bench_overhead.py compares it with the Python
+//! module's; python/tests/test_cube.py compares the poses).
 //!
 //! `cargo run --release -p host-vision --example track_video [--frames N] [--decode-first] [VIDEO CAMERA MODEL POSE]`
 
 use std::time::{Duration, Instant};
 
-use anyhow::Context;
 use host_vision::frames::{FrameInput, VideoOptions};
 use tracker::{Event, TrackerBuilder, camera, model};
 
+/// The shared cube video, or a video, its `camera.json`, a textured model and the start pose.
+#[derive(clap::Parser)]
+struct Args {
+    /// Stop after this many frames.
+    #[arg(long, default_value_t = usize::MAX)]
+    frames: usize,
+    /// Decode the frames before tracking them.
+    #[arg(long)]
+    decode_first: bool,
+    #[arg(num_args = 4, value_names = ["VIDEO", "CAMERA", "MODEL", "POSE"], default_values = [
+        "../shared/data/visp-cube/cube_video.mp4", "../shared/data/visp-cube/camera.json",
+        "../shared/data/visp-cube/model/cube.obj", "../shared/data/visp-cube/frame0_pose.json"])]
+    files: Vec<std::path::PathBuf>,
+}
+
 fn main() -> anyhow::Result<()> {
-    let (mut limit, mut decode_first, mut paths) = (usize::MAX, false, Vec::new());
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--frames" => {
-                limit = args
-                    .next()
-                    .context("--frames N")?
-                    .parse()
-                    .context("--frames N")?
-            }
-            "--decode-first" => decode_first = true,
-            _ => paths.push(std::path::PathBuf::from(a)),
-        }
-    }
-    let data = std::path::Path::new("../shared/data/visp-cube");
-    let [video, camera, model, pose] = <[_; 4]>::try_from(paths).unwrap_or_else(|_| {
-        [
-            "cube_video.mp4",
-            "camera.json",
-            "model/cube.obj",
-            "frame0_pose.json",
-        ]
-        .map(|f| data.join(f))
-    });
-    let frames = FrameInput::Video(video).open(&VideoOptions::default())?;
-    let mut tracker = TrackerBuilder::new(camera::read_camera_json(&camera)?, model::load(&model)?)
+    let args = <Args as clap::Parser>::parse();
+    let [video, camera, model, pose] = <&[_; 4]>::try_from(&args.files[..])?;
+    let frames = FrameInput::Video(video.clone()).open(&VideoOptions::default())?;
+    let mut tracker = TrackerBuilder::new(camera::read_camera_json(camera)?, model::load(model)?)
         .frame_rate_hz(frames.nominal_rate_hz().unwrap_or(30.0))
-        .start_pose(camera::start_pose::read_start_pose(&pose)?)
+        .start_pose(camera::start_pose::read_start_pose(pose)?)
         .build()?;
-    let frames = frames.take(limit);
-    let frames: Box<dyn Iterator<Item = _>> = match decode_first {
+    let frames = frames.take(args.frames);
+    let frames: Box<dyn Iterator<Item = _>> = match args.decode_first {
         true => Box::new(frames.collect::<Vec<_>>().into_iter()),
         false => Box::new(frames),
     };
-    println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
     let (mut busy, mut pushed) = (Duration::ZERO, 0usize);
+    println!("# frame t_s tracked(1/0/-) c_w[m] q_cw[w x y z] (- where no pose)");
     for frame in frames {
         let started = Instant::now();
         tracker.push_frame(frame?.into())?;
@@ -60,15 +50,13 @@ fn main() -> anyhow::Result<()> {
     let done = tracker.finish();
     done.result?;
     done.events.iter().for_each(print_frame); // the last frames' reports come with the end
-    let tracker::judge::Tally { tracked, judged } = done.tally;
+    let (t, n) = (done.tally.tracked, done.tally.judged);
     println!(
-        "# tracked {tracked} of {judged} frames judged: {:.1} %",
-        100.0 * tracked as f64 / judged.max(1) as f64
+        "# tracked {t} of {n} frames judged: {:.1} %",
+        100.0 * t as f64 / n.max(1) as f64
     );
-    println!(
-        "# tracker time per frame (push_frame + poll): {:.3} ms over {pushed} frames",
-        busy.as_secs_f64() * 1e3 / pushed.max(1) as f64
-    );
+    let ms = busy.as_secs_f64() * 1e3 / pushed.max(1) as f64;
+    println!("# tracker time per frame (push_frame + poll): {ms:.3} ms over {pushed} frames");
     Ok(())
 }
 
