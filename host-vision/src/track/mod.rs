@@ -388,6 +388,13 @@ impl TrackOptions {
                 "--corrupt-at counts seconds from the dataset's first IMU sample and must lie in the tracked span [0, {tracked_s:.2}) s, got {t}"
             ));
         }
+        self.check_start(dataset)?;
+        Ok(end)
+    }
+
+    /// The start options of a run with an IMU: in range, and not given twice.
+    fn check_start(&self, dataset: &Dataset) -> Result<(), TrackError> {
+        let bad = |m: String| Err(TrackError::Option(m));
         // The core takes single floats: beyond these a position or angle loses its precision
         // (an ulp of 8 mm at 100 km, of 0.03 mrad at a hundred turns), and far beyond, its value.
         if let Some(p) = self.start.position
@@ -435,7 +442,7 @@ impl TrackOptions {
                     .into(),
             );
         }
-        Ok(end)
+        Ok(())
     }
 
     /// The checks of every model: features, faults, noise settings.
@@ -486,6 +493,18 @@ impl TrackOptions {
         };
         positive("--expected-accel", self.tuning.expected_accel, "m/s²")?;
         positive("--angular-noise", self.tuning.angular_noise, "rad/s²/√Hz")?;
+        self.check_faults()?;
+        if let Some(a) = self.tuning.accel_noise {
+            positive("--accel-meas-noise", a, "m/s²")?;
+        }
+        Ok(())
+    }
+
+    /// The injected faults against the link and the model: times at or after the start, a
+    /// core the host can reset, a line it can garble, and a run that can recover.
+    fn check_faults(&self) -> Result<(), TrackError> {
+        let bad = |m: String| Err(TrackError::Option(m));
+        let f = &self.faults;
         for (flag, at) in [
             ("--reset-core-at", f.reset_core_at),
             ("--cut-link-at", f.cut_link_at),
@@ -548,9 +567,6 @@ impl TrackOptions {
                     .into(),
             );
         }
-        if let Some(a) = self.tuning.accel_noise {
-            positive("--accel-meas-noise", a, "m/s²")?;
-        }
         Ok(())
     }
 
@@ -605,6 +621,42 @@ pub struct TrackRun {
 /// Progress callback: `(imu samples done, total, frames analysed, current mode)`.
 pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize, Option<protocol::Mode>);
 
+/// The frames of a vision-only run: a video, camera or image folder, or the dataset's own
+/// cam0 (its IMU withheld, or absent); `None` with an IMU (the dataset's frames go with it).
+fn open_frames(
+    options: &TrackOptions,
+    dataset: &Dataset,
+) -> Result<Option<crate::frames::FrameSource>, TrackError> {
+    let video = crate::frames::VideoOptions::default();
+    Ok(match (&options.frames, options.vision_only()) {
+        (Some(input), _) => Some(input.open(&video)?),
+        (None, true) => Some(
+            crate::frames::FrameInput::Images {
+                dir: dataset.root.join("mav0/cam0"),
+                fps: None,
+            }
+            .open(&video)?,
+        ),
+        (None, false) => None,
+    })
+}
+
+/// The link to the core of `--link`, with the faults' line noise and outliers.
+fn open_link(options: &TrackOptions) -> Result<FaultyLink, TrackError> {
+    let noise = options
+        .faults
+        .line_errors
+        .map(|rate| (rate, options.faults.seed));
+    let spec = options
+        .link
+        .resolve_qemu(config::find_firmware_image)
+        .map_err(|e| TrackError::Tracker(TrackerError::Core(e)))?;
+    Ok(FaultyLink::new(
+        CoreLink::open_noisy(&spec, noise)?,
+        &options.faults,
+    ))
+}
+
 /// Tracks a dataset. `interrupt` stops it early (Ctrl-C); what was tracked is still written.
 pub fn run(
     options: &TrackOptions,
@@ -614,19 +666,8 @@ pub fn run(
     let dataset = vision_only::open_dataset(options)?;
     let end = options.check(&dataset)?;
     let model_path = model_path(options, &dataset)?;
-    // Vision-only frames: a video, camera or image folder, or the dataset's own cam0 (its IMU
-    // withheld, or absent). Opened before anything is started: a bad input fails first.
-    let mut frames = match (&options.frames, options.vision_only()) {
-        (Some(input), _) => Some(input.open(&crate::frames::VideoOptions::default())?),
-        (None, true) => Some(
-            crate::frames::FrameInput::Images {
-                dir: dataset.root.join("mav0/cam0"),
-                fps: None,
-            }
-            .open(&crate::frames::VideoOptions::default())?,
-        ),
-        (None, false) => None,
-    };
+    // Opened before anything is started: a bad input fails first.
+    let mut frames = open_frames(options, &dataset)?;
     let mut out = OutFolder::prepare(
         &options.out,
         &output::OUTPUTS.map(String::from),
@@ -635,15 +676,7 @@ pub fn run(
     )?;
 
     // The link first: it fails most often, and fails before the renderer is made.
-    let noise = options
-        .faults
-        .line_errors
-        .map(|rate| (rate, options.faults.seed));
-    let spec = options
-        .link
-        .resolve_qemu(config::find_firmware_image)
-        .map_err(|e| TrackError::Tracker(TrackerError::Core(e)))?;
-    let link = FaultyLink::new(CoreLink::open_noisy(&spec, noise)?, &options.faults);
+    let link = open_link(options)?;
     let model = crate::model::load(&model_path)?;
     let options = &options.with_modality_for(&model, &model_path, &dataset)?;
     let ran = match frames.take() {

@@ -518,10 +518,28 @@ pub struct Summary {
 
 impl fmt::Display for Summary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let opt = |v: Option<f64>, unit: &str| match v {
-            Some(v) => format!("{v:.3} {unit}"),
-            None => "n/a".into(),
-        };
+        self.fmt_run(f)?;
+        self.fmt_tracking(f)?;
+        self.fmt_verdicts(f)?;
+        self.fmt_searches(f)?;
+        self.fmt_outages(f)?;
+        self.fmt_faults(f)?;
+        Ok(())
+    }
+}
+
+/// `v` with its unit, to 3 decimals, or "n/a".
+fn opt(v: Option<f64>, unit: &str) -> String {
+    match v {
+        Some(v) => format!("{v:.3} {unit}"),
+        None => "n/a".into(),
+    }
+}
+
+/// The summary's lines, section by section.
+impl Summary {
+    /// The run: its input, model, renderer, frames and latencies.
+    fn fmt_run(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "dataset      {}", self.dataset)?;
         writeln!(
             f,
@@ -559,6 +577,11 @@ impl fmt::Display for Summary {
             )?;
         }
         write!(f, "{}", self.latency)?;
+        Ok(())
+    }
+
+    /// How long it tracked, what vision gave, and the accuracy.
+    fn fmt_tracking(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.snapped_on_at {
             Some(t0) => writeln!(
                 f,
@@ -606,6 +629,11 @@ impl fmt::Display for Summary {
             }
             None => writeln!(f, "accuracy     n/a (the dataset has no ground truth)")?,
         }
+        Ok(())
+    }
+
+    /// The frames' verdicts and the stretches not tracked.
+    fn fmt_verdicts(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if let Some(t) = &self.tracked {
             writeln!(
                 f,
@@ -651,6 +679,11 @@ impl fmt::Display for Summary {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// The searches: the database, the cold start, the recoveries, the tilt checks.
+    fn fmt_searches(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         if let Some(d) = &self.search_database {
             writeln!(f, "database     {d}")?;
         }
@@ -711,6 +744,11 @@ impl fmt::Display for Summary {
         if self.tilt_checks.checks > 0 {
             self.tilt_checks.print(f)?;
         }
+        Ok(())
+    }
+
+    /// The outages and the attach.
+    fn fmt_outages(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         for o in &self.outages {
             writeln!(
                 f,
@@ -734,6 +772,11 @@ impl fmt::Display for Summary {
         if let Some(a) = &self.attach {
             writeln!(f, "attach       {a}")?;
         }
+        Ok(())
+    }
+
+    /// Divergences, lost track, stretches without vision, line noise, core errors, an early stop.
+    fn fmt_faults(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(f, "divergences  {}", self.divergences.len())?;
         for e in &self.divergences {
             writeln!(f, "  {:8.2} s  {} ({})", e.t, e.mode, e.reason)?;
@@ -1025,6 +1068,29 @@ fn frame_outcomes(taken: &[tracker::record::TakenFrame]) -> BTreeMap<&'static st
     counts
 }
 
+/// What the outputs are computed from: the run's record, the dataset, the options, and the
+/// time origin of the files' stamps.
+struct Inputs<'a> {
+    dataset: &'a Dataset,
+    options: &'a TrackOptions,
+    record: &'a Record,
+    /// Times count from the input's first sample [ns], also where an attached run began
+    /// later.
+    stamp0: u64,
+}
+
+impl Inputs<'_> {
+    /// The input's stamp [ns] of the run's time `t_us`.
+    fn stamp_of(&self, t_us: u64) -> u64 {
+        self.stamp0 + t_us * 1000
+    }
+
+    /// The core's estimates (states) that are the trajectory.
+    fn estimates(&self) -> impl Iterator<Item = &protocol::StateReport> {
+        estimates(&self.record.log, self.options.vision_only())
+    }
+}
+
 /// Builds the frame rows and the summary, and writes every output file.
 pub(super) fn write_all(
     dataset: &Dataset,
@@ -1034,28 +1100,60 @@ pub(super) fn write_all(
     stopped_early: bool,
     error: Option<String>,
 ) -> Result<(Vec<FrameRow>, Summary, Vec<PathBuf>), TrackError> {
-    let Seen {
-        record,
-        host,
-        adapter,
-    } = seen;
-    let board = link.board;
-    let out = &options.out;
-    let log = &record.log;
-    // Times count from the input's first sample, also where an attached run began later.
+    let record = seen.record;
     let stamp0 = match (record.attached_at, record.origin_ns) {
         (Some(_), _) => dataset.imu.first().map_or(0, |r| r.stamp),
         (None, Some(origin)) => u64::try_from(origin).unwrap_or(0),
         (None, None) => record.clock.first().copied().unwrap_or(0),
     };
-    let stamp_of = |t_us: u64| stamp0 + t_us * 1000;
-    let mut written = Vec::new();
+    let i = Inputs {
+        dataset,
+        options,
+        record,
+        stamp0,
+    };
+    let out = &options.out;
+    let mut written = write_trajectories(&i)?;
+    let rows = frame_rows(&i);
+    let path = out.join("frames.csv");
+    write_frames_csv(&path, &i, &rows)?;
+    written.push(path);
+    // Errors of every state against the ground truth (once: the accuracy and the plot).
+    let errors: Vec<(f64, StateError)> = i
+        .estimates()
+        .filter_map(|s| {
+            let e = state_errors(dataset, &record.core_hand_eye, i.stamp_of(s.t_us), s)?;
+            Some((seconds(s.t_us), e))
+        })
+        .collect();
+    let summary = summarise(&i, &seen, &link, &rows, &errors, (stopped_early, error));
+    let path = out.join("summary.json");
+    write_summary_json(&path, &summary, link.board)?;
+    written.push(path);
+    written.extend(overlay::write_overlays(
+        &out.join("overlays"),
+        dataset,
+        record,
+    )?);
+    let position_mm: Vec<(f64, f64)> = errors
+        .iter()
+        .map(|(t, e)| (*t, e.position_m * 1e3))
+        .collect();
+    written.extend(plot::write_track_plots(
+        out,
+        &summary.model,
+        &rows,
+        &position_mm,
+    )?);
+    Ok((rows, summary, written))
+}
 
-    // Trajectories (the states through the core's mount, the ground truth through the
-    // dataset's).
+/// Writes the trajectories (the states through the core's mount, and the frames' predictions)
+/// and the ground truth over the span streamed to the core (through the dataset's mount).
+fn write_trajectories(i: &Inputs) -> Result<Vec<PathBuf>, TrackError> {
+    let (dataset, record, stamp0) = (i.dataset, i.record, i.stamp0);
     let core_he = record.core_hand_eye;
-    let he = dataset.hand_eye;
-    let path = out.join("trajectory.tum");
+    let out = &i.options.out;
     // Outages: the poses around them come from a core that had its state (protocol/PROTOCOL.md
     // §8); the hole between is marked.
     let gaps: Vec<(u64, String)> = record
@@ -1075,12 +1173,13 @@ pub(super) fn write_all(
             )
         })
         .collect();
-    let estimates = || estimates(log, options.vision_only());
+    let mut written = Vec::new();
+    let path = out.join("trajectory.tum");
     write_tum(
         &path,
-        estimates().map(|s| {
+        i.estimates().map(|s| {
             let (c, q) = camera_of_state(s, &core_he);
-            (stamp_of(s.t_us), c, q)
+            (i.stamp_of(s.t_us), c, q)
         }),
         &gaps,
     )?;
@@ -1088,186 +1187,206 @@ pub(super) fn write_all(
     let path = out.join("trajectory_frames.tum");
     write_tum(
         &path,
-        log.predictions.values().filter_map(|p| {
+        record.log.predictions.values().filter_map(|p| {
             let (c, q) = super::vision::camera_in_world(p)?;
-            Some((stamp_of(p.t_us), c, q))
+            Some((i.stamp_of(p.t_us), c, q))
         }),
         &gaps,
     )?;
     written.push(path);
     if dataset.groundtruth.is_some() {
-        // The span streamed to the core, as the trajectories.
         let path = out.join("groundtruth.tum");
         write_tum(
             &path,
             record.clock.iter().filter_map(|&stamp| {
                 let (p, q) = dataset.groundtruth_at(stamp)?;
-                let (c, q_cw) = he.camera_pose(&p, &q);
+                let (c, q_cw) = dataset.hand_eye.camera_pose(&p, &q);
                 Some((stamp, c, q_cw.inverse()))
             }),
             &[],
         )?;
         written.push(path);
     }
+    Ok(written)
+}
 
-    // Frames.
-    let rule = record.rule;
+/// Every analysed frame's row.
+fn frame_rows(i: &Inputs) -> Vec<FrameRow> {
     // Vision-only, each frame's answer by its time (with an IMU the prediction is the pose).
-    let answers: BTreeMap<u64, &protocol::StateReport> = if options.vision_only() {
-        estimates().map(|s| (s.t_us, s)).collect()
+    let answers: BTreeMap<u64, &protocol::StateReport> = if i.options.vision_only() {
+        i.estimates().map(|s| (s.t_us, s)).collect()
     } else {
         BTreeMap::new()
     };
-    let mut rows = Vec::with_capacity(record.results.len());
-    for (frame_id, r) in &record.results {
-        let reports = log.updates.get(frame_id);
-        let accepted = reports.map_or(0, |v| v.iter().map(|u| u.accepted as usize).sum());
-        let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
-        let p = &r.job.prediction;
-        let position_error_m = camera_error(dataset, r.job.stamp, p).map(|e| e.0);
-        // The pose the frame's verdict is on, its error and its covariance's calibration
-        // against the truth (docs/VISION.md §10, eq. T6).
-        let verdict = verdict_pose(
-            p,
-            answers.get(&(p.t_us + 1)).copied(),
-            options.vision_only(),
-            &core_he,
-        );
-        let truth = true_camera(dataset, stamp_of(p.t_us));
-        let estimate_error = verdict.zip(truth).map(|((e, _), t)| {
-            (
-                (e.c_w - t.c_w).norm(),
-                t.q_cw.angle_to(&e.q_cw).to_degrees(),
-            )
-        });
-        let cov = verdict.and_then(|(_, c)| c);
-        let weakest = verdict.and_then(|(pose, c)| Some(record.weakest(&pose, &c?)));
-        let nees = verdict.zip(truth).and_then(|((e, c), t)| c?.nees(&e, &t));
-        let judged = record.assessments.get(frame_id);
-        let tracked = record.tracked(*frame_id);
-        let latency = record.latency.frames.get(&r.job.index);
-        rows.push(FrameRow {
-            age_ms: latency.map(|l| l.taken_ms),
-            sent_ms: latency.and_then(|l| l.sent_ms),
-            pose_ms: latency.and_then(|l| l.pose_ms),
-            dropped_before: latency.map_or(0, |l| l.dropped_before),
-            rms_px: judged.and_then(|a| a.rms_px),
-            consistency: judged
-                .and_then(|a| a.consistency)
-                .map(|c| c.ratio(rule.consistency_z)),
-            ncc: judged.and_then(|a| a.ncc),
-            contour_rms_px: judged.and_then(|a| a.contour_rms_px),
-            contour_sigma_m: judged.and_then(|a| a.contour_spread).map(|s| s[0]),
-            contour_sigma_deg: judged
-                .and_then(|a| a.contour_spread)
-                .map(|s| s[1].to_degrees()),
-            contour_excess: judged.and_then(|a| a.contour_excess),
-            silhouette: judged.and_then(|a| a.silhouette),
-            contours: r.contours.len(),
-            contour_error_px: r.contour_error_px,
-            tracked,
-            index: r.job.index,
-            t: seconds(p.t_us),
-            frame_id: *frame_id,
-            model_coverage: r.model_coverage,
-            visible: r.visible,
-            added: r.added,
-            tried: r.features.len(),
-            registered: r.features.iter().filter(|f| f.registered.is_ok()).count(),
-            sent: r.correspondences.len(),
-            accepted,
-            gated,
-            prediction_error_px: r.prediction_error_px,
-            position_error_m,
-            estimate_error_m: estimate_error.map(|e| e.0),
-            estimate_error_deg: estimate_error.map(|e| e.1),
-            sigma_pos_m: cov.map(|c| c.position_sigma_m()),
-            sigma_rot_deg: cov.map(|c| c.rotation_sigma_rad().to_degrees()),
-            weakest: weakest.map(|w| w.name()),
-            weakest_sigma: weakest.map(|w| w.sigma),
-            nees,
-            cov: cov.map(|c| c.upper()),
-            render_ms: r.times.render * 1e3,
-            pyramids_ms: r.times.pyramids * 1e3,
-            klt_ms: r.times.klt * 1e3,
-            total_ms: r.times.total * 1e3,
-        });
-    }
-    let path = out.join("frames.csv");
-    {
-        let mut w = create(&path)?;
-        let e = io(&path);
-        writeln!(w, "{FRAMES_HEADER}").map_err(&e)?;
-        let empty = ",".repeat(FRAMES_HEADER.matches(',').count() - 2);
-        let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
-        let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
-        for line in frame_lines(&record.frames, &rows, stamp0) {
-            let r = match line {
-                FrameLine::Analysed(r) => r,
-                FrameLine::Not { index, t, fate } => {
-                    // A frame taken and not analysed: its index, time and what became of it.
-                    writeln!(w, "{index},{t:.6},{empty}{}", fate.name()).map_err(&e)?;
-                    continue;
-                }
-            };
-            writeln!(
-                w,
-                "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                r.index,
-                r.t,
-                r.frame_id,
-                r.model_coverage,
-                r.visible,
-                r.added,
-                r.tried,
-                r.registered,
-                r.sent,
-                r.accepted,
-                r.gated,
-                r.contours,
-                o(r.contour_error_px),
-                o(r.prediction_error_px),
-                o(r.position_error_m),
-                o(r.estimate_error_m),
-                o(r.estimate_error_deg),
-                r.render_ms,
-                r.pyramids_ms,
-                r.klt_ms,
-                r.total_ms,
-                o(r.contour_rms_px),
-                o(r.silhouette),
-                o(r.contour_sigma_m),
-                o(r.contour_sigma_deg),
-                o(r.contour_excess),
-                o(r.rms_px),
-                o(r.consistency),
-                o(r.ncc),
-                r.tracked
-                    .map(|t| if t { "1" } else { "0" })
-                    .unwrap_or_default(),
-                ms(r.age_ms),
-                ms(r.sent_ms),
-                ms(r.pose_ms),
-                r.dropped_before,
-                o(r.sigma_pos_m),
-                o(r.sigma_rot_deg),
-                r.weakest.unwrap_or_default(),
-                o(r.weakest_sigma),
-                o(r.nees),
-                r.cov.map_or(",".repeat(20), |c| c
-                    .iter()
-                    .map(|v| format!("{v:.6e}"))
-                    .collect::<Vec<_>>()
-                    .join(",")),
-                Fate::Analysed.name()
-            )
-            .map_err(&e)?;
-        }
-        w.flush().map_err(&e)?;
-    }
-    written.push(path);
+    i.record
+        .results
+        .iter()
+        .map(|(frame_id, r)| frame_row(i, &answers, *frame_id, r))
+        .collect()
+}
 
-    // Events.
+/// The row of the frame `frame_id`, analysed as `r` (`answers`: vision-only, the core's
+/// answer to each frame by its time).
+fn frame_row(
+    i: &Inputs,
+    answers: &BTreeMap<u64, &protocol::StateReport>,
+    frame_id: u32,
+    r: &vision::FrameResult,
+) -> FrameRow {
+    let (dataset, record) = (i.dataset, i.record);
+    let rule = record.rule;
+    let reports = record.log.updates.get(&frame_id);
+    let accepted = reports.map_or(0, |v| v.iter().map(|u| u.accepted as usize).sum());
+    let gated = reports.map_or(0, |v| v.iter().map(|u| u.rejected as usize).sum());
+    let p = &r.job.prediction;
+    let position_error_m = camera_error(dataset, r.job.stamp, p).map(|e| e.0);
+    // The pose the frame's verdict is on, its error and its covariance's calibration
+    // against the truth (docs/VISION.md §10, eq. T6).
+    let verdict = verdict_pose(
+        p,
+        answers.get(&(p.t_us + 1)).copied(),
+        i.options.vision_only(),
+        &record.core_hand_eye,
+    );
+    let truth = true_camera(dataset, i.stamp_of(p.t_us));
+    let estimate_error = verdict.zip(truth).map(|((e, _), t)| {
+        (
+            (e.c_w - t.c_w).norm(),
+            t.q_cw.angle_to(&e.q_cw).to_degrees(),
+        )
+    });
+    let cov = verdict.and_then(|(_, c)| c);
+    let weakest = verdict.and_then(|(pose, c)| Some(record.weakest(&pose, &c?)));
+    let nees = verdict.zip(truth).and_then(|((e, c), t)| c?.nees(&e, &t));
+    let judged = record.assessments.get(&frame_id);
+    let tracked = record.tracked(frame_id);
+    let latency = record.latency.frames.get(&r.job.index);
+    FrameRow {
+        age_ms: latency.map(|l| l.taken_ms),
+        sent_ms: latency.and_then(|l| l.sent_ms),
+        pose_ms: latency.and_then(|l| l.pose_ms),
+        dropped_before: latency.map_or(0, |l| l.dropped_before),
+        rms_px: judged.and_then(|a| a.rms_px),
+        consistency: judged
+            .and_then(|a| a.consistency)
+            .map(|c| c.ratio(rule.consistency_z)),
+        ncc: judged.and_then(|a| a.ncc),
+        contour_rms_px: judged.and_then(|a| a.contour_rms_px),
+        contour_sigma_m: judged.and_then(|a| a.contour_spread).map(|s| s[0]),
+        contour_sigma_deg: judged
+            .and_then(|a| a.contour_spread)
+            .map(|s| s[1].to_degrees()),
+        contour_excess: judged.and_then(|a| a.contour_excess),
+        silhouette: judged.and_then(|a| a.silhouette),
+        contours: r.contours.len(),
+        contour_error_px: r.contour_error_px,
+        tracked,
+        index: r.job.index,
+        t: seconds(p.t_us),
+        frame_id,
+        model_coverage: r.model_coverage,
+        visible: r.visible,
+        added: r.added,
+        tried: r.features.len(),
+        registered: r.features.iter().filter(|f| f.registered.is_ok()).count(),
+        sent: r.correspondences.len(),
+        accepted,
+        gated,
+        prediction_error_px: r.prediction_error_px,
+        position_error_m,
+        estimate_error_m: estimate_error.map(|e| e.0),
+        estimate_error_deg: estimate_error.map(|e| e.1),
+        sigma_pos_m: cov.map(|c| c.position_sigma_m()),
+        sigma_rot_deg: cov.map(|c| c.rotation_sigma_rad().to_degrees()),
+        weakest: weakest.map(|w| w.name()),
+        weakest_sigma: weakest.map(|w| w.sigma),
+        nees,
+        cov: cov.map(|c| c.upper()),
+        render_ms: r.times.render * 1e3,
+        pyramids_ms: r.times.pyramids * 1e3,
+        klt_ms: r.times.klt * 1e3,
+        total_ms: r.times.total * 1e3,
+    }
+}
+
+/// Writes `frames.csv`: every frame taken, in order, with what became of it; an analysed
+/// frame's line has its row.
+fn write_frames_csv(path: &Path, i: &Inputs, rows: &[FrameRow]) -> Result<(), TrackError> {
+    let mut w = create(path)?;
+    let e = io(path);
+    writeln!(w, "{FRAMES_HEADER}").map_err(&e)?;
+    let empty = ",".repeat(FRAMES_HEADER.matches(',').count() - 2);
+    for line in frame_lines(&i.record.frames, rows, i.stamp0) {
+        match line {
+            FrameLine::Analysed(r) => writeln!(w, "{}", csv_row(r)).map_err(&e)?,
+            // A frame taken and not analysed: its index, time and what became of it.
+            FrameLine::Not { index, t, fate } => {
+                writeln!(w, "{index},{t:.6},{empty}{}", fate.name()).map_err(&e)?
+            }
+        }
+    }
+    w.flush().map_err(&e)
+}
+
+/// An analysed frame's line of `frames.csv` (the columns of [`FRAMES_HEADER`]).
+fn csv_row(r: &FrameRow) -> String {
+    let o = |v: Option<f64>| v.map(|v| format!("{v:.4}")).unwrap_or_default();
+    let ms = |v: Option<f64>| v.map(|v| format!("{v:.3}")).unwrap_or_default();
+    format!(
+        "{},{:.6},{},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.3},{:.3},{:.3},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        r.index,
+        r.t,
+        r.frame_id,
+        r.model_coverage,
+        r.visible,
+        r.added,
+        r.tried,
+        r.registered,
+        r.sent,
+        r.accepted,
+        r.gated,
+        r.contours,
+        o(r.contour_error_px),
+        o(r.prediction_error_px),
+        o(r.position_error_m),
+        o(r.estimate_error_m),
+        o(r.estimate_error_deg),
+        r.render_ms,
+        r.pyramids_ms,
+        r.klt_ms,
+        r.total_ms,
+        o(r.contour_rms_px),
+        o(r.silhouette),
+        o(r.contour_sigma_m),
+        o(r.contour_sigma_deg),
+        o(r.contour_excess),
+        o(r.rms_px),
+        o(r.consistency),
+        o(r.ncc),
+        r.tracked
+            .map(|t| if t { "1" } else { "0" })
+            .unwrap_or_default(),
+        ms(r.age_ms),
+        ms(r.sent_ms),
+        ms(r.pose_ms),
+        r.dropped_before,
+        o(r.sigma_pos_m),
+        o(r.sigma_rot_deg),
+        r.weakest.unwrap_or_default(),
+        o(r.weakest_sigma),
+        o(r.nees),
+        r.cov.map_or(",".repeat(20), |c| c
+            .iter()
+            .map(|v| format!("{v:.6e}"))
+            .collect::<Vec<_>>()
+            .join(",")),
+        Fate::Analysed.name()
+    )
+}
+
+/// When the core first took a frame's correspondences (or, attached, was already
+/// tracking), its divergences, and the stretches without vision after that.
+fn vision_stretches(log: &CoreLog) -> (Option<f64>, Vec<Event>, Vec<[f64; 2]>) {
     let snapped_on_at = log
         .statuses
         .iter()
@@ -1313,15 +1432,12 @@ pub(super) fn write_all(
         }
     }
 
-    // Errors of every state against the ground truth (once: the accuracy and the plot).
-    let errors: Vec<(f64, StateError)> = estimates()
-        .filter_map(|s| {
-            let e = state_errors(dataset, &core_he, stamp_of(s.t_us), s)?;
-            Some((seconds(s.t_us), e))
-        })
-        .collect();
-    // Accuracy from snap-on.
-    let accuracy = snapped_on_at.and_then(|t0| {
+    (snapped_on_at, divergences, without_vision)
+}
+
+/// The accuracy of the states from snap-on (`snapped_on_at`) against the ground truth.
+fn accuracy(errors: &[(f64, StateError)], snapped_on_at: Option<f64>) -> Option<Accuracy> {
+    snapped_on_at.and_then(|t0| {
         let mut acc = Accuracy::default();
         let mut sq = 0.0;
         for (_, e) in errors.iter().filter(|(t, _)| *t >= t0) {
@@ -1347,14 +1463,30 @@ pub(super) fn write_all(
             acc.within_5cm_5deg /= n;
             acc
         })
-    });
+    })
+}
 
+/// The run's summary (`summary.json`); `end`: whether it stopped early, and its error.
+fn summarise(
+    i: &Inputs,
+    seen: &Seen,
+    link: &LinkEnd,
+    rows: &[FrameRow],
+    errors: &[(f64, StateError)],
+    (stopped_early, error): (bool, Option<String>),
+) -> Summary {
+    let (dataset, options, record, stamp0) = (i.dataset, i.options, i.record, i.stamp0);
+    let (log, board) = (&record.log, link.board);
+    let (host, adapter) = (seen.host, seen.adapter);
+    let rule = record.rule;
+    let (snapped_on_at, divergences, without_vision) = vision_stretches(log);
+    let accuracy = accuracy(errors, snapped_on_at);
     let errors_px: Vec<f64> = rows.iter().filter_map(|r| r.prediction_error_px).collect();
     let contour_px: Vec<f64> = rows.iter().filter_map(|r| r.contour_error_px).collect();
     let since_stamp0 =
         |stamp: Option<&u64>| stamp.map_or(0.0, |&stamp| stamp.saturating_sub(stamp0) as f64 / 1e9);
     let duration_s = since_stamp0(record.clock.last());
-    let summary = Summary {
+    Summary {
         dataset: dataset.root.display().to_string(),
         model: format!("{:?}", options.filter).to_lowercase(),
         link: options.link.to_string(),
@@ -1429,10 +1561,17 @@ pub(super) fn write_all(
         core_rejected_frames: log.rejected_frames,
         stopped_early,
         error,
-    };
-    let path = out.join("summary.json");
-    let mut json = serde_json::to_value(&summary).map_err(|e| TrackError::Output {
-        path: path.clone(),
+    }
+}
+
+/// Writes the summary, with the simulated `board`'s counters, as `summary.json`.
+fn write_summary_json(
+    path: &Path,
+    summary: &Summary,
+    board: Option<&BoardReport>,
+) -> Result<(), TrackError> {
+    let mut json = serde_json::to_value(summary).map_err(|e| TrackError::Output {
+        path: path.to_owned(),
         source: std::io::Error::other(e),
     })?;
     if let Some(b) = board {
@@ -1449,28 +1588,10 @@ pub(super) fn write_all(
     }
     round_floats(&mut json);
     let text = serde_json::to_string_pretty(&json).map_err(|e| TrackError::Output {
-        path: path.clone(),
+        path: path.to_owned(),
         source: std::io::Error::other(e),
     })?;
-    std::fs::write(&path, text + "\n").map_err(io(&path))?;
-    written.push(path);
-
-    written.extend(overlay::write_overlays(
-        &out.join("overlays"),
-        dataset,
-        record,
-    )?);
-    let position_mm: Vec<(f64, f64)> = errors
-        .iter()
-        .map(|(t, e)| (*t, e.position_m * 1e3))
-        .collect();
-    written.extend(plot::write_track_plots(
-        out,
-        &summary.model,
-        &rows,
-        &position_mm,
-    )?);
-    Ok((rows, summary, written))
+    std::fs::write(path, text + "\n").map_err(io(path))
 }
 
 /// Rounds every float in `v` to 9 significant digits: the figures are far less precise than

@@ -258,25 +258,10 @@ fn frames(a: &FramesArgs) -> Result<Done, Failure> {
     Ok(Done::Complete)
 }
 
-fn track(a: &TrackArgs) -> Result<Done, Failure> {
-    use host_vision::track::{self, Faults, Start, TrackError};
-    let input = frame_input(&a.video, &a.images, a.fps);
-    let dataset = match (&input, &a.dataset) {
-        (Some(i), _) => i.path().to_owned(),
-        (None, Some(d)) => d.clone(),
-        (None, None) => {
-            return Err(Failure {
-                error: anyhow::anyhow!("give --dataset DIR, --video FILE or --images DIR"),
-                code: exit::USAGE,
-            });
-        }
-    };
-    // Without an IMU (a video, an image folder, a dataset without mav0/imu0) the model is
-    // vision-only, and a run says so.
-    let camera_only = input.is_some()
-        || (dataset.join("mav0/cam0/data.csv").exists()
-            && !dataset.join("mav0/imu0/data.csv").exists());
-    let filter: protocol::ModelKind = match a.filter {
+/// The filter model of `track`: `--filter`, else acc with an IMU, else the vision-only one
+/// (said, with why).
+fn track_filter(a: &TrackArgs, dataset: &Path, camera_only: bool) -> protocol::ModelKind {
+    match a.filter {
         Some(f) => f.into(),
         None if !camera_only => protocol::ModelKind::Acc,
         None => {
@@ -301,21 +286,18 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
             }
             protocol::ModelKind::Vision
         }
-    };
-    ignored_options(a, filter)?;
-    let camera = match &input {
-        Some(i) => track_camera(a, i)?,
-        None if a.camera.is_some() || a.calib.is_some() || a.intrinsics.is_some() => {
-            return Err(Failure {
-                error: anyhow::anyhow!(
-                    "--camera, --calib and --intrinsics give the camera of --video or --images; a dataset has its own (mav0/cam0/sensor.yaml)"
-                ),
-                code: exit::USAGE,
-            });
-        }
-        None => None,
-    };
-    let dataset = &dataset;
+    }
+}
+
+/// The options of `track` from its arguments.
+fn track_options(
+    a: &TrackArgs,
+    dataset: &Path,
+    filter: protocol::ModelKind,
+    input: Option<host_vision::frames::FrameInput>,
+    camera: Option<host_vision::camera::Camera>,
+) -> Result<host_vision::track::TrackOptions, Failure> {
+    use host_vision::track::{self, Faults, Start, TrackError};
     let pose = a
         .start_pose
         .as_deref()
@@ -373,6 +355,42 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
     };
     o.attach = a.attach;
     o.imu_on_core = a.imu_on_core;
+    Ok(o)
+}
+
+fn track(a: &TrackArgs) -> Result<Done, Failure> {
+    use host_vision::track::{self, TrackError};
+    let input = frame_input(&a.video, &a.images, a.fps);
+    let dataset = match (&input, &a.dataset) {
+        (Some(i), _) => i.path().to_owned(),
+        (None, Some(d)) => d.clone(),
+        (None, None) => {
+            return Err(Failure {
+                error: anyhow::anyhow!("give --dataset DIR, --video FILE or --images DIR"),
+                code: exit::USAGE,
+            });
+        }
+    };
+    // Without an IMU (a video, an image folder, a dataset without mav0/imu0) the model is
+    // vision-only, and a run says so.
+    let camera_only = input.is_some()
+        || (dataset.join("mav0/cam0/data.csv").exists()
+            && !dataset.join("mav0/imu0/data.csv").exists());
+    let filter = track_filter(a, &dataset, camera_only);
+    ignored_options(a, filter)?;
+    let camera = match &input {
+        Some(i) => track_camera(a, i)?,
+        None if a.camera.is_some() || a.calib.is_some() || a.intrinsics.is_some() => {
+            return Err(Failure {
+                error: anyhow::anyhow!(
+                    "--camera, --calib and --intrinsics give the camera of --video or --images; a dataset has its own (mav0/cam0/sensor.yaml)"
+                ),
+                code: exit::USAGE,
+            });
+        }
+        None => None,
+    };
+    let o = track_options(a, &dataset, filter, input, camera)?;
     let interrupt = interrupt_flag();
     let mut bar = Bar::new(TRACK_BAR);
     let name = format!("track {:?}", o.filter).to_lowercase();
