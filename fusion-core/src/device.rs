@@ -10,7 +10,7 @@ use protocol::{
     encode_frame, handshake, sym_index,
 };
 
-use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing};
+use crate::delay::{DelayLine, IMU_BUFFER, MAX_PENDING_FRAMES, Missing, Snapshot};
 use crate::divergence::Monitor;
 use crate::filter::{Filter, ImuSample, MAX_STEPS_PER_SAMPLE};
 use crate::init::{StillWindow, initialise};
@@ -873,6 +873,9 @@ impl<T: Kernels> Device<T> {
         }
     }
 
+    /// Applies one part of a frame's correspondences (points or contours) to the frame's
+    /// snapshot and answers with its `UpdateReport`; then restarts on a divergence, or
+    /// propagates a completed frame to the present and tracks from an accepted update.
     fn correspondences(&mut self, c: Part<'_>, out: Out) {
         let mut report = UpdateReport {
             frame_id: c.frame_id(),
@@ -884,38 +887,66 @@ impl<T: Kernels> Device<T> {
             prediction_error: 0.0,
         };
         let (Some(prm), Phase::Running) = (self.prm, &self.phase) else {
-            Counters::bump(&mut self.counters.parts_refused);
-            report.outcome = UpdateOutcome::NotRunning;
-            out(CoreToHost::UpdateReport(report));
+            self.refuse_part(report, UpdateOutcome::NotRunning, out);
             return;
         };
         // Older frames' pending updates go first, so this frame's snapshot is current.
-        loop {
-            let older = self.delay.dirty_frames().find(|&f| f != c.frame_id());
-            let Some(older) = older else { break };
-            if !self.flush(older, &prm, out) {
-                report.outcome = UpdateOutcome::NotRunning;
-                out(CoreToHost::UpdateReport(report));
+        if !self.flush_older_frames(c.frame_id(), &prm, out) {
+            report.outcome = UpdateOutcome::NotRunning;
+            out(CoreToHost::UpdateReport(report));
+            return;
+        }
+        let done = match self.update_snapshot(&c, &prm, &mut report) {
+            Ok(done) => done,
+            Err(outcome) => {
+                self.refuse_part(report, outcome, out);
                 return;
+            }
+        };
+        Counters::bump(&mut self.counters.parts_applied);
+        let frame_id = c.frame_id();
+        out(CoreToHost::UpdateReport(report.clone()));
+
+        if let Some(reason) = done.diverged {
+            self.diverged(reason, &prm, out);
+            return;
+        }
+        if done.needs_flush && !self.flush(frame_id, &prm, out) {
+            return;
+        }
+        if report.accepted > 0 {
+            self.anchor_on_vision(done.good, out);
+        }
+    }
+
+    /// Refuses a part: counted, and answered with `outcome`.
+    fn refuse_part(&mut self, mut report: UpdateReport, outcome: UpdateOutcome, out: Out) {
+        Counters::bump(&mut self.counters.parts_refused);
+        report.outcome = outcome;
+        out(CoreToHost::UpdateReport(report));
+    }
+
+    /// Propagates the pending updates of every frame but `frame_id` to the present; false if
+    /// that diverged.
+    fn flush_older_frames(&mut self, frame_id: u32, prm: &Params<T>, out: Out) -> bool {
+        loop {
+            let older = self.delay.dirty_frames().find(|&f| f != frame_id);
+            let Some(older) = older else { return true };
+            if !self.flush(older, prm, out) {
+                return false;
             }
         }
-        let newer_applied = self.delay.newer_frame_applied(c.frame_id());
-        let snap = match self.delay.find(c.frame_id(), c.trigger_us()) {
-            Ok(_) if newer_applied => Err(UpdateOutcome::TooOld),
-            Ok(s) if s.parts_done & (1 << c.index()) != 0 => Err(UpdateOutcome::Duplicate),
-            Ok(s) => Ok(s),
-            Err(Missing::TooOld) => Err(UpdateOutcome::TooOld),
-            Err(Missing::Unknown) => Err(UpdateOutcome::UnknownFrame),
-        };
-        let snap = match snap {
-            Ok(s) => s,
-            Err(outcome) => {
-                Counters::bump(&mut self.counters.parts_refused);
-                report.outcome = outcome;
-                out(CoreToHost::UpdateReport(report));
-                return;
-            }
-        };
+    }
+
+    /// Updates the part's frame snapshot by its correspondences, filling `report`; the
+    /// outcome to refuse it with when the snapshot is gone or already has this part.
+    fn update_snapshot(
+        &mut self,
+        c: &Part<'_>,
+        prm: &Params<T>,
+        report: &mut UpdateReport,
+    ) -> Result<PartDone<T>, UpdateOutcome> {
+        let snap = part_snapshot(&mut self.delay, c)?;
         // After a soft re-initialisation the part must agree with the state as a whole
         // (docs/FILTER.md §7): a copy to return to if most of it fails the gate.
         if self.consensus {
@@ -925,65 +956,19 @@ impl<T: Kernels> Device<T> {
         // Frames on either side of a gap are not consecutive looks at one state
         // (docs/FILTER.md §9, test 1).
         if !c.is_empty() {
-            self.monitor.look(c.trigger_us(), no_vision_us(&prm));
+            self.monitor.look(c.trigger_us(), no_vision_us(prm));
         }
         // Test 3 judges the frame's updates from the quaternion they started at (docs/FILTER.md
         // §6, §9).
         if snap.parts_done == 0 {
             snap.q_ref = snap.filter.st.q();
         }
-        let mut gated = 0u32;
-        let mut diverged = None;
-        let mut error_sum = T::zero();
-        let mut error_count = 0u32;
-        for item in c.items() {
-            let applied = item.apply(&mut snap.filter.st, &snap.predicted, &prm);
-            if let Some(e) = applied.prediction_error {
-                error_sum += e;
-                error_count += 1;
-            }
-            let s_i = applied.nis;
-            // Capacity equals the message's, so this cannot fail. A residual that cannot be
-            // computed (behind the camera, singular) is infinite here and f32::MAX on the
-            // wire: nothing non-finite leaves the core.
-            let wire = s_i.to_wire();
-            let _ = report
-                .residuals
-                .push(if wire.is_finite() { wire } else { f32::MAX });
-            match applied.result {
-                Ok(()) => {
-                    report.accepted += 1;
-                    Counters::bump(&mut self.counters.accepted);
-                }
-                Err(why) => {
-                    report.rejected += 1;
-                    gated += u32::from(why == Rejection::Gated);
-                    Counters::bump(match why {
-                        Rejection::Gated => &mut self.counters.gated,
-                        Rejection::BehindCamera => &mut self.counters.behind_camera,
-                        Rejection::Singular => &mut self.counters.singular,
-                    });
-                }
-            }
-            if let Some(reason) = self.monitor.residual(c.frame_id(), s_i, &prm) {
-                diverged.get_or_insert(reason);
-            }
-        }
+        let (gated, mut diverged) =
+            apply_items(c, snap, prm, report, &mut self.counters, &mut self.monitor);
         // The few that passed where most were gated are chance passes of outliers, or of a
         // state gone wrong: withheld either way, the part's updates undone.
         if self.consensus && report.accepted > 0 && u32::from(report.accepted) < gated {
-            snap.filter.st.x.copy_from(&self.withheld_from.x);
-            snap.filter.st.p.copy_from(&self.withheld_from.p);
-            self.counters.withheld = self
-                .counters
-                .withheld
-                .saturating_add(u32::from(report.accepted));
-            self.counters.accepted = self
-                .counters
-                .accepted
-                .saturating_sub(u32::from(report.accepted));
-            report.rejected += report.accepted;
-            report.accepted = 0;
+            withhold_part(snap, &self.withheld_from, &mut self.counters, report);
         }
         // Applied updates that moved the quaternion off the sphere ask for the full restart.
         if report.accepted > 0
@@ -991,41 +976,28 @@ impl<T: Kernels> Device<T> {
         {
             diverged = Some(StatusReason::QuaternionNorm);
         }
-        crate::ekf::condition(&mut snap.filter.st.p, prm.n);
-        snap.parts_done |= 1 << c.index();
-        snap.dirty |= report.accepted > 0;
-        let complete = snap.parts_done.count_ones() as u8 >= c.parts();
-        let needs_flush = complete && snap.dirty;
-        if complete && let Some(reason) = self.monitor.close_frame(&prm) {
-            diverged.get_or_insert(reason);
-        }
-        let good = (snap.filter.st.v3(POS), snap.filter.st.q());
-        if error_count > 0 {
-            report.prediction_error = (error_sum / T::c(error_count as f64)).to_wire();
-        }
-        Counters::bump(&mut self.counters.parts_applied);
-        let frame_id = c.frame_id();
-        out(CoreToHost::UpdateReport(report.clone()));
+        Ok(close_part(
+            c,
+            snap,
+            prm,
+            report,
+            &mut self.monitor,
+            diverged,
+        ))
+    }
 
-        if let Some(reason) = diverged {
-            self.diverged(reason, &prm, out);
-            return;
-        }
-        if needs_flush && !self.flush(frame_id, &prm, out) {
-            return;
-        }
-        if report.accepted > 0 {
-            self.consensus = false;
-            self.anchor = Anchor {
-                position: good.0,
-                q_sw: good.1,
-                yaw: Some(quat::yaw_of(&quat::conj(&good.1))),
-                from_vision: true,
-                age_us: 0,
-            };
-            if self.mode != Mode::Tracking {
-                self.set_mode(Mode::Tracking, StatusReason::VisionAccepted, out);
-            }
+    /// Accepted vision anchors the estimate at `good` (position, orientation) and tracks.
+    fn anchor_on_vision(&mut self, good: (Vector3<T>, Quat<T>), out: Out) {
+        self.consensus = false;
+        self.anchor = Anchor {
+            position: good.0,
+            q_sw: good.1,
+            yaw: Some(quat::yaw_of(&quat::conj(&good.1))),
+            from_vision: true,
+            age_us: 0,
+        };
+        if self.mode != Mode::Tracking {
+            self.set_mode(Mode::Tracking, StatusReason::VisionAccepted, out);
         }
     }
 
@@ -1077,6 +1049,128 @@ impl<T: Kernels> Device<T> {
             window: StillWindow::default(),
         });
         self.set_mode(Mode::Reinitialising, reason, out);
+    }
+}
+
+/// What applying a part leaves to do once it is answered.
+struct PartDone<T: Scalar> {
+    /// The first divergence the part revealed.
+    diverged: Option<StatusReason>,
+    /// Whether the part completed its frame, which has updates to propagate to the present.
+    needs_flush: bool,
+    /// Position and orientation after the part: the anchor, if it had an accepted update.
+    good: (Vector3<T>, Quat<T>),
+}
+
+/// The snapshot of the part's frame, or the outcome to refuse the part with: too old (its
+/// snapshot dropped, or a newer frame already applied), a duplicate, or an unknown frame.
+fn part_snapshot<'d, T: Scalar>(
+    delay: &'d mut DelayLine<T>,
+    c: &Part<'_>,
+) -> Result<&'d mut Snapshot<T>, UpdateOutcome> {
+    let newer_applied = delay.newer_frame_applied(c.frame_id());
+    match delay.find(c.frame_id(), c.trigger_us()) {
+        Ok(_) if newer_applied => Err(UpdateOutcome::TooOld),
+        Ok(s) if s.parts_done & (1 << c.index()) != 0 => Err(UpdateOutcome::Duplicate),
+        Ok(s) => Ok(s),
+        Err(Missing::TooOld) => Err(UpdateOutcome::TooOld),
+        Err(Missing::Unknown) => Err(UpdateOutcome::UnknownFrame),
+    }
+}
+
+/// Applies the part's correspondences one by one to the snapshot's state (each gated,
+/// eq. 17): fills the report's residuals, counts and mean prediction error, counts each
+/// outcome, and feeds the residual test. Returns how many were gated, and the first
+/// divergence the residual test found.
+fn apply_items<T: Kernels>(
+    c: &Part<'_>,
+    snap: &mut Snapshot<T>,
+    prm: &Params<T>,
+    report: &mut UpdateReport,
+    counters: &mut Counters,
+    monitor: &mut Monitor<T>,
+) -> (u32, Option<StatusReason>) {
+    let mut gated = 0u32;
+    let mut diverged = None;
+    let mut error_sum = T::zero();
+    let mut error_count = 0u32;
+    for item in c.items() {
+        let applied = item.apply(&mut snap.filter.st, &snap.predicted, prm);
+        if let Some(e) = applied.prediction_error {
+            error_sum += e;
+            error_count += 1;
+        }
+        let s_i = applied.nis;
+        // Capacity equals the message's, so this cannot fail. A residual that cannot be
+        // computed (behind the camera, singular) is infinite here and f32::MAX on the
+        // wire: nothing non-finite leaves the core.
+        let wire = s_i.to_wire();
+        let _ = report
+            .residuals
+            .push(if wire.is_finite() { wire } else { f32::MAX });
+        match applied.result {
+            Ok(()) => {
+                report.accepted += 1;
+                Counters::bump(&mut counters.accepted);
+            }
+            Err(why) => {
+                report.rejected += 1;
+                gated += u32::from(why == Rejection::Gated);
+                Counters::bump(match why {
+                    Rejection::Gated => &mut counters.gated,
+                    Rejection::BehindCamera => &mut counters.behind_camera,
+                    Rejection::Singular => &mut counters.singular,
+                });
+            }
+        }
+        if let Some(reason) = monitor.residual(c.frame_id(), s_i, prm) {
+            diverged.get_or_insert(reason);
+        }
+    }
+    if error_count > 0 {
+        report.prediction_error = (error_sum / T::c(error_count as f64)).to_wire();
+    }
+    (gated, diverged)
+}
+
+/// Withholds a part's updates: the snapshot's state goes back to `before`, and its accepted
+/// correspondences count as withheld and rejected instead.
+fn withhold_part<T: Scalar>(
+    snap: &mut Snapshot<T>,
+    before: &State<T>,
+    counters: &mut Counters,
+    report: &mut UpdateReport,
+) {
+    snap.filter.st.x.copy_from(&before.x);
+    snap.filter.st.p.copy_from(&before.p);
+    counters.withheld = counters.withheld.saturating_add(u32::from(report.accepted));
+    counters.accepted = counters.accepted.saturating_sub(u32::from(report.accepted));
+    report.rejected += report.accepted;
+    report.accepted = 0;
+}
+
+/// Ends a part's update: conditions the covariance, marks the part done and the frame dirty
+/// if it was updated, and closes the frame's residual test once all its parts are in.
+fn close_part<T: Scalar>(
+    c: &Part<'_>,
+    snap: &mut Snapshot<T>,
+    prm: &Params<T>,
+    report: &UpdateReport,
+    monitor: &mut Monitor<T>,
+    mut diverged: Option<StatusReason>,
+) -> PartDone<T> {
+    crate::ekf::condition(&mut snap.filter.st.p, prm.n);
+    snap.parts_done |= 1 << c.index();
+    snap.dirty |= report.accepted > 0;
+    let complete = snap.parts_done.count_ones() as u8 >= c.parts();
+    let needs_flush = complete && snap.dirty;
+    if complete && let Some(reason) = monitor.close_frame(prm) {
+        diverged.get_or_insert(reason);
+    }
+    PartDone {
+        diverged,
+        needs_flush,
+        good: (snap.filter.st.v3(POS), snap.filter.st.q()),
     }
 }
 

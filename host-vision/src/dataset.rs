@@ -100,31 +100,79 @@ struct ImuYaml {
     noise: Option<ImuNoiseDensities>,
 }
 
+/// Refuses what is no dataset folder: a file, nothing, or an unfinished synthesis.
+fn check_root(root: &Path) -> Result<(), DatasetError> {
+    if root.is_file() {
+        return Err(DatasetError::Invalid {
+            path: root.to_owned(),
+            what: "is a file, not a dataset folder (the folder holding mav0/)".into(),
+        });
+    }
+    if !root.exists() {
+        return Err(DatasetError::Missing {
+            path: root.to_owned(),
+            what: "dataset folder",
+        });
+    }
+    if root.join(crate::synth::UNFINISHED).exists() {
+        return Err(DatasetError::Invalid {
+            path: root.to_owned(),
+            what: format!(
+                "an unfinished dataset: `host-vision synth` was interrupted or killed while writing it ({} is there); run synth into it again",
+                crate::synth::UNFINISHED
+            ),
+        });
+    }
+    Ok(())
+}
+
+/// The IMU's samples (at least two, in increasing time) and its `sensor.yaml`, if there is one.
+fn read_imu(
+    imu_csv: &Path,
+    imu_yaml_path: &Path,
+) -> Result<(Vec<ImuRow>, Option<ImuYaml>), DatasetError> {
+    let imu = euroc::read_imu_csv(imu_csv)?;
+    if imu.len() < 2 {
+        return Err(DatasetError::Invalid {
+            path: imu_csv.to_owned(),
+            what: format!("{} IMU samples; need at least 2", imu.len()),
+        });
+    }
+    if let Some(w) = imu.windows(2).position(|w| w[1].stamp <= w[0].stamp) {
+        return Err(DatasetError::Invalid {
+            path: imu_csv.to_owned(),
+            what: format!(
+                "time stamps not increasing at sample {} ({} after {})",
+                w + 1,
+                imu[w + 1].stamp,
+                imu[w].stamp
+            ),
+        });
+    }
+    let imu_yaml = match std::fs::read_to_string(imu_yaml_path) {
+        Ok(text) => {
+            let text: String = text
+                .lines()
+                .filter(|l| !l.starts_with("%YAML"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            Some(
+                serde_yaml_ng::from_str::<ImuYaml>(&text).map_err(|e| DatasetError::Invalid {
+                    path: imu_yaml_path.to_owned(),
+                    what: e.to_string(),
+                })?,
+            )
+        }
+        Err(_) => None,
+    };
+    Ok((imu, imu_yaml))
+}
+
 impl Dataset {
     /// Opens `root` (the folder holding `mav0/`). A folder with `cam0` and no `imu0` opens
     /// without IMU samples ([`Self::has_imu`] is false): only the vision-only model tracks it.
     pub fn open(root: &Path) -> Result<Self, DatasetError> {
-        if root.is_file() {
-            return Err(DatasetError::Invalid {
-                path: root.to_owned(),
-                what: "is a file, not a dataset folder (the folder holding mav0/)".into(),
-            });
-        }
-        if !root.exists() {
-            return Err(DatasetError::Missing {
-                path: root.to_owned(),
-                what: "dataset folder",
-            });
-        }
-        if root.join(crate::synth::UNFINISHED).exists() {
-            return Err(DatasetError::Invalid {
-                path: root.to_owned(),
-                what: format!(
-                    "an unfinished dataset: `host-vision synth` was interrupted or killed while writing it ({} is there); run synth into it again",
-                    crate::synth::UNFINISHED
-                ),
-            });
-        }
+        check_root(root)?;
         let mav0 = require(root.join("mav0"), "EuRoC folder mav0/")?;
         let imu_csv = mav0.join("imu0/data.csv");
         let cam_dir = require(mav0.join("cam0"), "camera folder")?;
@@ -160,41 +208,7 @@ impl Dataset {
             });
         }
 
-        let imu = euroc::read_imu_csv(&imu_csv)?;
-        if imu.len() < 2 {
-            return Err(DatasetError::Invalid {
-                path: imu_csv,
-                what: format!("{} IMU samples; need at least 2", imu.len()),
-            });
-        }
-        if let Some(w) = imu.windows(2).position(|w| w[1].stamp <= w[0].stamp) {
-            return Err(DatasetError::Invalid {
-                path: imu_csv,
-                what: format!(
-                    "time stamps not increasing at sample {} ({} after {})",
-                    w + 1,
-                    imu[w + 1].stamp,
-                    imu[w].stamp
-                ),
-            });
-        }
-        let imu_yaml_path = mav0.join("imu0/sensor.yaml");
-        let imu_yaml = match std::fs::read_to_string(&imu_yaml_path) {
-            Ok(text) => {
-                let text: String = text
-                    .lines()
-                    .filter(|l| !l.starts_with("%YAML"))
-                    .collect::<Vec<_>>()
-                    .join("\n");
-                Some(serde_yaml_ng::from_str::<ImuYaml>(&text).map_err(|e| {
-                    DatasetError::Invalid {
-                        path: imu_yaml_path.clone(),
-                        what: e.to_string(),
-                    }
-                })?)
-            }
-            Err(_) => None,
-        };
+        let (imu, imu_yaml) = read_imu(&imu_csv, &mav0.join("imu0/sensor.yaml"))?;
         let median_dt = {
             let mut dts: Vec<u64> = imu.windows(2).map(|w| w[1].stamp - w[0].stamp).collect();
             dts.sort_unstable();

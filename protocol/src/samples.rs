@@ -166,31 +166,8 @@ pub fn host_messages() -> [(&'static str, HostToCore); 12] {
 
 /// Named core messages, one per kind (five for `Error`).
 pub fn core_messages() -> [(&'static str, CoreToHost); 13] {
-    let mut cov = [0.0f32; 21];
-    for i in 0..6 {
-        cov[sym_index(6, i, i)] = if i < 3 { 1e-4 } else { 1e-5 };
-    }
-    let mut residuals = Vec::new();
-    let _ = residuals.push(0.5);
-    let _ = residuals.push(3.25);
-    let _ = residuals.push(120.0);
     [
-        (
-            "HelloAck",
-            CoreToHost::HelloAck(HelloAck {
-                version: PROTOCOL_VERSION,
-                model: Some(ModelKind::Acc),
-                capacities: Capacities {
-                    max_frame_len: crate::MAX_FRAME_LEN as u16,
-                    max_correspondences_per_message: crate::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
-                    max_correspondences_per_frame: 64,
-                    delay_buffer_samples: 32,
-                    max_pending_frames: 4,
-                    scalar_bits: 32,
-                },
-                session: 0x5E55_1011,
-            }),
-        ),
+        ("HelloAck", hello_ack()),
         (
             "Error (version mismatch)",
             CoreToHost::error(ErrorCode::VersionMismatch {
@@ -212,54 +189,9 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 13] {
             "Error (IMU sample in the vision-only model)",
             CoreToHost::error(ErrorCode::ImuInVisionModel),
         ),
-        (
-            "PosePrediction",
-            CoreToHost::PosePrediction(PosePrediction {
-                frame_id: 42,
-                t_us: 1_000_000,
-                c_w: [0.0, -0.5, 1.25],
-                q_cw: [0.5, -0.5, 0.5, -0.5],
-                cov,
-            }),
-        ),
-        (
-            "State",
-            CoreToHost::State(StateReport {
-                t_us: 1_010_000,
-                s_w: [0.0, -0.5, 1.25],
-                q_sw: [1.0, 0.0, 0.0, 0.0],
-                v_w: [0.1, 0.0, 0.0],
-                a_w: [0.0, 0.0, 0.0],
-                omega_s: [0.0, 0.0, 0.5],
-                gyro_bias: [0.001, -0.002, 0.0],
-                accel_bias: [0.0, 0.0, 0.01],
-                health: Health {
-                    mode: Mode::Tracking,
-                    covariance_frobenius: 0.25,
-                    residual_lowpass: 1.5,
-                    quaternion_norm_error: 1e-6,
-                },
-                cov: {
-                    let mut c = [0.0; 21];
-                    for (i, v) in [1e-4, 1e-4, 4e-4, 3e-5, 3e-5, 1e-4].into_iter().enumerate() {
-                        c[crate::sym_index(6, i, i)] = v;
-                    }
-                    c
-                },
-            }),
-        ),
-        (
-            "UpdateReport",
-            CoreToHost::UpdateReport(UpdateReport {
-                frame_id: 42,
-                part: 0,
-                outcome: UpdateOutcome::Applied,
-                accepted: 2,
-                rejected: 1,
-                residuals,
-                prediction_error: 0.004,
-            }),
-        ),
+        ("PosePrediction", pose_prediction()),
+        ("State", state_report()),
+        ("UpdateReport", update_report()),
         (
             "Status",
             CoreToHost::Status(Status {
@@ -291,22 +223,103 @@ pub fn core_messages() -> [(&'static str, CoreToHost); 13] {
                 trigger: true,
             }),
         ),
-        (
-            "Sampling (gap)",
-            CoreToHost::Sampling(SamplingReport {
-                t_us: 2_000_000,
-                event: SamplingEvent::Gap(SampleGap {
-                    from_us: 1_950_000,
-                    to_us: 2_000_000,
-                    lost: 4,
-                    cause: GapCause::FifoOverflow,
-                }),
-                samples: 200,
-                lost: 4,
-                part_resets: 0,
-                late_reads: 1,
-                drift_ppm: 120.0,
-            }),
-        ),
+        ("Sampling (gap)", sampling_gap()),
     ]
+}
+
+/// The core's answer to `Hello`: this protocol version, the acc model, the limits of this
+/// crate and those of a small core.
+fn hello_ack() -> CoreToHost {
+    CoreToHost::HelloAck(HelloAck {
+        version: PROTOCOL_VERSION,
+        model: Some(ModelKind::Acc),
+        capacities: Capacities {
+            max_frame_len: crate::MAX_FRAME_LEN as u16,
+            max_correspondences_per_message: crate::MAX_CORRESPONDENCES_PER_MESSAGE as u16,
+            max_correspondences_per_frame: 64,
+            delay_buffer_samples: 32,
+            max_pending_frames: 4,
+            scalar_bits: 32,
+        },
+        session: 0x5E55_1011,
+    })
+}
+
+/// A pose prediction for frame 42, with a diagonal covariance (position σ 1 cm, rotation
+/// about 3 mrad).
+fn pose_prediction() -> CoreToHost {
+    let mut cov = [0.0f32; 21];
+    for i in 0..6 {
+        cov[sym_index(6, i, i)] = if i < 3 { 1e-4 } else { 1e-5 };
+    }
+    CoreToHost::PosePrediction(PosePrediction {
+        frame_id: 42,
+        t_us: 1_000_000,
+        c_w: [0.0, -0.5, 1.25],
+        q_cw: [0.5, -0.5, 0.5, -0.5],
+        cov,
+    })
+}
+
+/// A state report while tracking, with a diagonal camera-pose covariance.
+fn state_report() -> CoreToHost {
+    CoreToHost::State(StateReport {
+        t_us: 1_010_000,
+        s_w: [0.0, -0.5, 1.25],
+        q_sw: [1.0, 0.0, 0.0, 0.0],
+        v_w: [0.1, 0.0, 0.0],
+        a_w: [0.0, 0.0, 0.0],
+        omega_s: [0.0, 0.0, 0.5],
+        gyro_bias: [0.001, -0.002, 0.0],
+        accel_bias: [0.0, 0.0, 0.01],
+        health: Health {
+            mode: Mode::Tracking,
+            covariance_frobenius: 0.25,
+            residual_lowpass: 1.5,
+            quaternion_norm_error: 1e-6,
+        },
+        cov: {
+            let mut c = [0.0; 21];
+            for (i, v) in [1e-4, 1e-4, 4e-4, 3e-5, 3e-5, 1e-4].into_iter().enumerate() {
+                c[crate::sym_index(6, i, i)] = v;
+            }
+            c
+        },
+    })
+}
+
+/// The report on frame 42's first part: two correspondences accepted, one (the large
+/// residual) rejected.
+fn update_report() -> CoreToHost {
+    let mut residuals = Vec::new();
+    let _ = residuals.push(0.5);
+    let _ = residuals.push(3.25);
+    let _ = residuals.push(120.0);
+    CoreToHost::UpdateReport(UpdateReport {
+        frame_id: 42,
+        part: 0,
+        outcome: UpdateOutcome::Applied,
+        accepted: 2,
+        rejected: 1,
+        residuals,
+        prediction_error: 0.004,
+    })
+}
+
+/// A sampling report of a gap: four samples lost to a FIFO overflow.
+fn sampling_gap() -> CoreToHost {
+    CoreToHost::Sampling(SamplingReport {
+        t_us: 2_000_000,
+        event: SamplingEvent::Gap(SampleGap {
+            from_us: 1_950_000,
+            to_us: 2_000_000,
+            lost: 4,
+            cause: GapCause::FifoOverflow,
+        }),
+        samples: 200,
+        lost: 4,
+        part_resets: 0,
+        late_reads: 1,
+        drift_ppm: 120.0,
+    })
 }

@@ -397,14 +397,73 @@ mod tests {
 
     #[test]
     fn bad_fields_are_named() {
-        let imu = |gyro: [f32; 3]| {
-            HostToCore::Imu(ImuSample {
-                t_us: 1,
-                gyro,
-                accel: [0.0; 3],
-                trigger: false,
-            })
+        bad_imu_fields_are_named();
+        bad_configure_fields_are_named();
+        bad_resume_fields_are_named();
+        bad_vision_noise_is_named();
+        bad_init_fields_are_named();
+        bad_correspondence_fields_are_named();
+    }
+
+    /// An `Imu` message with the given gyro reading.
+    fn imu(gyro: [f32; 3]) -> HostToCore {
+        HostToCore::Imu(ImuSample {
+            t_us: 1,
+            gyro,
+            accel: [0.0; 3],
+            trigger: false,
+        })
+    }
+
+    /// The sample configuration, edited, validated.
+    fn configure(edit: fn(&mut Config)) -> Result<(), InvalidField> {
+        let mut c = samples::config();
+        edit(&mut c);
+        HostToCore::Configure(c).validate()
+    }
+
+    /// The sample configuration of the vision-only model, edited, validated.
+    fn vision(edit: fn(&mut Config)) -> Result<(), InvalidField> {
+        let mut c = samples::config();
+        c.model = ModelKind::Vision;
+        edit(&mut c);
+        HostToCore::Configure(c).validate()
+    }
+
+    /// The sample `Resume`, edited, validated.
+    fn resume(edit: fn(&mut crate::Resume)) -> Result<(), InvalidField> {
+        let Some((_, HostToCore::Resume(mut r))) = samples::host_messages()
+            .into_iter()
+            .find(|(_, m)| matches!(m, HostToCore::Resume(_)))
+        else {
+            panic!("a Resume sample")
         };
+        edit(&mut r);
+        HostToCore::Resume(r).validate()
+    }
+
+    /// An `Init` message, validated.
+    fn init_with(position: [f32; 3], attitude: InitAttitude) -> Result<(), InvalidField> {
+        HostToCore::Init(Init { position, attitude }).validate()
+    }
+
+    /// Part `part` of `parts` with a good correspondence and then `c`, validated.
+    fn corr(part: u8, parts: u8, c: Correspondence) -> Result<(), InvalidField> {
+        let mut items = heapless::Vec::new();
+        let _ = items.push(samples::correspondence([0.0; 2], [0.0; 3]));
+        let _ = items.push(c);
+        HostToCore::Correspondences(Correspondences {
+            frame_id: 1,
+            trigger_us: 1,
+            part,
+            parts,
+            items,
+        })
+        .validate()
+    }
+
+    /// Non-finite IMU readings.
+    fn bad_imu_fields_are_named() {
         assert_eq!(
             imu([f32::NAN, 0.0, 0.0]).validate(),
             Err(InvalidField::ImuNotFinite)
@@ -413,47 +472,18 @@ mod tests {
             imu([0.0, f32::INFINITY, 0.0]).validate(),
             Err(InvalidField::ImuNotFinite)
         );
+    }
 
-        let configure = |edit: fn(&mut Config)| {
-            let mut c = samples::config();
-            edit(&mut c);
-            HostToCore::Configure(c).validate()
-        };
+    /// Each of the configuration's fields out of range.
+    fn bad_configure_fields_are_named() {
         assert_eq!(
             configure(|c| c.noise.motion = -1.0),
             Err(InvalidField::NoiseParams)
         );
         assert_eq!(configure(|c| c.session = 0), Err(InvalidField::Session));
-        let resume = |edit: fn(&mut crate::Resume)| {
-            let Some((_, HostToCore::Resume(mut r))) = samples::host_messages()
-                .into_iter()
-                .find(|(_, m)| matches!(m, HostToCore::Resume(_)))
-            else {
-                panic!("a Resume sample")
-            };
-            edit(&mut r);
-            HostToCore::Resume(r).validate()
-        };
-        assert_eq!(resume(|_| {}), Ok(()));
-        assert_eq!(resume(|r| r.v_w[1] = f32::NAN), Err(InvalidField::Resume));
-        // Issue 55, point 10: finite but far beyond what a core could have reported.
-        for edit in [
-            (|r: &mut crate::Resume| r.omega_s[2] = -1e6) as fn(&mut crate::Resume),
-            |r| r.accel_bias[0] = 3e38,
-            |r| r.gyro_bias[1] = 101.0,
-            |r| r.s_w[0] = 3.4e38,
-            |r| r.v_w[2] = 2000.0,
-            |r| r.a_w[0] = -3000.0,
-        ] {
-            assert_eq!(resume(edit), Err(InvalidField::Resume));
-        }
         assert_eq!(
             configure(|c| c.hand_eye.c_s = [1e20, 0.0, 0.0]),
             Err(InvalidField::HandEye)
-        );
-        assert_eq!(
-            resume(|r| r.q_sw = [0.9, 0.0, 0.0, 0.0]),
-            Err(InvalidField::Resume)
         );
         assert_eq!(
             configure(|c| c.noise.gyro_meas = 0.0),
@@ -465,25 +495,6 @@ mod tests {
         );
         assert_eq!(
             configure(|c| c.noise.gyro_meas = 1e-20),
-            Err(InvalidField::NoiseParams)
-        );
-        // The vision-only model measures with neither: zero noises are fine, bad ones not.
-        let vision = |edit: fn(&mut Config)| {
-            let mut c = samples::config();
-            c.model = ModelKind::Vision;
-            edit(&mut c);
-            HostToCore::Configure(c).validate()
-        };
-        assert_eq!(
-            vision(|c| (c.noise.gyro_meas, c.noise.accel_meas) = (0.0, 0.0)),
-            Ok(())
-        );
-        assert_eq!(
-            vision(|c| c.noise.gyro_meas = f32::NAN),
-            Err(InvalidField::NoiseParams)
-        );
-        assert_eq!(
-            vision(|c| c.noise.accel_meas = -1.0),
             Err(InvalidField::NoiseParams)
         );
         assert_eq!(
@@ -519,38 +530,68 @@ mod tests {
             configure(|c| c.still_samples = 0),
             Err(InvalidField::StillSamples)
         );
+    }
 
-        let init = |position, attitude| HostToCore::Init(Init { position, attitude }).validate();
+    /// A resumed state that is not finite, beyond what a core reports, or not a rotation.
+    fn bad_resume_fields_are_named() {
+        assert_eq!(resume(|_| {}), Ok(()));
+        assert_eq!(resume(|r| r.v_w[1] = f32::NAN), Err(InvalidField::Resume));
+        // Issue 55, point 10: finite but far beyond what a core could have reported.
+        for edit in [
+            (|r: &mut crate::Resume| r.omega_s[2] = -1e6) as fn(&mut crate::Resume),
+            |r| r.accel_bias[0] = 3e38,
+            |r| r.gyro_bias[1] = 101.0,
+            |r| r.s_w[0] = 3.4e38,
+            |r| r.v_w[2] = 2000.0,
+            |r| r.a_w[0] = -3000.0,
+        ] {
+            assert_eq!(resume(edit), Err(InvalidField::Resume));
+        }
         assert_eq!(
-            init([f32::NAN, 0.0, 0.0], InitAttitude::Gravity),
+            resume(|r| r.q_sw = [0.9, 0.0, 0.0, 0.0]),
+            Err(InvalidField::Resume)
+        );
+    }
+
+    /// The vision-only model measures with neither gyro nor accelerometer: zero noises are
+    /// fine, bad ones not.
+    fn bad_vision_noise_is_named() {
+        assert_eq!(
+            vision(|c| (c.noise.gyro_meas, c.noise.accel_meas) = (0.0, 0.0)),
+            Ok(())
+        );
+        assert_eq!(
+            vision(|c| c.noise.gyro_meas = f32::NAN),
+            Err(InvalidField::NoiseParams)
+        );
+        assert_eq!(
+            vision(|c| c.noise.accel_meas = -1.0),
+            Err(InvalidField::NoiseParams)
+        );
+    }
+
+    /// An initial position that is not finite or too far, and an attitude that is not one.
+    fn bad_init_fields_are_named() {
+        assert_eq!(
+            init_with([f32::NAN, 0.0, 0.0], InitAttitude::Gravity),
             Err(InvalidField::InitPosition)
         );
         assert_eq!(
-            init([0.0, 2e5, 0.0], InitAttitude::Gravity),
+            init_with([0.0, 2e5, 0.0], InitAttitude::Gravity),
             Err(InvalidField::InitPosition)
         );
         assert_eq!(
-            init([0.0; 3], InitAttitude::Full([0.0; 4])),
+            init_with([0.0; 3], InitAttitude::Full([0.0; 4])),
             Err(InvalidField::InitAttitude)
         );
         assert_eq!(
-            init([0.0; 3], InitAttitude::GravityAndYaw(f32::INFINITY)),
+            init_with([0.0; 3], InitAttitude::GravityAndYaw(f32::INFINITY)),
             Err(InvalidField::InitAttitude)
         );
+    }
 
-        let corr = |part, parts, c: Correspondence| {
-            let mut items = heapless::Vec::new();
-            let _ = items.push(samples::correspondence([0.0; 2], [0.0; 3]));
-            let _ = items.push(c);
-            HostToCore::Correspondences(Correspondences {
-                frame_id: 1,
-                trigger_us: 1,
-                part,
-                parts,
-                items,
-            })
-            .validate()
-        };
+    /// Part numbers out of range, and a bad correspondence named by its index.
+    fn bad_correspondence_fields_are_named() {
         let ok = samples::correspondence([0.1, 0.2], [1.0, 2.0, 3.0]);
         assert_eq!(corr(0, 1, ok), Ok(()));
         assert_eq!(corr(1, 1, ok), Err(InvalidField::CorrespondencePart));

@@ -107,42 +107,9 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
         major: u16::MAX,
         minor: u16::MAX,
     };
-    let errors = [
-        ErrorCode::VersionMismatch { core: v, host: v },
-        ErrorCode::TimestampNotIncreasing {
-            last_us: u64::MAX,
-            got_us: u64::MAX,
-        },
-        ErrorCode::TimestampGap {
-            last_us: u64::MAX,
-            got_us: u64::MAX,
-        },
-        ErrorCode::TooManyCorrespondences { frame_id: u32::MAX },
-        ErrorCode::Invalid(InvalidField::CorrespondenceCovariance { index: u8::MAX }),
-    ];
-    let worst_error = errors
-        .into_iter()
-        .map(CoreToHost::error)
-        .max_by_key(|m| body_len(m).unwrap())
-        .unwrap();
     vec![
-        (
-            "HelloAck",
-            CoreToHost::HelloAck(HelloAck {
-                version: v,
-                model: Some(ModelKind::Acc),
-                capacities: Capacities {
-                    max_frame_len: u16::MAX,
-                    max_correspondences_per_message: u16::MAX,
-                    max_correspondences_per_frame: u16::MAX,
-                    delay_buffer_samples: u16::MAX,
-                    max_pending_frames: u16::MAX,
-                    scalar_bits: u8::MAX,
-                },
-                session: u32::MAX,
-            }),
-        ),
-        ("Error", worst_error),
+        ("HelloAck", worst_hello_ack(v)),
+        ("Error", worst_error(v)),
         (
             "PosePrediction",
             CoreToHost::PosePrediction(PosePrediction {
@@ -153,26 +120,7 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                 cov: [1.0; 21],
             }),
         ),
-        (
-            "State",
-            CoreToHost::State(StateReport {
-                t_us: u64::MAX,
-                s_w: [1.0; 3],
-                q_sw: [1.0; 4],
-                v_w: [1.0; 3],
-                a_w: [1.0; 3],
-                omega_s: [1.0; 3],
-                gyro_bias: [1.0; 3],
-                accel_bias: [1.0; 3],
-                health: Health {
-                    mode: Mode::Reinitialising,
-                    covariance_frobenius: 1.0,
-                    residual_lowpass: 1.0,
-                    quaternion_norm_error: 1.0,
-                },
-                cov: [1.0; 21],
-            }),
-        ),
+        ("State", worst_state()),
         (
             "UpdateReport",
             CoreToHost::UpdateReport(UpdateReport {
@@ -209,24 +157,86 @@ fn worst_core() -> Vec<(&'static str, CoreToHost)> {
                 trigger: true,
             }),
         ),
-        (
-            "Sampling",
-            CoreToHost::Sampling(SamplingReport {
-                t_us: u64::MAX,
-                event: SamplingEvent::Gap(SampleGap {
-                    from_us: u64::MAX,
-                    to_us: u64::MAX,
-                    lost: u32::MAX,
-                    cause: GapCause::Unexplained,
-                }),
-                samples: u32::MAX,
-                lost: u32::MAX,
-                part_resets: u32::MAX,
-                late_reads: u32::MAX,
-                drift_ppm: 1.0,
-            }),
-        ),
+        ("Sampling", worst_sampling()),
     ]
+}
+
+/// `HelloAck` with version `v` and every capacity at its type's maximum.
+fn worst_hello_ack(v: Version) -> CoreToHost {
+    CoreToHost::HelloAck(HelloAck {
+        version: v,
+        model: Some(ModelKind::Acc),
+        capacities: Capacities {
+            max_frame_len: u16::MAX,
+            max_correspondences_per_message: u16::MAX,
+            max_correspondences_per_frame: u16::MAX,
+            delay_buffer_samples: u16::MAX,
+            max_pending_frames: u16::MAX,
+            scalar_bits: u8::MAX,
+        },
+        session: u32::MAX,
+    })
+}
+
+/// The longest `Error`: whichever of the codes with the largest payloads encodes longest.
+fn worst_error(v: Version) -> CoreToHost {
+    let errors = [
+        ErrorCode::VersionMismatch { core: v, host: v },
+        ErrorCode::TimestampNotIncreasing {
+            last_us: u64::MAX,
+            got_us: u64::MAX,
+        },
+        ErrorCode::TimestampGap {
+            last_us: u64::MAX,
+            got_us: u64::MAX,
+        },
+        ErrorCode::TooManyCorrespondences { frame_id: u32::MAX },
+        ErrorCode::Invalid(InvalidField::CorrespondenceCovariance { index: u8::MAX }),
+    ];
+    errors
+        .into_iter()
+        .map(CoreToHost::error)
+        .max_by_key(|m| body_len(m).unwrap())
+        .unwrap()
+}
+
+/// `State` with the longest time stamp (floats encode at a fixed size).
+fn worst_state() -> CoreToHost {
+    CoreToHost::State(StateReport {
+        t_us: u64::MAX,
+        s_w: [1.0; 3],
+        q_sw: [1.0; 4],
+        v_w: [1.0; 3],
+        a_w: [1.0; 3],
+        omega_s: [1.0; 3],
+        gyro_bias: [1.0; 3],
+        accel_bias: [1.0; 3],
+        health: Health {
+            mode: Mode::Reinitialising,
+            covariance_frobenius: 1.0,
+            residual_lowpass: 1.0,
+            quaternion_norm_error: 1.0,
+        },
+        cov: [1.0; 21],
+    })
+}
+
+/// A `Sampling` report of a gap (the only event with a payload), every counter at its maximum.
+fn worst_sampling() -> CoreToHost {
+    CoreToHost::Sampling(SamplingReport {
+        t_us: u64::MAX,
+        event: SamplingEvent::Gap(SampleGap {
+            from_us: u64::MAX,
+            to_us: u64::MAX,
+            lost: u32::MAX,
+            cause: GapCause::Unexplained,
+        }),
+        samples: u32::MAX,
+        lost: u32::MAX,
+        part_resets: u32::MAX,
+        late_reads: u32::MAX,
+        drift_ppm: 1.0,
+    })
 }
 
 fn frame_len<T: serde::Serialize>(m: &T) -> usize {

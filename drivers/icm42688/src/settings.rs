@@ -422,24 +422,24 @@ impl Settings {
     /// settings.
     pub fn register_writes(&self) -> heapless::Vec<RegisterWrite, MAX_REGISTER_WRITES> {
         let mut writes = heapless::Vec::new();
-        let mut push = |bank: u8, address: u8, value: u8| {
-            // The longest sequence is 26 writes, below the capacity of 32 (a test walks every
-            // setting combination): the push cannot fail.
-            let mask = owned_bits(bank, address);
-            let _ = writes.push(RegisterWrite {
-                bank,
-                address,
-                value: value & mask,
-                mask,
-            });
-        };
+        self.push_interface_and_int1(&mut writes);
+        self.push_rates_and_ui_filters(&mut writes);
+        self.push_time_stamps_and_fifo(&mut writes);
+        self.push_bank1(&mut writes);
+        self.push_bank2(&mut writes);
+        self.push_clock_and_power(&mut writes);
+        writes
+    }
+
+    /// Bank 0: the serial interface, and INT1's electrical behaviour.
+    fn push_interface_and_int1(&self, writes: &mut Writes) {
         let b0 = bank::BANK0;
         let fast = matches!(self.odr, Odr::Hz8000 | Odr::Hz4000);
-
         // FIFO count in records, big-endian count and data, I²C off: SPI only, so a glitch
         // cannot switch the interface. FIFO_HOLD_LAST_DATA_EN stays 0 so that invalid samples
         // read −32768 and can be told apart.
         push(
+            writes,
             b0,
             reg::INTF_CONFIG0,
             reg::INTF_CONFIG0_FIFO_COUNT_REC
@@ -450,16 +450,18 @@ impl Settings {
         // INT1: pulsed, push-pull, active high = 0x03. (The brief's 0x02 sets only
         // INT1_DRIVE_CIRCUIT, which leaves INT1_POLARITY = 0: active low.)
         push(
+            writes,
             b0,
             reg::INT_CONFIG,
             reg::INT_CONFIG_INT1_PUSH_PULL | reg::INT_CONFIG_INT1_ACTIVE_HIGH,
         );
         // Every status clears when INT_STATUS is read (the reset value, written so that the
         // check covers it): read_fifo reads INT_STATUS on every call.
-        push(b0, reg::INT_CONFIG0, 0x00);
+        push(writes, b0, reg::INT_CONFIG0, 0x00);
         // INT_ASYNC_RESET must be 0 for the INT pins to work; at ≥ 4 kHz the 100 µs pulse and
         // de-assertion times do not fit a period, so 8 µs pulses and no de-assertion minimum.
         push(
+            writes,
             b0,
             reg::INT_CONFIG1,
             if fast {
@@ -468,13 +470,20 @@ impl Settings {
                 0x00
             },
         );
+    }
+
+    /// Bank 0: both sensors' range and rate, and their UI filters.
+    fn push_rates_and_ui_filters(&self, writes: &mut Writes) {
+        let b0 = bank::BANK0;
         let odr = self.odr.code();
         push(
+            writes,
             b0,
             reg::GYRO_CONFIG0,
             (self.gyro_range.code() << reg::FS_SEL_SHIFT) | odr,
         );
         push(
+            writes,
             b0,
             reg::ACCEL_CONFIG0,
             (self.accel_range.code() << reg::FS_SEL_SHIFT) | odr,
@@ -483,20 +492,28 @@ impl Settings {
         // anti-alias filters do the band limiting. Other bits keep their reset values
         // (GYRO_CONFIG1 0x16, ACCEL_CONFIG1 0x0D).
         push(
+            writes,
             b0,
             reg::GYRO_CONFIG1,
             reg::reset_value(b0, reg::GYRO_CONFIG1) & !reg::GYRO_CONFIG1_UI_FILT_ORD_MASK,
         );
-        push(b0, reg::GYRO_ACCEL_CONFIG0, 0x00);
+        push(writes, b0, reg::GYRO_ACCEL_CONFIG0, 0x00);
         push(
+            writes,
             b0,
             reg::ACCEL_CONFIG1,
             reg::reset_value(b0, reg::ACCEL_CONFIG1) & !reg::ACCEL_CONFIG1_UI_FILT_ORD_MASK,
         );
+    }
+
+    /// Bank 0: time stamps, the FIFO's packets, watermark and mode, and what drives INT1.
+    fn push_time_stamps_and_fifo(&self, writes: &mut Writes) {
+        let b0 = bank::BANK0;
         // Absolute time stamps (TMST_DELTA_EN = 0) at 1 µs resolution (TMST_RES = 0); FSYNC
         // stamping off (it resets on) so every packet carries the ODR time stamp. Reserved bit
         // 5 keeps its reset value (TMST_CONFIG resets to 0x23).
         push(
+            writes,
             b0,
             reg::TMST_CONFIG,
             (reg::reset_value(b0, reg::TMST_CONFIG)
@@ -504,11 +521,12 @@ impl Settings {
                 | reg::TMST_CONFIG_EN,
         );
         // No FSYNC tagging of sensor data (it resets to tagging TEMP_OUT's LSB).
-        push(b0, reg::FSYNC_CONFIG, 0x00);
+        push(writes, b0, reg::FSYNC_CONFIG, 0x00);
         // Packet 3: accel + gyro + temperature + time stamp, 16 bytes. Partial reads resume
         // (read_fifo may leave packets for the next call); the watermark interrupt repeats on
         // every sample while count ≥ watermark.
         push(
+            writes,
             b0,
             reg::FIFO_CONFIG1,
             reg::FIFO_CONFIG1_RESUME_PARTIAL_RD
@@ -519,15 +537,21 @@ impl Settings {
         );
         // Watermark in records (FIFO_COUNT_REC = 1), 12 bits.
         let [wm_high, wm_low] = self.watermark.to_be_bytes();
-        push(b0, reg::FIFO_CONFIG2, wm_low);
-        push(b0, reg::FIFO_CONFIG3, wm_high & 0x0F);
+        push(writes, b0, reg::FIFO_CONFIG2, wm_low);
+        push(writes, b0, reg::FIFO_CONFIG3, wm_high & 0x0F);
         // Stop-on-full, as PX4, ArduPilot and `icm426xx` use: a full FIFO keeps what it has,
         // so a read never meets packets overwritten under it; the time stamps count what the
         // part dropped meanwhile.
-        push(b0, reg::FIFO_CONFIG, reg::FIFO_CONFIG_MODE_STOP_ON_FULL);
+        push(
+            writes,
+            b0,
+            reg::FIFO_CONFIG,
+            reg::FIFO_CONFIG_MODE_STOP_ON_FULL,
+        );
         // Clearing RESET_DONE_INT1_EN (it resets to 1) also makes INT_SOURCE0 a register that
         // a reset visibly changes.
         push(
+            writes,
             b0,
             reg::INT_SOURCE0,
             match self.interrupt {
@@ -535,12 +559,16 @@ impl Settings {
                 Interrupt::Watermark => reg::INT_SOURCE0_FIFO_THS_INT1_EN,
             },
         );
+    }
 
-        // Bank 1: gyro anti-alias filter on; notch filter off (its centre frequency is not
-        // configured here, so it is not left in the signal path). Reserved bits 7:2 keep their
-        // reset value (0xA0).
+    /// Bank 1: the gyro's anti-alias filter, and pin 9 as CLKIN when the clock is external.
+    fn push_bank1(&self, writes: &mut Writes) {
+        // Gyro anti-alias filter on; notch filter off (its centre frequency is not configured
+        // here, so it is not left in the signal path). Reserved bits 7:2 keep their reset
+        // value (0xA0).
         let b1 = bank::BANK1;
         push(
+            writes,
             b1,
             reg::GYRO_CONFIG_STATIC2,
             (reg::reset_value(b1, reg::GYRO_CONFIG_STATIC2) & !reg::GYRO_CONFIG_STATIC2_AAF_DIS)
@@ -548,30 +576,38 @@ impl Settings {
         );
         let (_, delt, deltsqr, bitshift) = self.gyro_aaf.coefficients();
         let [sqr_high, sqr_low] = deltsqr.to_be_bytes();
-        push(b1, reg::GYRO_CONFIG_STATIC3, delt & 0x3F);
-        push(b1, reg::GYRO_CONFIG_STATIC4, sqr_low);
+        push(writes, b1, reg::GYRO_CONFIG_STATIC3, delt & 0x3F);
+        push(writes, b1, reg::GYRO_CONFIG_STATIC4, sqr_low);
         push(
+            writes,
             b1,
             reg::GYRO_CONFIG_STATIC5,
             (bitshift << 4) | (sqr_high & 0x0F),
         );
         if let ClockSource::Clkin { .. } = self.clock {
             // PIN9_FUNCTION only (`owned_bits`).
-            push(b1, reg::INTF_CONFIG5, reg::INTF_CONFIG5_PIN9_CLKIN);
+            push(writes, b1, reg::INTF_CONFIG5, reg::INTF_CONFIG5_PIN9_CLKIN);
         }
+    }
 
-        // Bank 2: accelerometer anti-alias filter on (ACCEL_AAF_DIS = 0).
+    /// Bank 2: the accelerometer's anti-alias filter, on (ACCEL_AAF_DIS = 0).
+    fn push_bank2(&self, writes: &mut Writes) {
         let b2 = bank::BANK2;
         let (_, delt, deltsqr, bitshift) = self.accel_aaf.coefficients();
         let [sqr_high, sqr_low] = deltsqr.to_be_bytes();
-        push(b2, reg::ACCEL_CONFIG_STATIC2, (delt & 0x3F) << 1);
-        push(b2, reg::ACCEL_CONFIG_STATIC3, sqr_low);
+        push(writes, b2, reg::ACCEL_CONFIG_STATIC2, (delt & 0x3F) << 1);
+        push(writes, b2, reg::ACCEL_CONFIG_STATIC3, sqr_low);
         push(
+            writes,
             b2,
             reg::ACCEL_CONFIG_STATIC4,
             (bitshift << 4) | (sqr_high & 0x0F),
         );
+    }
 
+    /// Back in bank 0: the clock source, then PWR_MGMT0, which starts the sensors (last).
+    fn push_clock_and_power(&self, writes: &mut Writes) {
+        let b0 = bank::BANK0;
         // Clock: PLL (the reset CLKSEL, with the reserved bits of the reset value 0x91); with
         // CLKIN, RTC_MODE once pin 9 has become CLKIN. AFSR off: the reset value has it on.
         let rtc = match self.clock {
@@ -579,6 +615,7 @@ impl Settings {
             ClockSource::Clkin { .. } => reg::INTF_CONFIG1_RTC_MODE,
         };
         push(
+            writes,
             b0,
             reg::INTF_CONFIG1,
             (reg::reset_value(b0, reg::INTF_CONFIG1) & !reg::INTF_CONFIG1_AFSR_MASK)
@@ -587,10 +624,26 @@ impl Settings {
         );
         // Last: gyro and accelerometer in low-noise mode, temperature sensor on.
         push(
+            writes,
             b0,
             reg::PWR_MGMT0,
             reg::PWR_MGMT0_GYRO_LN | reg::PWR_MGMT0_ACCEL_LN,
         );
-        writes
     }
+}
+
+/// The configuration sequence being built ([`Settings::register_writes`]).
+type Writes = heapless::Vec<RegisterWrite, MAX_REGISTER_WRITES>;
+
+/// Appends one write, its value limited to the bits the configuration owns ([`owned_bits`]).
+fn push(writes: &mut Writes, bank: u8, address: u8, value: u8) {
+    // The longest sequence is 26 writes, below the capacity of 32 (a test walks every
+    // setting combination): the push cannot fail.
+    let mask = owned_bits(bank, address);
+    let _ = writes.push(RegisterWrite {
+        bank,
+        address,
+        value: value & mask,
+        mask,
+    });
 }

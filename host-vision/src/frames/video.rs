@@ -81,6 +81,81 @@ pub(crate) fn is_pipe(path: &Path) -> bool {
     }) && !is_v4l2_device(path)
 }
 
+/// The ffmpeg command that decodes `path` into grey frames on its stdout, with each frame's
+/// time stamp in its `showinfo` lines on stderr.
+fn ffmpeg_command(path: &Path, options: &VideoOptions) -> Command {
+    let mut cmd = Command::new(&options.ffmpeg);
+    cmd.args([
+        "-hide_banner",
+        "-nostdin",
+        "-nostats",
+        "-loglevel",
+        "level+info",
+    ]);
+    if is_v4l2_device(path) {
+        cmd.args(["-f", "v4l2"]);
+    }
+    if is_pipe(path) {
+        // A live stream is not probed for seconds (5 s of an mpegts feed by default, which
+        // the run would then stay behind): the first packets say what it holds.
+        cmd.args(["-probesize", "32768", "-analyzeduration", "0"]);
+    }
+    cmd.arg("-copyts")
+        .arg("-i")
+        .arg(path)
+        .args([
+            "-map",
+            "0:v:0",
+            "-vf",
+            "format=gray,showinfo",
+            "-fps_mode",
+            "passthrough",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "gray",
+            "pipe:1",
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    cmd
+}
+
+/// Drains ffmpeg's `stderr` on a thread of its own, so that ffmpeg never blocks on it while
+/// the frames wait in the stdout pipe: the frames' `showinfo` events go to the receiver, and
+/// the thread returns ffmpeg's error lines.
+fn drain_stderr(
+    stderr: std::process::ChildStderr,
+) -> (Receiver<Line>, std::io::Result<JoinHandle<Vec<String>>>) {
+    let (tx, events) = channel();
+    let reader = std::thread::Builder::new()
+        .name("ffmpeg-stderr".into())
+        .spawn(move || {
+            let mut errors = Vec::new();
+            let mut lines = BufReader::new(stderr);
+            let mut buf = Vec::new();
+            while matches!(lines.read_until(b'\n', &mut buf), Ok(n) if n > 0) {
+                let line = String::from_utf8_lossy(&buf);
+                match showinfo::parse(&line) {
+                    Line::Error(e) => {
+                        if !e.is_empty() && !errors.contains(&e) {
+                            errors.push(e);
+                        }
+                    }
+                    Line::Other => {}
+                    // The receiver gone means the source was dropped: keep draining.
+                    event => {
+                        let _ = tx.send(event);
+                    }
+                }
+                buf.clear();
+            }
+            errors
+        });
+    (events, reader)
+}
+
 impl VideoFrames {
     /// Starts ffmpeg on `path`. A missing file or program is an error here; ffmpeg's own
     /// refusal (an unreadable file) comes with the first frame asked for.
@@ -96,41 +171,7 @@ impl VideoFrames {
                 what: "is a folder, not a video (image folders are --images)".into(),
             });
         }
-        let mut cmd = Command::new(&options.ffmpeg);
-        cmd.args([
-            "-hide_banner",
-            "-nostdin",
-            "-nostats",
-            "-loglevel",
-            "level+info",
-        ]);
-        if is_v4l2_device(path) {
-            cmd.args(["-f", "v4l2"]);
-        }
-        if is_pipe(path) {
-            // A live stream is not probed for seconds (5 s of an mpegts feed by default, which
-            // the run would then stay behind): the first packets say what it holds.
-            cmd.args(["-probesize", "32768", "-analyzeduration", "0"]);
-        }
-        cmd.arg("-copyts")
-            .arg("-i")
-            .arg(path)
-            .args([
-                "-map",
-                "0:v:0",
-                "-vf",
-                "format=gray,showinfo",
-                "-fps_mode",
-                "passthrough",
-                "-f",
-                "rawvideo",
-                "-pix_fmt",
-                "gray",
-                "pipe:1",
-            ])
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped());
+        let mut cmd = ffmpeg_command(path, options);
         let mut child = cmd.spawn().map_err(|source| {
             if source.kind() == std::io::ErrorKind::NotFound {
                 FrameError::FfmpegMissing {
@@ -151,33 +192,7 @@ impl VideoFrames {
                 source: std::io::Error::other("no pipes to ffmpeg"),
             });
         };
-        let (tx, events) = channel();
-        // stderr is drained all the time, so ffmpeg never blocks on it while the frames wait
-        // in the stdout pipe.
-        let reader = std::thread::Builder::new()
-            .name("ffmpeg-stderr".into())
-            .spawn(move || {
-                let mut errors = Vec::new();
-                let mut lines = BufReader::new(stderr);
-                let mut buf = Vec::new();
-                while matches!(lines.read_until(b'\n', &mut buf), Ok(n) if n > 0) {
-                    let line = String::from_utf8_lossy(&buf);
-                    match showinfo::parse(&line) {
-                        Line::Error(e) => {
-                            if !e.is_empty() && !errors.contains(&e) {
-                                errors.push(e);
-                            }
-                        }
-                        Line::Other => {}
-                        // The receiver gone means the source was dropped: keep draining.
-                        event => {
-                            let _ = tx.send(event);
-                        }
-                    }
-                    buf.clear();
-                }
-                errors
-            });
+        let (events, reader) = drain_stderr(stderr);
         let reader = match reader {
             Ok(r) => r,
             Err(source) => {

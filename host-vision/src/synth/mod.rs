@@ -350,6 +350,74 @@ pub fn remove_written(out: &Path) -> Result<(), SynthError> {
     Ok(())
 }
 
+/// Writes `manifest.json`: the IMU's settings (firmware-sim's part), the camera, the
+/// rendering, the scene and the figures of the frames (`report`). Written last: a dataset
+/// is complete once it is there.
+fn write_manifest(
+    options: &SynthOptions,
+    scenario: &Scenario,
+    imu: &euroc::ImuDataset,
+    synth: &FrameSynth,
+    report: &SynthReport,
+) -> Result<(), SynthError> {
+    let mut manifest = euroc::manifest(scenario, options.seed, imu);
+    let fo = &options.frames;
+    let cam = synth.camera();
+    let names = |q: &[firmware_sim::sim::scenario::Quad]| -> Vec<String> {
+        q.iter().map(|q| q.name.clone()).collect()
+    };
+    manifest["generator"] = serde_json::json!(generator());
+    manifest["camera"] = serde_json::json!({
+        "resolution": [cam.width, cam.height],
+        "intrinsics": [cam.pinhole.fx, cam.pinhole.fy, cam.pinhole.cx, cam.pinhole.cy],
+        "distortion_model": "radial-tangential",
+        "distortion_coefficients": scenario.camera.distortion,
+        "every_nth_imu_sample": scenario.camera.every,
+        "rate_hz": scenario.imu.rate_hz / scenario.camera.every as f64,
+        "exposure_s": scenario.camera.exposure,
+        "exposure_note": "centred on the time stamp; motion blur from sub-frames at the mid-points of equal slots",
+        "frames": report.frames,
+    });
+    manifest["rendering"] = serde_json::json!({
+        "supersample": fo.supersample,
+        "subframes": [fo.subframes, fo.max_subframes.max(fo.subframes)],
+        "subframes_note": "per frame about one sub-frame per pixel of image motion, within these bounds",
+        "lighting": fo.lighting,
+        "read_noise": fo.read_noise,
+        "shot_noise_variance_per_level": fo.shot_noise,
+        "render_size": synth.render_size(),
+        "texture_scale": options.textures.scale,
+        "user_textures": options.textures.user_images,
+        "untextured": options.textures.untextured,
+        "object": options.object,
+        "shading": fo.shading.map(|s| serde_json::json!({
+            "ambient": s.ambient, "diffuse": s.diffuse, "specular": s.specular,
+            "shininess": s.shininess, "elevation_rad": s.elevation,
+            "azimuth_rad": s.azimuth.0, "azimuth_rad_per_s": s.azimuth.1,
+            "dimming": s.dimming.0, "dimming_period_s": s.dimming.1,
+        })),
+        "adapter": report.adapter,
+    });
+    manifest["scene"] = serde_json::json!({
+        "model": "model/scene.obj",
+        "modelled": names(&scenario.scene.modelled),
+        "unmodelled": names(&scenario.scene.unmodelled),
+        "occluders": scenario.scene.occluders.iter().map(|o| serde_json::json!({
+            "name": o.quad.name, "start_s": o.start, "duration_s": o.duration,
+            "from": [o.from.x, o.from.y, o.from.z], "to": [o.to.x, o.to.y, o.to.z],
+        })).collect::<Vec<_>>(),
+        "note": "textures are fixed per scenario (independent of the seed); unmodelled surfaces and occluders appear only in the live frames",
+    });
+    manifest["statistics"] = serde_json::json!({
+        "model_visible_share_10pct": report.model_visible,
+        "model_any_share": report.model_any,
+        "occluded_share": report.occluded,
+        "generation_seconds": report.seconds,
+    });
+    euroc::write_json(&options.out.join("manifest.json"), &manifest)?;
+    Ok(())
+}
+
 /// Generates a complete dataset; `progress(done, total)` is called after every frame.
 pub fn run(
     options: &SynthOptions,
@@ -443,61 +511,7 @@ pub fn run(
         seconds: start.elapsed().as_secs_f64(),
         adapter: synth.adapter_summary(),
     };
-    let mut manifest = euroc::manifest(&scenario, options.seed, &imu);
-    let fo = &options.frames;
-    let cam = synth.camera();
-    let names = |q: &[firmware_sim::sim::scenario::Quad]| -> Vec<String> {
-        q.iter().map(|q| q.name.clone()).collect()
-    };
-    manifest["generator"] = serde_json::json!(generator());
-    manifest["camera"] = serde_json::json!({
-        "resolution": [cam.width, cam.height],
-        "intrinsics": [cam.pinhole.fx, cam.pinhole.fy, cam.pinhole.cx, cam.pinhole.cy],
-        "distortion_model": "radial-tangential",
-        "distortion_coefficients": scenario.camera.distortion,
-        "every_nth_imu_sample": scenario.camera.every,
-        "rate_hz": scenario.imu.rate_hz / scenario.camera.every as f64,
-        "exposure_s": scenario.camera.exposure,
-        "exposure_note": "centred on the time stamp; motion blur from sub-frames at the mid-points of equal slots",
-        "frames": indices.len(),
-    });
-    manifest["rendering"] = serde_json::json!({
-        "supersample": fo.supersample,
-        "subframes": [fo.subframes, fo.max_subframes.max(fo.subframes)],
-        "subframes_note": "per frame about one sub-frame per pixel of image motion, within these bounds",
-        "lighting": fo.lighting,
-        "read_noise": fo.read_noise,
-        "shot_noise_variance_per_level": fo.shot_noise,
-        "render_size": synth.render_size(),
-        "texture_scale": options.textures.scale,
-        "user_textures": options.textures.user_images,
-        "untextured": options.textures.untextured,
-        "object": options.object,
-        "shading": fo.shading.map(|s| serde_json::json!({
-            "ambient": s.ambient, "diffuse": s.diffuse, "specular": s.specular,
-            "shininess": s.shininess, "elevation_rad": s.elevation,
-            "azimuth_rad": s.azimuth.0, "azimuth_rad_per_s": s.azimuth.1,
-            "dimming": s.dimming.0, "dimming_period_s": s.dimming.1,
-        })),
-        "adapter": report.adapter,
-    });
-    manifest["scene"] = serde_json::json!({
-        "model": "model/scene.obj",
-        "modelled": names(&scenario.scene.modelled),
-        "unmodelled": names(&scenario.scene.unmodelled),
-        "occluders": scenario.scene.occluders.iter().map(|o| serde_json::json!({
-            "name": o.quad.name, "start_s": o.start, "duration_s": o.duration,
-            "from": [o.from.x, o.from.y, o.from.z], "to": [o.to.x, o.to.y, o.to.z],
-        })).collect::<Vec<_>>(),
-        "note": "textures are fixed per scenario (independent of the seed); unmodelled surfaces and occluders appear only in the live frames",
-    });
-    manifest["statistics"] = serde_json::json!({
-        "model_visible_share_10pct": report.model_visible,
-        "model_any_share": report.model_any,
-        "occluded_share": report.occluded,
-        "generation_seconds": report.seconds,
-    });
-    euroc::write_json(&out.join("manifest.json"), &manifest)?;
+    write_manifest(options, &scenario, &imu, &synth, &report)?;
     let mark = out.join(UNFINISHED);
     std::fs::remove_file(&mark).map_err(|e| SynthError::io(&mark, e))?;
     Ok(report)

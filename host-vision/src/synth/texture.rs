@@ -238,6 +238,113 @@ pub fn texture_size(size: (f64, f64), texels_per_metre: f64, max_side: u32) -> (
     (side(size.0), side(size.1))
 }
 
+/// A plastered wall with `posters` on it, `width × height` texels for `size` metres.
+fn wall(
+    seed: u64,
+    rng: &mut Stream,
+    posters: u32,
+    size: (f64, f64),
+    (width, height): (u32, u32),
+) -> RgbaImage {
+    let tpm = width as f64 / size.0.max(1e-6);
+    let m = |metres: f64| metres * tpm;
+    let (w, h) = (width as f64, height as f64);
+    let area = size.0 * size.1;
+    let full = (0.0, 0.0, w, h);
+    let mut c = Canvas::new(width, height, [196.0, 190.0, 178.0]);
+    c.fbm(seed ^ 2, m(1.5), m(0.004), 10.0, [1.0, 1.0, 1.0]);
+    // Specks and scuffs on the plaster.
+    let specks = (area * 40.0) as usize;
+    c.dead_leaves(
+        rng,
+        full,
+        specks,
+        m(0.004),
+        m(0.03),
+        &grey_palette(120.0, 170.0, 10.0),
+    );
+    let placed = place_posters(rng, posters, size, (w, h), tpm);
+    for &r in &placed {
+        poster(&mut c, rng, r, tpm);
+    }
+    c.into_image()
+}
+
+/// Where the posters go: 0.35–1.2 m wide at 0.8–2.0 m above the bottom (or anywhere on short
+/// surfaces), a few attempts each to avoid overlaps.
+fn place_posters(
+    rng: &mut Stream,
+    posters: u32,
+    size: (f64, f64),
+    (w, h): (f64, f64),
+    tpm: f64,
+) -> Vec<(f64, f64, f64, f64)> {
+    let m = |metres: f64| metres * tpm;
+    let mut placed: Vec<(f64, f64, f64, f64)> = Vec::new();
+    for _ in 0..posters {
+        // Posters 0.35–1.2 m wide at 0.8–2.0 m above the bottom (or anywhere on
+        // short surfaces); a few attempts to avoid overlaps.
+        for _attempt in 0..20 {
+            let pw = m(rng.range(0.35, 1.2).min(size.0 * 0.4));
+            let ph = pw * rng.range(0.6, 1.5);
+            let x0 = rng.range(0.0, (w - pw).max(0.0));
+            let y0 = rng.range(0.05 * h, (h - ph).max(0.05 * h + 1.0).min(0.95 * h));
+            let r = (x0, y0, x0 + pw, (y0 + ph).min(h));
+            let overlaps = placed
+                .iter()
+                .any(|p| r.0 < p.2 && p.0 < r.2 && r.1 < p.3 && p.1 < r.3);
+            if !overlaps {
+                placed.push(r);
+                break;
+            }
+        }
+    }
+    placed
+}
+
+/// A poster in the rectangle `r` [texels]: paper, a picture and a caption.
+fn poster(c: &mut Canvas, rng: &mut Stream, r: (f64, f64, f64, f64), tpm: f64) {
+    let m = |metres: f64| metres * tpm;
+    let paper = grey_palette(200.0, 250.0, 15.0)(rng);
+    c.paint(
+        (r.0 - 1.0, r.1 - 1.0, r.2 + 1.0, r.3 + 1.0),
+        paper,
+        1.0,
+        |x, y| {
+            let (u, v) = (
+                (x - (r.0 + r.2) / 2.0).abs() - (r.2 - r.0) / 2.0,
+                (y - (r.1 + r.3) / 2.0).abs() - (r.3 - r.1) / 2.0,
+            );
+            u.max(v)
+        },
+    );
+    let border = (r.2 - r.0) * 0.06;
+    let pic = (
+        r.0 + border,
+        r.1 + border,
+        r.2 - border,
+        r.1 + (r.3 - r.1) * 0.62,
+    );
+    let pic_area = (pic.2 - pic.0) * (pic.3 - pic.1) / (tpm * tpm);
+    let n = (pic_area * 3000.0) as usize + 50;
+    let inner = (
+        pic.0 + m(0.01),
+        pic.1 + m(0.01),
+        pic.2 - m(0.01),
+        pic.3 - m(0.01),
+    );
+    c.dead_leaves(
+        rng,
+        inner,
+        n,
+        m(0.006),
+        m(0.12),
+        &grey_palette(15.0, 240.0, 60.0),
+    );
+    let text = (pic.0, pic.3 + border * 0.5, pic.2, r.3 - border * 0.5);
+    c.text(rng, text, m(0.018).max(2.0));
+}
+
 /// Generates the texture of a `surface` of `size` metres, `width × height` texels.
 pub fn generate(
     surface: Surface,
@@ -267,80 +374,7 @@ pub fn generate(
             c.fbm(seed ^ 1, m(0.1), m(0.003), 18.0, [1.0, 1.0, 1.0]);
             c.into_image()
         }
-        Surface::Wall { posters } => {
-            let mut c = Canvas::new(width, height, [196.0, 190.0, 178.0]);
-            c.fbm(seed ^ 2, m(1.5), m(0.004), 10.0, [1.0, 1.0, 1.0]);
-            // Specks and scuffs on the plaster.
-            let specks = (area * 40.0) as usize;
-            c.dead_leaves(
-                &mut rng,
-                full,
-                specks,
-                m(0.004),
-                m(0.03),
-                &grey_palette(120.0, 170.0, 10.0),
-            );
-            let mut placed: Vec<(f64, f64, f64, f64)> = Vec::new();
-            for _ in 0..posters {
-                // Posters 0.35–1.2 m wide at 0.8–2.0 m above the bottom (or anywhere on
-                // short surfaces); a few attempts to avoid overlaps.
-                for _attempt in 0..20 {
-                    let pw = m(rng.range(0.35, 1.2).min(size.0 * 0.4));
-                    let ph = pw * rng.range(0.6, 1.5);
-                    let x0 = rng.range(0.0, (w - pw).max(0.0));
-                    let y0 = rng.range(0.05 * h, (h - ph).max(0.05 * h + 1.0).min(0.95 * h));
-                    let r = (x0, y0, x0 + pw, (y0 + ph).min(h));
-                    let overlaps = placed
-                        .iter()
-                        .any(|p| r.0 < p.2 && p.0 < r.2 && r.1 < p.3 && p.1 < r.3);
-                    if !overlaps {
-                        placed.push(r);
-                        break;
-                    }
-                }
-            }
-            for &r in &placed {
-                let paper = grey_palette(200.0, 250.0, 15.0)(&mut rng);
-                c.paint(
-                    (r.0 - 1.0, r.1 - 1.0, r.2 + 1.0, r.3 + 1.0),
-                    paper,
-                    1.0,
-                    |x, y| {
-                        let (u, v) = (
-                            (x - (r.0 + r.2) / 2.0).abs() - (r.2 - r.0) / 2.0,
-                            (y - (r.1 + r.3) / 2.0).abs() - (r.3 - r.1) / 2.0,
-                        );
-                        u.max(v)
-                    },
-                );
-                let border = (r.2 - r.0) * 0.06;
-                let pic = (
-                    r.0 + border,
-                    r.1 + border,
-                    r.2 - border,
-                    r.1 + (r.3 - r.1) * 0.62,
-                );
-                let pic_area = (pic.2 - pic.0) * (pic.3 - pic.1) / (tpm * tpm);
-                let n = (pic_area * 3000.0) as usize + 50;
-                let inner = (
-                    pic.0 + m(0.01),
-                    pic.1 + m(0.01),
-                    pic.2 - m(0.01),
-                    pic.3 - m(0.01),
-                );
-                c.dead_leaves(
-                    &mut rng,
-                    inner,
-                    n,
-                    m(0.006),
-                    m(0.12),
-                    &grey_palette(15.0, 240.0, 60.0),
-                );
-                let text = (pic.0, pic.3 + border * 0.5, pic.2, r.3 - border * 0.5);
-                c.text(&mut rng, text, m(0.018).max(2.0));
-            }
-            c.into_image()
-        }
+        Surface::Wall { posters } => wall(seed, &mut rng, posters, size, (width, height)),
         Surface::Floor => {
             let mut c = Canvas::new(width, height, [120.0, 108.0, 95.0]);
             c.fbm(seed ^ 3, m(2.0), m(0.003), 22.0, [1.0, 0.95, 0.9]);
