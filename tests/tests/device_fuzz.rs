@@ -2,10 +2,13 @@
 //! and random messages of every kind with arbitrary field values (random postcard bodies that
 //! happen to decode), then random bytes through the framed byte interface.
 
+use std::cell::Cell;
+
+use fusion_core::device::MAX_TIME_UPDATES_PER_MESSAGE;
 use fusion_core::{Device, DeviceIo, Kernels};
 use proptest::test_runner::TestCaseError;
 use protocol::{CoreToHost, HostToCore, Mode, ModelKind};
-use tests::harness::{Driver, scenes};
+use tests::harness::{Driver, Scenario, scenes};
 
 /// Small deterministic generator (xorshift64*).
 struct Rng(u64);
@@ -176,6 +179,133 @@ fn as_points_and_contours(
     (points, contours)
 }
 
+/// The most time updates one message ran, all of them, messages sent, correspondences
+/// applied.
+type Tally = Cell<(u32, u64, u64, u64)>;
+
+/// The clock message of `model` at `t_us`: an IMU sample where the model has an IMU, a tick
+/// otherwise.
+fn clock(model: ModelKind, t_us: u64, trigger: bool) -> HostToCore {
+    if model.has_imu() {
+        HostToCore::Imu(protocol::ImuSample {
+            t_us,
+            gyro: [0.01, -0.02, 0.0],
+            accel: [0.1, 0.0, 9.81],
+            trigger,
+        })
+    } else {
+        HostToCore::Tick(protocol::Tick { t_us, trigger })
+    }
+}
+
+/// A `Resume` at `t_us` from the scenario's initial position, moving slowly.
+fn resume(sc: &Scenario, t_us: u64) -> HostToCore {
+    HostToCore::Resume(protocol::Resume {
+        t_us,
+        s_w: sc.init.position,
+        q_sw: [1.0, 0.0, 0.0, 0.0],
+        v_w: [0.1, 0.0, 0.0],
+        a_w: [0.0; 3],
+        omega_s: [0.0; 3],
+        gyro_bias: [0.0; 3],
+        accel_bias: [0.0; 3],
+    })
+}
+
+/// The messages that `op` sends, given the time of the last sample sent (`last`, moved on
+/// where the op sets it) and the predictions received so far.
+fn messages(
+    op: &Op,
+    model: ModelKind,
+    sc: &Scenario,
+    last: &mut u64,
+    predictions: &[protocol::PosePrediction],
+) -> Result<Vec<HostToCore>, String> {
+    Ok(match *op {
+        Op::After { dt_us, trigger } => {
+            *last = last.saturating_add(dt_us);
+            vec![clock(model, *last, trigger)]
+        }
+        Op::At { t_us, trigger } => {
+            *last = t_us;
+            vec![clock(model, t_us, trigger)]
+        }
+        Op::Resume(t_us) | Op::ResumeAfter(t_us) => {
+            // A host that resumes at any time goes on from there; one resumed after
+            // its last sample goes on before the resumed time.
+            let t_us = match op {
+                Op::ResumeAfter(_) => last.saturating_add(t_us),
+                _ => {
+                    *last = t_us;
+                    t_us
+                }
+            };
+            vec![resume(sc, t_us)]
+        }
+        Op::Init => vec![HostToCore::Init(sc.init)],
+        Op::Answer { age, offset } => match predictions.iter().rev().nth(age) {
+            Some(p) => {
+                // Every other one as a contour (protocol 3.2): parts of both kinds.
+                let (points, contours) = as_points_and_contours(agreeing(p, offset));
+                protocol::frame_messages(p.frame_id, p.t_us, &points, &contours)
+                    .map_err(|e| format!("{e:?}"))?
+                    .collect()
+            }
+            None => Vec::new(),
+        },
+        Op::Query => vec![HostToCore::Query],
+    })
+}
+
+/// Sends `msg`, keeping the predictions it brings, and tallies the time updates it ran; an
+/// error when they are more than `MAX_TIME_UPDATES_PER_MESSAGE`.
+fn send_counted<T: Kernels>(
+    d: &mut Driver<T>,
+    msg: &HostToCore,
+    predictions: &mut Vec<protocol::PosePrediction>,
+    tally: &Tally,
+) -> Result<(), String> {
+    let before = d.device.counters().time_updates;
+    for a in d.send(msg) {
+        if let CoreToHost::PosePrediction(p) = a {
+            predictions.push(p);
+        }
+    }
+    let work = d.device.counters().time_updates - before;
+    if work > MAX_TIME_UPDATES_PER_MESSAGE {
+        return Err(format!("{work} time updates for {msg:?}"));
+    }
+    let (max, total, sent, applied) = tally.get();
+    tally.set((max.max(work), total + u64::from(work), sent + 1, applied));
+    Ok(())
+}
+
+/// One case of the work-bound test: a running core of `model` gets the messages of `ops`,
+/// each checked against the bound and tallied, then the correspondences it applied.
+fn case<T: Kernels>(model: ModelKind, ops: &[Op], tally: &Tally) -> Result<(), String> {
+    let mut sc = scenes::standard(model, 2.0, 2.0, 1);
+    // A short still window, so that a sequence's `Init`s leave it running most of the time.
+    sc.config.still_samples = 5;
+    let mut d = Driver::<T>::new(&sc);
+    // Running: past the still window.
+    while d.k < 150 {
+        d.step();
+    }
+    let mut last = tests::harness::t_us(d.k - 1, sc.imu_rate_hz);
+    let warm = d.device.counters().accepted;
+    let mut predictions = Vec::new();
+    for op in ops {
+        let msgs = messages(op, model, &sc, &mut last, &predictions)?;
+        for msg in msgs {
+            send_counted(&mut d, &msg, &mut predictions, tally)?;
+        }
+    }
+    let (max, total, sent, applied) = tally.get();
+    let accepted = u64::from(d.device.counters().accepted - warm);
+    tally.set((max, total, sent, applied + accepted));
+    Ok(())
+}
+
 /// Issue 32, defect 1: one message's work is bounded whatever its time stamps say. A running
 /// core (each model's clock message, f32 and f64) gets random sequences of samples (some any
 /// `u64` time, some up to 3 s after the last), `Resume`s at any time, `Init`s, queries and
@@ -184,103 +314,7 @@ fn as_points_and_contours(
 /// fix, `Resume { t_us: 0 }` and a sample at `u64::MAX` integrated 9.2·10¹⁴ steps.)
 #[test]
 fn no_message_costs_more_than_a_fixed_number_of_time_updates() {
-    use fusion_core::device::MAX_TIME_UPDATES_PER_MESSAGE;
     use proptest::test_runner::{Config, TestRunner};
-    use std::cell::Cell;
-
-    /// The most time updates one message ran, all of them, messages sent, correspondences
-    /// applied.
-    type Tally = Cell<(u32, u64, u64, u64)>;
-
-    fn case<T: Kernels>(model: ModelKind, ops: &[Op], tally: &Tally) -> Result<(), String> {
-        let mut sc = scenes::standard(model, 2.0, 2.0, 1);
-        // A short still window, so that a sequence's `Init`s leave it running most of the time.
-        sc.config.still_samples = 5;
-        let mut d = Driver::<T>::new(&sc);
-        // Running: past the still window.
-        while d.k < 150 {
-            d.step();
-        }
-        let mut last = tests::harness::t_us(d.k - 1, sc.imu_rate_hz);
-        let warm = d.device.counters().accepted;
-        let mut predictions = Vec::new();
-        for op in ops {
-            let clock = |t_us: u64, trigger: bool| {
-                if model.has_imu() {
-                    HostToCore::Imu(protocol::ImuSample {
-                        t_us,
-                        gyro: [0.01, -0.02, 0.0],
-                        accel: [0.1, 0.0, 9.81],
-                        trigger,
-                    })
-                } else {
-                    HostToCore::Tick(protocol::Tick { t_us, trigger })
-                }
-            };
-            let msgs = match *op {
-                Op::After { dt_us, trigger } => {
-                    last = last.saturating_add(dt_us);
-                    vec![clock(last, trigger)]
-                }
-                Op::At { t_us, trigger } => {
-                    last = t_us;
-                    vec![clock(t_us, trigger)]
-                }
-                Op::Resume(t_us) | Op::ResumeAfter(t_us) => {
-                    // A host that resumes at any time goes on from there; one resumed after
-                    // its last sample goes on before the resumed time.
-                    let t_us = match op {
-                        Op::ResumeAfter(_) => last.saturating_add(t_us),
-                        _ => {
-                            last = t_us;
-                            t_us
-                        }
-                    };
-                    vec![HostToCore::Resume(protocol::Resume {
-                        t_us,
-                        s_w: sc.init.position,
-                        q_sw: [1.0, 0.0, 0.0, 0.0],
-                        v_w: [0.1, 0.0, 0.0],
-                        a_w: [0.0; 3],
-                        omega_s: [0.0; 3],
-                        gyro_bias: [0.0; 3],
-                        accel_bias: [0.0; 3],
-                    })]
-                }
-                Op::Init => vec![HostToCore::Init(sc.init)],
-                Op::Answer { age, offset } => match predictions.iter().rev().nth(age) {
-                    Some(p) => {
-                        let p: &protocol::PosePrediction = p;
-                        // Every other one as a contour (protocol 3.2): parts of both kinds.
-                        let (points, contours) = as_points_and_contours(agreeing(p, offset));
-                        protocol::frame_messages(p.frame_id, p.t_us, &points, &contours)
-                            .map_err(|e| format!("{e:?}"))?
-                            .collect()
-                    }
-                    None => Vec::new(),
-                },
-                Op::Query => vec![HostToCore::Query],
-            };
-            for msg in msgs {
-                let before = d.device.counters().time_updates;
-                for a in d.send(&msg) {
-                    if let CoreToHost::PosePrediction(p) = a {
-                        predictions.push(p);
-                    }
-                }
-                let work = d.device.counters().time_updates - before;
-                if work > MAX_TIME_UPDATES_PER_MESSAGE {
-                    return Err(format!("{work} time updates for {msg:?}"));
-                }
-                let (max, total, sent, applied) = tally.get();
-                tally.set((max.max(work), total + u64::from(work), sent + 1, applied));
-            }
-        }
-        let (max, total, sent, applied) = tally.get();
-        let accepted = u64::from(d.device.counters().accepted - warm);
-        tally.set((max, total, sent, applied + accepted));
-        Ok(())
-    }
 
     let tally = Tally::default();
     let mut runner = TestRunner::new(Config {

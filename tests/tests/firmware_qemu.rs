@@ -5,11 +5,13 @@
 //! Needs `qemu-system-arm` and the image from `cargo xtask firmware`; skips with a message when
 //! either is absent, unless `REQUIRE_FIRMWARE` is set (CI sets it through `cargo xtask test`).
 
+use std::io::{Read, Write};
 use std::path::Path;
 use std::thread;
 use std::time::{Duration, Instant};
 
 use firmware_sim::qemu::{QemuBoard, default_image};
+use firmware_sim::transport::Duplex;
 use protocol::io::{FrameReader, FrameWriter, RecvError};
 use protocol::{CoreToHost, Hello, HostToCore, ModelKind, PROTOCOL_VERSION};
 use tests::harness::{Driver, scenes};
@@ -62,24 +64,28 @@ fn firmware_under_qemu_agrees_with_the_pc_build() {
     }
 }
 
-/// One session of `model` through the firmware and the PC build; false if the firmware could
-/// not be started (and the test is skipped).
-fn agrees_with_the_pc_build(model: ModelKind) -> bool {
-    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let image = std::env::var_os("FIRMWARE_ELF")
-        .map(Into::into)
-        .unwrap_or_else(|| default_image(&workspace, "device"));
-    let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
-    let started = QemuBoard::start(&image, Duration::from_secs(20));
-    let (mut board, link) = match started {
-        Ok(b) => b,
+/// The firmware link's incoming frames.
+type Reader = FrameReader<Box<dyn Read + Send>>;
+
+/// The firmware link's outgoing frames.
+type Writer = FrameWriter<Box<dyn Write + Send>>;
+
+/// Starts the firmware `image` under QEMU; `None` when it cannot be started and the test is
+/// skipped (not `required`), after saying why.
+fn start_board(image: &Path, required: bool) -> Option<(QemuBoard, Duplex)> {
+    match QemuBoard::start(image, Duration::from_secs(20)) {
+        Ok(b) => Some(b),
         Err(e) if !required => {
             println!("SKIPPED: {e} (set REQUIRE_FIRMWARE to make this a failure)");
-            return false;
+            None
         }
         Err(e) => panic!("{e}"),
-    };
+    }
+}
 
+/// Runs a session of `model` through the PC build: every message it sent (the opening
+/// handshake included, and a final `Hello` that marks the end of the stream) and every answer.
+fn pc_session(model: ModelKind) -> (Vec<HostToCore>, Vec<CoreToHost>) {
     // The PC build runs the session first; its transcript is replayed into the firmware.
     let mut sc = scenes::standard(model, 6.0, 2.0, 21);
     sc.config.state_every = 1;
@@ -110,9 +116,16 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
     sent.push(HostToCore::Hello(Hello {
         version: PROTOCOL_VERSION,
     }));
+    (sent, pc_answers)
+}
 
-    let reader = thread::spawn(move || {
-        let mut r = FrameReader::new(link.reader);
+/// Reads the firmware's answers on a thread, up to the `HelloAck` of the final `Hello` (not
+/// kept); gives them back with the frames that did not decode, and the reader.
+fn spawn_reader(
+    reader: Box<dyn Read + Send>,
+) -> thread::JoinHandle<(Vec<CoreToHost>, usize, Reader)> {
+    thread::spawn(move || {
+        let mut r = FrameReader::new(reader);
         let mut got = Vec::new();
         let mut decode_errors = 0;
         let deadline = Instant::now() + Duration::from_secs(240);
@@ -126,18 +139,12 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
             }
         }
         (got, decode_errors, r)
-    });
-    let mut w = FrameWriter::new(link.writer);
-    let start = Instant::now();
-    for m in &sent {
-        w.send(m).expect("send to firmware");
-    }
-    let (fw_answers, decode_errors, mut r) = reader.join().expect("reader");
-    let elapsed = start.elapsed();
+    })
+}
 
-    // The device image's own RAM (not the bench's): after the session, one message of every
-    // other kind too (Query, Resume, Reset, Tick, ...; the answers are not compared), so that
-    // each handler has run once; then the stack it painted at boot is read from the board.
+/// Sends one message of every kind but `Hello` (answers not compared), so that each handler
+/// has run once, then a `Hello`, and waits for its `HelloAck`.
+fn run_every_handler(w: &mut Writer, r: &mut Reader) {
     for (_, m) in protocol::samples::host_messages() {
         if !matches!(m, HostToCore::Hello(_)) {
             w.send(&m).expect("send to firmware");
@@ -160,6 +167,62 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
             Err(e) => panic!("firmware link: {e}"),
         }
     }
+}
+
+/// Checks that the firmware gave the PC build's answers, one for one, and that the session
+/// had enough states to compare.
+fn compare_answers(pc_answers: &[CoreToHost], fw_answers: &[CoreToHost]) {
+    assert_eq!(fw_answers.len(), pc_answers.len());
+    let mut worst_state = 0.0f32;
+    for (i, (p, f)) in pc_answers.iter().zip(fw_answers).enumerate() {
+        assert!(
+            agree(p, f, 1e-3),
+            "answer {i} differs:\n pc  {p:?}\n fw  {f:?}"
+        );
+        if let (CoreToHost::State(a), CoreToHost::State(b)) = (p, f) {
+            for (x, y) in a.s_w.iter().zip(&b.s_w) {
+                worst_state = worst_state.max((x - y).abs());
+            }
+        }
+    }
+    let states = pc_answers
+        .iter()
+        .filter(|a| matches!(a, CoreToHost::State(_)))
+        .count();
+    println!(
+        "{states} states compared; worst position difference {:.2e} m",
+        worst_state
+    );
+    assert!(states > 900);
+}
+
+/// One session of `model` through the firmware and the PC build; false if the firmware could
+/// not be started (and the test is skipped).
+fn agrees_with_the_pc_build(model: ModelKind) -> bool {
+    let workspace = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let image = std::env::var_os("FIRMWARE_ELF")
+        .map(Into::into)
+        .unwrap_or_else(|| default_image(&workspace, "device"));
+    let required = std::env::var_os("REQUIRE_FIRMWARE").is_some();
+    let Some((mut board, link)) = start_board(&image, required) else {
+        return false;
+    };
+
+    let (sent, pc_answers) = pc_session(model);
+
+    let reader = spawn_reader(link.reader);
+    let mut w = FrameWriter::new(link.writer);
+    let start = Instant::now();
+    for m in &sent {
+        w.send(m).expect("send to firmware");
+    }
+    let (fw_answers, decode_errors, mut r) = reader.join().expect("reader");
+    let elapsed = start.elapsed();
+
+    // The device image's own RAM (not the bench's): after the session, one message of every
+    // other kind too (Query, Resume, Reset, Tick, ...), so that each handler has run once;
+    // then the stack it painted at boot is read from the board.
+    run_every_handler(&mut w, &mut r);
     let ram = board.ram_use(&image).expect("read the board's RAM");
     drop(board);
 
@@ -186,27 +249,6 @@ fn agrees_with_the_pc_build(model: ModelKind) -> bool {
         decode_errors, 0,
         "every frame from the firmware must decode"
     );
-    assert_eq!(fw_answers.len(), pc_answers.len());
-    let mut worst_state = 0.0f32;
-    for (i, (p, f)) in pc_answers.iter().zip(&fw_answers).enumerate() {
-        assert!(
-            agree(p, f, 1e-3),
-            "answer {i} differs:\n pc  {p:?}\n fw  {f:?}"
-        );
-        if let (CoreToHost::State(a), CoreToHost::State(b)) = (p, f) {
-            for (x, y) in a.s_w.iter().zip(&b.s_w) {
-                worst_state = worst_state.max((x - y).abs());
-            }
-        }
-    }
-    let states = pc_answers
-        .iter()
-        .filter(|a| matches!(a, CoreToHost::State(_)))
-        .count();
-    println!(
-        "{states} states compared; worst position difference {:.2e} m",
-        worst_state
-    );
-    assert!(states > 900);
+    compare_answers(&pc_answers, &fw_answers);
     true
 }

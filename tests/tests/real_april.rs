@@ -8,12 +8,12 @@
 use std::path::{Path, PathBuf};
 
 use fusion_core::Device;
-use host_vision::camera::read_euroc_sensor_yaml;
+use host_vision::camera::{Camera, read_euroc_sensor_yaml};
 use host_vision::features::correspondence::pixel_to_normalised;
 use nalgebra::{DMatrix, Matrix2, Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
 use protocol::{
-    CoreToHost, Correspondence, Correspondences, Hello, HostToCore, ImuSample, Init, InitAttitude,
-    Mode, ModelKind, PROTOCOL_VERSION,
+    Config, CoreToHost, Correspondence, Correspondences, Hello, HostToCore, ImuSample, Init,
+    InitAttitude, Mode, ModelKind, PROTOCOL_VERSION,
 };
 
 fn data_dir() -> Option<PathBuf> {
@@ -153,9 +153,35 @@ struct Row {
     divergences: Vec<(f64, protocol::StatusReason)>,
 }
 
-/// Runs `model` with the correspondences of each frame applied `latency` IMU samples (5 ms
-/// each) after its trigger.
-fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row {
+/// IMU rate of the sequence [Hz].
+const IMU_RATE: f64 = 200.0;
+
+/// One frame's time stamp [ns], undistorted normalised observations and the covariance of
+/// each.
+type Undistorted = (i64, Observations, Vec<Matrix2<f64>>);
+
+/// The dataset's calibration of cam1 and the IMU.
+struct Rig {
+    /// cam1: intrinsics and distortion.
+    cam: Camera,
+    /// Camera → sensor (IMU) rotation.
+    q_cs: UnitQuaternion<f64>,
+    /// The same rotation as a matrix.
+    r_cs: Matrix3<f64>,
+    /// Camera centre in the sensor frame.
+    c_s: Vector3<f64>,
+    /// Gyro noise σ per reading at [`IMU_RATE`] [rad/s].
+    gyro_sigma: f64,
+    /// Accelerometer noise σ per reading at [`IMU_RATE`] [m/s²].
+    accel_sigma: f64,
+    /// Gyro bias random walk (the dataset's density).
+    gyro_walk: f64,
+    /// Accelerometer bias random walk (the dataset's density).
+    accel_walk: f64,
+}
+
+/// Reads cam1's calibration and mounting and the IMU's noise from the data folder.
+fn read_rig(dir: &Path) -> Rig {
     let calib = read_euroc_sensor_yaml(&dir.join("cam1-sensor.yaml")).expect("cam1 calibration");
     let cam = calib.camera;
     let t_bs = calib.extrinsics.expect("T_BS");
@@ -164,37 +190,51 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
     let r_cs = r_bc.transpose();
     let q_cs = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r_cs));
     let imu_yaml = dir.join("imu0-sensor.yaml");
-    let rate: f64 = 200.0;
-    let gyro_sigma = yaml_number(&imu_yaml, "gyroscope_noise_density") * rate.sqrt();
-    let accel_sigma = yaml_number(&imu_yaml, "accelerometer_noise_density") * rate.sqrt();
-    let gyro_walk = yaml_number(&imu_yaml, "gyroscope_random_walk");
-    let accel_walk = yaml_number(&imu_yaml, "accelerometer_random_walk");
-    let pixel_sigma = 1.0;
-    let fx = cam.pinhole.fx;
+    let rate = IMU_RATE;
+    Rig {
+        cam,
+        q_cs,
+        r_cs,
+        c_s,
+        gyro_sigma: yaml_number(&imu_yaml, "gyroscope_noise_density") * rate.sqrt(),
+        accel_sigma: yaml_number(&imu_yaml, "accelerometer_noise_density") * rate.sqrt(),
+        gyro_walk: yaml_number(&imu_yaml, "gyroscope_random_walk"),
+        accel_walk: yaml_number(&imu_yaml, "accelerometer_random_walk"),
+    }
+}
 
-    // Undistorted normalised observations per frame, each with its pixel noise propagated
-    // through the undistortion, as the host does (`pixel_to_normalised`): towards the image's
-    // corners the lens compresses the view (k1 = −0.28), so one pixel there spans a larger
-    // normalised distance: up to twice the centre's in the views around the gap.
+/// Undistorted normalised observations per frame, each with its pixel noise propagated
+/// through the undistortion, as the host does (`pixel_to_normalised`): towards the image's
+/// corners the lens compresses the view (k1 = −0.28), so one pixel there spans a larger
+/// normalised distance: up to twice the centre's in the views around the gap.
+fn undistort(frames: &[Frame], cam: &Camera) -> Vec<Undistorted> {
+    let pixel_sigma = 1.0;
     let cov_px = Matrix2::identity() * (pixel_sigma * pixel_sigma);
-    let frames: Vec<(i64, Observations, Vec<Matrix2<f64>>)> = frames
+    frames
         .iter()
         .map(|f| {
             let (obs, covs) = f
                 .obs
                 .iter()
                 .filter_map(|(px, g)| {
-                    let (n, cov) = pixel_to_normalised(&cam, *px, &cov_px).ok()?;
+                    let (n, cov) = pixel_to_normalised(cam, *px, &cov_px).ok()?;
                     Some(((n, *g), cov))
                 })
                 .unzip();
             (f.t_ns, obs, covs)
         })
-        .collect();
+        .collect()
+}
 
-    // World frame: the grid rotated so that z is up, from the first second's mean specific
-    // force (the sensor rests there) and the grid pose of the first frame after it.
-    let still = 40;
+/// World frame: the grid rotated so that z is up, from the mean specific force of the first
+/// `still` samples (the sensor rests there) and the grid pose of the first frame after them.
+/// Returns the grid → world rotation and the sensor's initial pose in the world.
+fn world_frame(
+    imu: &[Imu],
+    frames: &[Undistorted],
+    rig: &Rig,
+    still: usize,
+) -> (Matrix3<f64>, Init) {
     let mean_f: Vector3<f64> =
         imu[..still].iter().map(|s| s.accel).sum::<Vector3<f64>>() / still as f64;
     let t_start = imu[still - 1].t_ns;
@@ -203,7 +243,7 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
         .find(|(t, o, _)| *t >= t_start && o.len() >= 12)
         .expect("a frame with the grid in view");
     let (r_cg, t_cg) = planar_pose(first);
-    let up_g: Vector3<f64> = r_cg.transpose() * (r_cs * mean_f.normalize());
+    let up_g: Vector3<f64> = r_cg.transpose() * (rig.r_cs * mean_f.normalize());
     let x_g = (Vector3::x() - up_g * up_g.x).normalize();
     let r_wg = Matrix3::from_rows(&[
         x_g.transpose(),
@@ -212,29 +252,41 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
     ]);
     let r_cw = r_cg * r_wg.transpose();
     let c_w = r_wg * (-r_cg.transpose() * t_cg);
-    let r_sw = r_cs.transpose() * r_cw;
-    let s_w = c_w - r_sw.transpose() * c_s;
+    let r_sw = rig.r_cs.transpose() * r_cw;
+    let s_w = c_w - r_sw.transpose() * rig.c_s;
     let q_sw = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r_sw));
+    let qv = q_sw.quaternion();
+    let init = Init {
+        position: [s_w[0] as f32, s_w[1] as f32, s_w[2] as f32],
+        attitude: InitAttitude::Full([qv.w as f32, qv.i as f32, qv.j as f32, qv.k as f32]),
+    };
+    (r_wg, init)
+}
 
+/// The configuration of `model` for the rig, its noises from the IMU's and from hand-held
+/// motion, still for the first `still` samples.
+fn config(model: ModelKind, rig: &Rig, still: usize) -> Config {
+    let rate = IMU_RATE;
     let mut cfg = protocol::samples::config();
     cfg.model = model;
     cfg.imu_rate_hz = rate as f32;
     let camera_rate: f64 = 20.0;
     cfg.camera_rate_hz = camera_rate as f32;
-    let q = q_cs.quaternion();
+    let q = rig.q_cs.quaternion();
+    let c_s = rig.c_s;
     cfg.hand_eye = protocol::HandEye {
         q_cs: [q.w as f32, q.i as f32, q.j as f32, q.k as f32],
         c_s: [c_s[0] as f32, c_s[1] as f32, c_s[2] as f32],
     };
-    cfg.noise.gyro_meas = (gyro_sigma * 2.0) as f32;
-    cfg.noise.gyro_bias_walk = (gyro_walk * 5.0) as f32;
-    cfg.noise.accel_bias_walk = (accel_walk * 2.0) as f32;
+    cfg.noise.gyro_meas = (rig.gyro_sigma * 2.0) as f32;
+    cfg.noise.gyro_bias_walk = (rig.gyro_walk * 5.0) as f32;
+    cfg.noise.accel_bias_walk = (rig.accel_walk * 2.0) as f32;
     // Angular acceleration, observed by the gyro every IMU period.
     cfg.noise.angular = (HAND_ANGULAR_ACCEL * (1.0 / rate).sqrt()) as f32;
     // The constant-velocity models observe velocity only through vision, every camera period.
     let cv_motion = (HAND_ACCEL * (1.0 / camera_rate).sqrt()) as f32;
     (cfg.noise.motion, cfg.noise.accel_meas) = match model {
-        ModelKind::Acc => (60.0, (accel_sigma * 3.0) as f32),
+        ModelKind::Acc => (60.0, (rig.accel_sigma * 3.0) as f32),
         ModelKind::Gravity => (cv_motion, 2.0),
         ModelKind::Gyro => (cv_motion, 1.0),
         ModelKind::Vision => unreachable!("the real-data test runs the inertial models"),
@@ -249,17 +301,18 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
     cfg.divergence.residual_threshold = 50.0;
     cfg.still_samples = still as u16;
     cfg.state_every = 0;
-    let qv = q_sw.quaternion();
-    let init = Init {
-        position: [s_w[0] as f32, s_w[1] as f32, s_w[2] as f32],
-        attitude: InitAttitude::Full([qv.w as f32, qv.i as f32, qv.j as f32, qv.k as f32]),
-    };
+    cfg
+}
 
+/// Sends `m` to the device, its answers appended to `answers`.
+fn handle(dev: &mut Device<f32>, m: &HostToCore, answers: &mut Vec<CoreToHost>) {
+    dev.handle(m, &mut |a| answers.push(a));
+}
+
+/// A device with its session opened: `Hello`, `Configure`, `Init`.
+fn open_session(cfg: Config, init: Init) -> Device<f32> {
     let mut dev = Device::<f32>::new();
     let mut answers: Vec<CoreToHost> = Vec::new();
-    let handle = |dev: &mut Device<f32>, m: &HostToCore, answers: &mut Vec<CoreToHost>| {
-        dev.handle(m, &mut |a| answers.push(a));
-    };
     handle(
         &mut dev,
         &HostToCore::Hello(Hello {
@@ -269,11 +322,105 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
     );
     handle(&mut dev, &HostToCore::Configure(cfg), &mut answers);
     handle(&mut dev, &HostToCore::Init(init), &mut answers);
+    dev
+}
 
+/// What a session gave: the prediction errors [px], the correspondences accepted and
+/// rejected, the divergences (time [s], reason) and the largest covariance norm.
+#[derive(Default)]
+struct Tally {
+    errs: Vec<f64>,
+    accepted: usize,
+    rejected: usize,
+    divergences: Vec<(f64, protocol::StatusReason)>,
+    max_cov: f32,
+}
+
+impl Tally {
+    /// Notes a divergence that `a` reports; false when it is no such status.
+    fn divergence(&mut self, a: &CoreToHost) -> bool {
+        match a {
+            CoreToHost::Status(st) if st.mode == Mode::Diverged => {
+                self.divergences.push((st.t_us as f64 * 1e-6, st.reason));
+                true
+            }
+            _ => false,
+        }
+    }
+}
+
+/// The correspondences of a frame's observations (at most a frame's worth), the grid points
+/// in the world by `r_wg`; the error of `p`'s prediction of each point in front of the camera
+/// [px, focal length `fx`] goes to `errs`.
+fn correspondences(
+    p: &protocol::PosePrediction,
+    obs: &Observations,
+    covs: &[Matrix2<f64>],
+    r_wg: &Matrix3<f64>,
+    fx: f64,
+    errs: &mut Vec<f64>,
+) -> Vec<Correspondence> {
+    let q_cw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        p.q_cw[0] as f64,
+        p.q_cw[1] as f64,
+        p.q_cw[2] as f64,
+        p.q_cw[3] as f64,
+    ));
+    let pc_w = Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64);
+    obs.iter()
+        .zip(covs)
+        .take(protocol::MAX_CORRESPONDENCES_PER_FRAME)
+        .map(|((n, g), cov)| {
+            let m_w = r_wg * g;
+            let pc = q_cw * (m_w - pc_w);
+            if pc.z > 0.0 {
+                errs.push((Vector2::new(pc.x / pc.z, pc.y / pc.z) - n).norm() * fx);
+            }
+            Correspondence {
+                m_n: [n[0] as f32, n[1] as f32],
+                cov_n: [cov[(0, 0)] as f32, cov[(0, 1)] as f32, cov[(1, 1)] as f32],
+                m_w: [m_w[0] as f32, m_w[1] as f32, m_w[2] as f32],
+                cov_w: [1e-8, 0.0, 0.0, 1e-8, 0.0, 1e-8],
+            }
+        })
+        .collect()
+}
+
+/// Sends the correspondences of the frame `p` predicted, in parts, and tallies the answers.
+fn apply(
+    dev: &mut Device<f32>,
+    p: &protocol::PosePrediction,
+    corrs: &[Correspondence],
+    answers: &mut Vec<CoreToHost>,
+    tally: &mut Tally,
+) {
+    for part in Correspondences::split(p.frame_id, p.t_us, corrs).unwrap() {
+        answers.clear();
+        handle(dev, &HostToCore::Correspondences(part), answers);
+        for a in answers.drain(..) {
+            if let CoreToHost::UpdateReport(r) = a {
+                tally.accepted += r.accepted as usize;
+                tally.rejected += r.rejected as usize;
+            } else {
+                tally.divergence(&a);
+            }
+        }
+    }
+}
+
+/// Feeds every IMU sample to `dev`, triggering on the sample nearest each frame, and applies
+/// each frame's correspondences `latency` samples after its trigger.
+fn run_session(
+    dev: &mut Device<f32>,
+    imu: &[Imu],
+    frames: &[Undistorted],
+    latency: usize,
+    r_wg: &Matrix3<f64>,
+    fx: f64,
+) -> Tally {
+    let mut answers: Vec<CoreToHost> = Vec::new();
     let mut pending: Vec<(usize, protocol::PosePrediction, usize)> = Vec::new();
-    let mut errs = Vec::new();
-    let (mut accepted, mut rejected, mut divergences) = (0usize, 0usize, Vec::new());
-    let mut max_cov = 0.0f32;
+    let mut tally = Tally::default();
     let mut next_frame = 0;
     for (k, s) in imu.iter().enumerate() {
         // Trigger on the sample nearest a camera frame (same clock, within half a period).
@@ -290,22 +437,21 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
             trigger,
         });
         answers.clear();
-        handle(&mut dev, &msg, &mut answers);
+        handle(dev, &msg, &mut answers);
         for a in answers.drain(..) {
             match a {
                 CoreToHost::PosePrediction(p) if trigger => {
                     pending.push((k + latency, p, next_frame))
                 }
-                CoreToHost::Status(st) if st.mode == Mode::Diverged => {
-                    divergences.push((st.t_us as f64 * 1e-6, st.reason));
+                a => {
+                    tally.divergence(&a);
                 }
-                _ => {}
             }
         }
         if trigger {
             next_frame += 1;
         }
-        max_cov = max_cov.max(dev.filter().st.cov_frobenius());
+        tally.max_cov = tally.max_cov.max(dev.filter().st.cov_frobenius());
         let due: Vec<_> = pending.iter().filter(|p| p.0 <= k).cloned().collect();
         pending.retain(|p| p.0 > k);
         for (_, p, fi) in due {
@@ -313,60 +459,35 @@ fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: 
             if obs.is_empty() {
                 continue;
             }
-            let q_cw = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                p.q_cw[0] as f64,
-                p.q_cw[1] as f64,
-                p.q_cw[2] as f64,
-                p.q_cw[3] as f64,
-            ));
-            let pc_w = Vector3::new(p.c_w[0] as f64, p.c_w[1] as f64, p.c_w[2] as f64);
-            let corrs: Vec<Correspondence> = obs
-                .iter()
-                .zip(covs)
-                .take(protocol::MAX_CORRESPONDENCES_PER_FRAME)
-                .map(|((n, g), cov)| {
-                    let m_w = r_wg * g;
-                    let pc = q_cw * (m_w - pc_w);
-                    if pc.z > 0.0 {
-                        errs.push((Vector2::new(pc.x / pc.z, pc.y / pc.z) - n).norm() * fx);
-                    }
-                    Correspondence {
-                        m_n: [n[0] as f32, n[1] as f32],
-                        cov_n: [cov[(0, 0)] as f32, cov[(0, 1)] as f32, cov[(1, 1)] as f32],
-                        m_w: [m_w[0] as f32, m_w[1] as f32, m_w[2] as f32],
-                        cov_w: [1e-8, 0.0, 0.0, 1e-8, 0.0, 1e-8],
-                    }
-                })
-                .collect();
-            for part in Correspondences::split(p.frame_id, p.t_us, &corrs).unwrap() {
-                answers.clear();
-                handle(&mut dev, &HostToCore::Correspondences(part), &mut answers);
-                for a in answers.drain(..) {
-                    match a {
-                        CoreToHost::UpdateReport(r) => {
-                            accepted += r.accepted as usize;
-                            rejected += r.rejected as usize;
-                        }
-                        CoreToHost::Status(st) if st.mode == Mode::Diverged => {
-                            divergences.push((st.t_us as f64 * 1e-6, st.reason));
-                        }
-                        _ => {}
-                    }
-                }
-            }
+            let corrs = correspondences(&p, obs, covs, r_wg, fx, &mut tally.errs);
+            apply(dev, &p, &corrs, &mut answers, &mut tally);
         }
     }
-    let frames_used = errs.len();
-    let mean_px = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+    tally
+}
+
+/// Runs `model` with the correspondences of each frame applied `latency` IMU samples (5 ms
+/// each) after its trigger.
+fn run_model(model: ModelKind, latency: usize, dir: &Path, imu: &[Imu], frames: &[Frame]) -> Row {
+    let rig = read_rig(dir);
+    let fx = rig.cam.pinhole.fx;
+    let frames = undistort(frames, &rig.cam);
+    let still = 40;
+    let (r_wg, init) = world_frame(imu, &frames, &rig, still);
+    let cfg = config(model, &rig, still);
+    let mut dev = open_session(cfg, init);
+    let mut tally = run_session(&mut dev, imu, &frames, latency, &r_wg, fx);
+    let frames_used = tally.errs.len();
+    let mean_px = tally.errs.iter().sum::<f64>() / tally.errs.len().max(1) as f64;
     Row {
         model,
         latency_ms: (latency * 5) as u32,
-        max_cov,
+        max_cov: tally.max_cov,
         mean_px,
-        median_px: median(&mut errs),
-        gated: rejected as f64 / (accepted + rejected).max(1) as f64,
+        median_px: median(&mut tally.errs),
+        gated: tally.rejected as f64 / (tally.accepted + tally.rejected).max(1) as f64,
         frames: frames_used,
-        divergences,
+        divergences: tally.divergences,
     }
 }
 

@@ -135,73 +135,121 @@ enum Tok {
     Punct(char),
 }
 
-/// The tokens of `src` that matter for paths, with their lines (from 1). Comments (nested
-/// block comments too), strings (raw and byte strings too) and character literals are dropped;
-/// lifetimes become identifiers, which is harmless here.
-fn tokens(src: &str) -> Vec<(Tok, usize)> {
-    let c: Vec<char> = src.chars().collect();
-    let at = |i: usize| c.get(i).copied().unwrap_or('\0');
-    let ident_start = |ch: char| ch == '_' || ch.is_alphabetic();
-    let ident_char = |ch: char| ch == '_' || ch.is_alphanumeric();
-    let mut out = Vec::new();
-    let mut line = 1;
-    let mut i = 0;
-    // Skips a string whose opening quote is at `i` (escapes honoured); returns the index after it.
-    let skip_string = |mut i: usize, line: &mut usize| -> usize {
+/// The character at `i`, or `'\0'` past the end.
+fn char_at(c: &[char], i: usize) -> char {
+    c.get(i).copied().unwrap_or('\0')
+}
+
+/// Whether `ch` may start an identifier.
+fn ident_start(ch: char) -> bool {
+    ch == '_' || ch.is_alphabetic()
+}
+
+/// Whether `ch` may continue an identifier.
+fn ident_char(ch: char) -> bool {
+    ch == '_' || ch.is_alphanumeric()
+}
+
+/// Skips identifier characters from `i`; returns the index after them.
+fn skip_ident(c: &[char], mut i: usize) -> usize {
+    while i < c.len() && ident_char(c[i]) {
         i += 1;
-        while i < c.len() {
-            match c[i] {
-                '\\' => {
-                    if at(i + 1) == '\n' {
-                        *line += 1;
-                    }
-                    i += 2;
+    }
+    i
+}
+
+/// Skips a string whose opening quote is at `i` (escapes honoured), counting its newlines
+/// into `line`; returns the index after it.
+fn skip_string(c: &[char], mut i: usize, line: &mut usize) -> usize {
+    i += 1;
+    while i < c.len() {
+        match c[i] {
+            '\\' => {
+                if char_at(c, i + 1) == '\n' {
+                    *line += 1;
                 }
-                '"' => return i + 1,
-                ch => {
-                    if ch == '\n' {
-                        *line += 1;
-                    }
-                    i += 1;
+                i += 2;
+            }
+            '"' => return i + 1,
+            ch => {
+                if ch == '\n' {
+                    *line += 1;
                 }
+                i += 1;
             }
         }
-        i
-    };
-    // Skips a raw string whose `r` is at `i`; returns the index after it.
-    let skip_raw = |mut i: usize, line: &mut usize| -> usize {
+    }
+    i
+}
+
+/// Skips a raw string whose `r` is at `i`, counting its newlines into `line`; returns the
+/// index after it.
+fn skip_raw(c: &[char], mut i: usize, line: &mut usize) -> usize {
+    i += 1;
+    let mut hashes = 0;
+    while char_at(c, i) == '#' {
+        hashes += 1;
         i += 1;
-        let mut hashes = 0;
-        while at(i) == '#' {
-            hashes += 1;
-            i += 1;
+    }
+    i += 1; // the opening quote
+    while i < c.len() {
+        if c[i] == '"' && (1..=hashes).all(|h| char_at(c, i + h) == '#') {
+            return i + 1 + hashes;
         }
-        i += 1; // the opening quote
-        while i < c.len() {
-            if c[i] == '"' && (1..=hashes).all(|h| at(i + h) == '#') {
-                return i + 1 + hashes;
-            }
+        if c[i] == '\n' {
+            *line += 1;
+        }
+        i += 1;
+    }
+    i
+}
+
+/// Skips a character literal whose quote is at `i`, or returns `None` for a lifetime.
+fn skip_char(c: &[char], i: usize) -> Option<usize> {
+    if char_at(c, i + 1) == '\\' {
+        let mut j = i + 3;
+        while j < c.len() && c[j] != '\'' && c[j] != '\n' {
+            j += 1;
+        }
+        Some(j + 1)
+    } else if char_at(c, i + 2) == '\'' {
+        Some(i + 3)
+    } else {
+        None
+    }
+}
+
+/// Skips a block comment whose `/*` is at `i` (nested ones too), counting its newlines into
+/// `line`; returns the index after it.
+fn skip_block_comment(c: &[char], mut i: usize, line: &mut usize) -> usize {
+    let mut depth = 1;
+    i += 2;
+    while i < c.len() && depth > 0 {
+        if c[i] == '/' && char_at(c, i + 1) == '*' {
+            depth += 1;
+            i += 2;
+        } else if c[i] == '*' && char_at(c, i + 1) == '/' {
+            depth -= 1;
+            i += 2;
+        } else {
             if c[i] == '\n' {
                 *line += 1;
             }
             i += 1;
         }
-        i
-    };
-    // Skips a character literal whose quote is at `i`, or returns `None` for a lifetime.
-    let skip_char = |i: usize| -> Option<usize> {
-        if at(i + 1) == '\\' {
-            let mut j = i + 3;
-            while j < c.len() && c[j] != '\'' && c[j] != '\n' {
-                j += 1;
-            }
-            Some(j + 1)
-        } else if at(i + 2) == '\'' {
-            Some(i + 3)
-        } else {
-            None
-        }
-    };
+    }
+    i
+}
+
+/// The tokens of `src` that matter for paths, with their lines (from 1). Comments (nested
+/// block comments too), strings (raw and byte strings too) and character literals are dropped;
+/// lifetimes become identifiers, which is harmless here.
+fn tokens(src: &str) -> Vec<(Tok, usize)> {
+    let c: Vec<char> = src.chars().collect();
+    let at = |i: usize| char_at(&c, i);
+    let mut out = Vec::new();
+    let mut line = 1;
+    let mut i = 0;
     while i < c.len() {
         let ch = c[i];
         if ch == '\n' {
@@ -214,57 +262,35 @@ fn tokens(src: &str) -> Vec<(Tok, usize)> {
                 i += 1;
             }
         } else if ch == '/' && at(i + 1) == '*' {
-            let mut depth = 1;
-            i += 2;
-            while i < c.len() && depth > 0 {
-                if c[i] == '/' && at(i + 1) == '*' {
-                    depth += 1;
-                    i += 2;
-                } else if c[i] == '*' && at(i + 1) == '/' {
-                    depth -= 1;
-                    i += 2;
-                } else {
-                    if c[i] == '\n' {
-                        line += 1;
-                    }
-                    i += 1;
-                }
-            }
+            i = skip_block_comment(&c, i, &mut line);
         } else if ch == '"' {
-            i = skip_string(i, &mut line);
+            i = skip_string(&c, i, &mut line);
         } else if ch == '\'' {
-            match skip_char(i) {
+            match skip_char(&c, i) {
                 Some(j) => i = j,
                 None => i += 1,
             }
         } else if ch == 'b' && at(i + 1) == '"' {
-            i = skip_string(i + 1, &mut line);
+            i = skip_string(&c, i + 1, &mut line);
         } else if ch == 'b' && at(i + 1) == '\'' {
-            i = skip_char(i + 1).unwrap_or(i + 2);
+            i = skip_char(&c, i + 1).unwrap_or(i + 2);
         } else if ch == 'b' && at(i + 1) == 'r' && matches!(at(i + 2), '"' | '#') {
-            i = skip_raw(i + 1, &mut line);
+            i = skip_raw(&c, i + 1, &mut line);
         } else if ch == 'r'
             && (at(i + 1) == '"' || (at(i + 1) == '#' && matches!(at(i + 2), '"' | '#')))
         {
-            i = skip_raw(i, &mut line);
+            i = skip_raw(&c, i, &mut line);
         } else if ch == 'r' && at(i + 1) == '#' && ident_start(at(i + 2)) {
             // A raw identifier.
             let start = i + 2;
-            i = start;
-            while i < c.len() && ident_char(c[i]) {
-                i += 1;
-            }
+            i = skip_ident(&c, start);
             out.push((Tok::Ident(c[start..i].iter().collect()), line));
         } else if ident_start(ch) {
             let start = i;
-            while i < c.len() && ident_char(c[i]) {
-                i += 1;
-            }
+            i = skip_ident(&c, start);
             out.push((Tok::Ident(c[start..i].iter().collect()), line));
         } else if ch.is_ascii_digit() {
-            while i < c.len() && ident_char(c[i]) {
-                i += 1;
-            }
+            i = skip_ident(&c, i);
         } else if ch == ':' && at(i + 1) == ':' {
             out.push((Tok::Sep, line));
             i += 2;
@@ -523,23 +549,18 @@ pub struct Graph {
     pub edges: BTreeMap<(usize, usize), Reference>,
 }
 
-/// Builds the graph of a tree of module path `tree_module` from its files: (path from the
-/// tree's folder, path shown in messages, source).
-pub fn graph(tree_module: &[&str], files: &[(String, String, String)]) -> Graph {
-    let tree_module: Vec<String> = tree_module.iter().map(|s| s.to_string()).collect();
-    let mut modules: Vec<Vec<String>> = Vec::new();
-    let mut reads = Vec::new();
-    for (rel, _, source) in files {
-        let m = module_of(&tree_module, rel);
-        reads.push(read(source, &m));
-        modules.push(m);
-    }
-    let index: BTreeMap<Vec<String>, usize> = modules
-        .iter()
-        .enumerate()
-        .map(|(i, m)| (m.clone(), i))
-        .collect();
-    let names = modules
+/// Re-exports of each module as absolute paths: by name, and the globs' source modules.
+struct Reexports {
+    /// Per module: the name it re-exports → the path the item comes from.
+    named: Vec<BTreeMap<String, Vec<String>>>,
+    /// Per module: the modules its `pub use …::*` come from.
+    globs: Vec<Vec<Vec<String>>>,
+}
+
+/// Module names as shown: paths below the tree's module, the tree's root as `crate` or the
+/// tree's module name.
+fn module_names(tree_module: &[String], modules: &[Vec<String>]) -> Vec<String> {
+    modules
         .iter()
         .map(|m| {
             if m.len() == tree_module.len() {
@@ -551,10 +572,18 @@ pub fn graph(tree_module: &[&str], files: &[(String, String, String)]) -> Graph 
                 m[tree_module.len()..].join("::")
             }
         })
-        .collect();
-    // Re-exports as absolute paths: by name, and the globs' source modules.
-    let mut named: Vec<BTreeMap<String, Vec<String>>> = vec![BTreeMap::new(); files.len()];
-    let mut globs: Vec<Vec<Vec<String>>> = vec![Vec::new(); files.len()];
+        .collect()
+}
+
+/// The re-exports of each module (of `modules`, read as `reads`) that name paths of the tree,
+/// made absolute.
+fn reexports(
+    reads: &[Reads],
+    modules: &[Vec<String>],
+    index: &BTreeMap<Vec<String>, usize>,
+) -> Reexports {
+    let mut named: Vec<BTreeMap<String, Vec<String>>> = vec![BTreeMap::new(); reads.len()];
+    let mut globs: Vec<Vec<Vec<String>>> = vec![Vec::new(); reads.len()];
     for (i, r) in reads.iter().enumerate() {
         for leaf in &r.reexports {
             let abs = absolute(&leaf.path, &modules[i]).or_else(|| {
@@ -577,53 +606,84 @@ pub fn graph(tree_module: &[&str], files: &[(String, String, String)]) -> Graph 
             }
         }
     }
-    // The module a path (absolute) names, following re-exports a few steps.
-    let target = |abs: &[String]| -> Option<usize> {
-        let mut abs = abs.to_vec();
-        let mut found = None;
-        for _ in 0..4 {
-            if !abs.starts_with(&tree_module) {
-                return found;
-            }
-            let Some((len, m)) = (0..=abs.len())
-                .rev()
-                .find_map(|len| index.get(&abs[..len]).map(|&m| (len, m)))
-            else {
-                return found;
-            };
-            found = Some(m);
-            let Some(name) = abs.get(len).cloned() else {
-                return found;
-            };
-            if let Some(src) = named[m].get(&name) {
-                abs = src.clone();
-                continue;
-            }
-            let sources: Vec<&Vec<String>> = globs[m]
-                .iter()
-                .filter(|g| {
-                    index
-                        .get(*g)
-                        .is_some_and(|&s| reads[s].defines.contains(&name))
-                })
-                .collect();
-            match sources.as_slice() {
-                [one] => {
-                    abs = one.to_vec();
-                    abs.push(name);
-                }
-                _ => return found,
-            }
+    Reexports { named, globs }
+}
+
+/// The module a path (absolute) names, following re-exports a few steps; `None` for a path
+/// outside the tree's modules.
+fn target(
+    abs: &[String],
+    tree_module: &[String],
+    index: &BTreeMap<Vec<String>, usize>,
+    reads: &[Reads],
+    reexports: &Reexports,
+) -> Option<usize> {
+    let mut abs = abs.to_vec();
+    let mut found = None;
+    for _ in 0..4 {
+        if !abs.starts_with(tree_module) {
+            return found;
         }
-        found
-    };
+        let Some((len, m)) = (0..=abs.len())
+            .rev()
+            .find_map(|len| index.get(&abs[..len]).map(|&m| (len, m)))
+        else {
+            return found;
+        };
+        found = Some(m);
+        let Some(name) = abs.get(len).cloned() else {
+            return found;
+        };
+        if let Some(src) = reexports.named[m].get(&name) {
+            abs = src.clone();
+            continue;
+        }
+        let sources: Vec<&Vec<String>> = reexports.globs[m]
+            .iter()
+            .filter(|g| {
+                index
+                    .get(*g)
+                    .is_some_and(|&s| reads[s].defines.contains(&name))
+            })
+            .collect();
+        match sources.as_slice() {
+            [one] => {
+                abs = one.to_vec();
+                abs.push(name);
+            }
+            _ => return found,
+        }
+    }
+    found
+}
+
+/// Builds the graph of a tree of module path `tree_module` from its files: (path from the
+/// tree's folder, path shown in messages, source).
+pub fn graph(tree_module: &[&str], files: &[(String, String, String)]) -> Graph {
+    let tree_module: Vec<String> = tree_module.iter().map(|s| s.to_string()).collect();
+    let mut modules: Vec<Vec<String>> = Vec::new();
+    let mut reads = Vec::new();
+    for (rel, _, source) in files {
+        let m = module_of(&tree_module, rel);
+        reads.push(read(source, &m));
+        modules.push(m);
+    }
+    let index: BTreeMap<Vec<String>, usize> = modules
+        .iter()
+        .enumerate()
+        .map(|(i, m)| (m.clone(), i))
+        .collect();
+    let names = module_names(&tree_module, &modules);
+    let reexports = reexports(&reads, &modules, &index);
     let mut edges = BTreeMap::new();
     for (i, r) in reads.iter().enumerate() {
         for (path, module, line) in &r.refs {
             let Some(abs) = absolute(path, module) else {
                 continue;
             };
-            let Some(to) = target(&abs) else { continue };
+            let Some(to) = target(&abs, &tree_module, &index, &reads, &reexports) else {
+                continue;
+            };
             if to != i {
                 edges.entry((i, to)).or_insert_with(|| Reference {
                     file: files[i].1.clone(),

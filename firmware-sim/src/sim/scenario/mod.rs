@@ -544,10 +544,21 @@ fn desktop(fast: bool) -> Scenario {
 
 /// Room 5 × 4 × 2.6 m, x ∈ [0, 5], y ∈ [0, 4]; walls x = 0, y = 0, y = 4 modelled, x = 5 not.
 fn room() -> Scenario {
-    let length = 45.0;
+    Scenario {
+        name: ScenarioName::Room,
+        path: room_path(45.0),
+        scene: room_scene(),
+        imu: ImuOptions::mt9(),
+        camera: CameraSpec::paper(),
+    }
+}
+
+/// The room's hand-held path of `length` s: tremor, a close approach to the wall x = 0, two
+/// 360° turns and fast shakes.
+fn room_path(length: f64) -> Path {
     let tremor =
         |a: f64, f1: f64, f2: f64, ph: f64| always(&[(a, f1, ph), (a * 0.6, f2, ph + 1.3)], 1.5);
-    let path = Path {
+    Path {
         centre: Vector3::new(3.7, 2.0, 1.5),
         position: [
             vec![
@@ -592,10 +603,57 @@ fn room() -> Scenario {
         ],
         lever_arm: Vector3::zeros(),
         length,
-    };
-    let wall = |name: &str, c: Vector3<f64>, yaw: f64, w: f64, s: Surface, seed: u64| {
-        vertical_quad(name, c, yaw, (w, 2.6), s, seed, 400.0)
-    };
+    }
+}
+
+/// A wall of the room: full height (2.6 m), `w` wide, centred at `c`.
+fn room_wall(name: &str, c: Vector3<f64>, yaw: f64, w: f64, s: Surface, seed: u64) -> Quad {
+    vertical_quad(name, c, yaw, (w, 2.6), s, seed, 400.0)
+}
+
+/// The room's surfaces outside the model: the wall x = 5, the floor, the ceiling and a
+/// cabinet.
+fn room_unmodelled() -> Vec<Quad> {
+    vec![
+        room_wall(
+            "wall_x5",
+            Vector3::new(5.0, 2.0, 1.3),
+            PI,
+            4.0,
+            Surface::Wall { posters: 3 },
+            24,
+        ),
+        horizontal_quad(
+            "floor",
+            (0.0, 5.0),
+            (0.0, 4.0),
+            0.0,
+            true,
+            (Surface::Floor, 25, 200.0),
+        ),
+        horizontal_quad(
+            "ceiling",
+            (0.0, 5.0),
+            (0.0, 4.0),
+            2.6,
+            false,
+            (Surface::Ceiling, 26, 100.0),
+        ),
+        vertical_quad(
+            "cabinet",
+            Vector3::new(4.7, 1.0, 0.6),
+            PI,
+            (1.2, 1.2),
+            Surface::Clutter,
+            28,
+            400.0,
+        ),
+    ]
+}
+
+/// The room: its modelled walls, the rest ([`room_unmodelled`]), a person walking through,
+/// and the dimmed lights.
+fn room_scene() -> Scene {
     let person = vertical_quad(
         "person",
         Vector3::zeros(),
@@ -605,9 +663,9 @@ fn room() -> Scenario {
         27,
         300.0,
     );
-    let scene = Scene {
+    Scene {
         modelled: vec![
-            wall(
+            room_wall(
                 "wall_x0",
                 Vector3::new(0.0, 2.0, 1.3),
                 0.0,
@@ -615,7 +673,7 @@ fn room() -> Scenario {
                 Surface::Wall { posters: 4 },
                 21,
             ),
-            wall(
+            room_wall(
                 "wall_y0",
                 Vector3::new(2.5, 0.0, 1.3),
                 FRAC_PI_2,
@@ -623,7 +681,7 @@ fn room() -> Scenario {
                 Surface::Wall { posters: 5 },
                 22,
             ),
-            wall(
+            room_wall(
                 "wall_y4",
                 Vector3::new(2.5, 4.0, 1.3),
                 -FRAC_PI_2,
@@ -632,41 +690,7 @@ fn room() -> Scenario {
                 23,
             ),
         ],
-        unmodelled: vec![
-            wall(
-                "wall_x5",
-                Vector3::new(5.0, 2.0, 1.3),
-                PI,
-                4.0,
-                Surface::Wall { posters: 3 },
-                24,
-            ),
-            horizontal_quad(
-                "floor",
-                (0.0, 5.0),
-                (0.0, 4.0),
-                0.0,
-                true,
-                (Surface::Floor, 25, 200.0),
-            ),
-            horizontal_quad(
-                "ceiling",
-                (0.0, 5.0),
-                (0.0, 4.0),
-                2.6,
-                false,
-                (Surface::Ceiling, 26, 100.0),
-            ),
-            vertical_quad(
-                "cabinet",
-                Vector3::new(4.7, 1.0, 0.6),
-                PI,
-                (1.2, 1.2),
-                Surface::Clutter,
-                28,
-                400.0,
-            ),
-        ],
+        unmodelled: room_unmodelled(),
         occluders: vec![Occluder {
             quad: person,
             from: Vector3::new(1.4, -0.5, 0.9),
@@ -686,20 +710,24 @@ fn room() -> Scenario {
             gradient_v: vec![always(&[(0.12, 0.02, 0.0)], 0.0)],
         },
         clip: (0.05, 20.0),
-    };
-    Scenario {
-        name: ScenarioName::Room,
-        path,
-        scene,
-        imu: ImuOptions::mt9(),
-        camera: CameraSpec::paper(),
     }
 }
 
 /// Foyer: standing on the first floor (eye height 4.2 m), facing the wall x = 7; the device at
 /// arm's length swings away from the model and back.
 fn foyer() -> Scenario {
-    let length = 40.0;
+    Scenario {
+        name: ScenarioName::Foyer,
+        path: foyer_path(40.0),
+        scene: foyer_scene(),
+        imu: ImuOptions::mt9(),
+        camera: CameraSpec::paper(),
+    }
+}
+
+/// The foyer's path of `length` s: the person barely moves while the device at arm's length
+/// swings away from the modelled wall and back.
+fn foyer_path(length: f64) -> Path {
     // (start, duration of each swing, hold, yaw, pitch)
     let swings: [(f64, f64, f64, f64, f64); 6] = [
         (6.0, 0.55, 0.1, 1.25, 0.0),
@@ -724,7 +752,7 @@ fn foyer() -> Scenario {
             pitch.push(Signal::step(start + dur + hold, dur, -dp));
         }
     }
-    let path = Path {
+    Path {
         // The shoulder: the person barely moves.
         centre: Vector3::new(0.0, 0.0, 4.0),
         position: [
@@ -737,13 +765,18 @@ fn foyer() -> Scenario {
         attitude: [yaw, pitch, vec![always(&[(0.04, 0.13, 0.0)], 1.5)]],
         lever_arm: Vector3::new(0.45, 0.0, 0.2),
         length,
-    };
+    }
+}
+
+/// The foyer's walls around the modelled wall x = 7, its floor, ceiling, side walls and the
+/// gallery's parapet, and slowly varying lighting.
+fn foyer_scene() -> Scene {
     let wall = |name: &str, y: (f64, f64), z: (f64, f64), s: Surface, seed: u64, tpm: f64| {
         let c = Vector3::new(7.0, (y.0 + y.1) / 2.0, (z.0 + z.1) / 2.0);
         vertical_quad(name, c, PI, (y.1 - y.0, z.1 - z.0), s, seed, tpm)
     };
     let plaster = Surface::Wall { posters: 0 };
-    let scene = Scene {
+    Scene {
         modelled: vec![wall(
             "foyer_wall",
             (-4.25, 4.25),
@@ -809,13 +842,6 @@ fn foyer() -> Scenario {
             gradient_v: vec![always(&[(0.1, 0.03, 0.0)], 0.0)],
         },
         clip: (0.05, 40.0),
-    };
-    Scenario {
-        name: ScenarioName::Foyer,
-        path,
-        scene,
-        imu: ImuOptions::mt9(),
-        camera: CameraSpec::paper(),
     }
 }
 
