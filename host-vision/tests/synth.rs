@@ -379,10 +379,23 @@ fn live_frames_show_occluder_unmodelled_wall_blur_lighting_and_noise() {
     );
     assert!(s1 < 0.7 * s0);
 
+    lighting_and_noise(&sc, &models, clean, &mut synth, &mut rng);
+}
+
+/// The room's lights dimmed at 11–12 s darken a lit frame as they should, and two noisy
+/// renderings of one instant differ by the configured noise (the end of
+/// `live_frames_show_occluder_unmodelled_wall_blur_lighting_and_noise`).
+fn lighting_and_noise(
+    sc: &Scenario,
+    models: &SceneModels,
+    clean: FrameOptions,
+    synth: &mut FrameSynth,
+    rng: &mut StdRng,
+) {
     // Lights dimmed at 11–12 s by 45 %: with lighting on, the mean drops accordingly.
     let mut lit = FrameSynth::new(
-        &sc,
-        &models,
+        sc,
+        models,
         FrameOptions {
             lighting: true,
             ..clean
@@ -390,12 +403,12 @@ fn live_frames_show_occluder_unmodelled_wall_blur_lighting_and_noise() {
     )
     .unwrap();
     let (a, b) = (
-        lit.frame(&sc, 5.0, &mut rng).unwrap(),
-        synth.frame(&sc, 5.0, &mut rng).unwrap(),
+        lit.frame(sc, 5.0, rng).unwrap(),
+        synth.frame(sc, 5.0, rng).unwrap(),
     );
     let (c, d) = (
-        lit.frame(&sc, 18.0, &mut rng).unwrap(),
-        synth.frame(&sc, 18.0, &mut rng).unwrap(),
+        lit.frame(sc, 18.0, rng).unwrap(),
+        synth.frame(sc, 18.0, rng).unwrap(),
     );
     let (r_bright, r_dim) = (
         mean(&a.image) / mean(&b.image),
@@ -409,8 +422,8 @@ fn live_frames_show_occluder_unmodelled_wall_blur_lighting_and_noise() {
 
     // Noise: the difference of two noisy renderings of the same instant has std √2 σ.
     let mut noisy = FrameSynth::new(
-        &sc,
-        &models,
+        sc,
+        models,
         FrameOptions {
             read_noise: 3.0,
             shot_noise: 0.0,
@@ -419,8 +432,8 @@ fn live_frames_show_occluder_unmodelled_wall_blur_lighting_and_noise() {
     )
     .unwrap();
     let (n1, n2) = (
-        noisy.frame(&sc, 5.0, &mut rng).unwrap(),
-        noisy.frame(&sc, 5.0, &mut rng).unwrap(),
+        noisy.frame(sc, 5.0, rng).unwrap(),
+        noisy.frame(sc, 5.0, rng).unwrap(),
     );
     let diffs: Vec<f64> = n1
         .image

@@ -1519,12 +1519,12 @@ fn summarise(
                 tracked,
                 share: tracked as f64 / judged.len().max(1) as f64,
                 rule,
-                untracked: untracked_stretches(&rows),
+                untracked: untracked_stretches(rows),
             }
         }),
         divergences,
         without_vision,
-        cold_start: ColdStart::of(&record.searches, frame_period(&rows)),
+        cold_start: ColdStart::of(&record.searches, frame_period(rows)),
         line: link.noise.map(|n| LineSummary {
             byte_error_rate: n.byte_error_rate,
             damaged_to_core: n.to_core.counts().1,
@@ -1549,7 +1549,7 @@ fn summarise(
         },
         outages: record.outages.clone(),
         attach: record.attach_note.clone(),
-        track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(&rows, t0)),
+        track_losses: snapped_on_at.map_or_else(Vec::new, |t0| track_losses(rows, t0)),
         latency: LatencySummary::of(&record.latency, options),
         mean_frame_ms: if rows.is_empty() {
             0.0
