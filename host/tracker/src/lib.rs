@@ -11,8 +11,9 @@
 //! - [`session`]: the exchanges with the core that wait for its answers, and the bounded
 //!   window of what it said that the steps need;
 //! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
-//! - [`search`], [`loss`], [`tilt`], [`judge`]: the searches, the loss rule that sends them,
-//!   the tilt checks of tracked poses, and the verdicts;
+//! - [`search`], `searching`, [`loss`], [`tilt`], [`judge`]: the searches and their one
+//!   machine (locating, started, lost), the loss rule that sends them, the tilt checks of
+//!   tracked poses, and the verdicts;
 //! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells,
 //!   the details a report needs included;
 //! - [`record`], [`log`], [`latency`]: a run's report kept from the events (the tracker
@@ -70,6 +71,7 @@ pub mod loss;
 pub mod record;
 pub mod rig;
 pub mod search;
+mod searching;
 pub mod session;
 pub mod settings;
 pub mod tilt;

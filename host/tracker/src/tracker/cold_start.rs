@@ -23,100 +23,15 @@
 //! the dead-reckoned displacement of a lost filter is what cannot be trusted.
 
 use nalgebra::UnitQuaternion;
-use protocol::{HostToCore, Init, InitAttitude, Mode};
+use protocol::{HostToCore, Init, InitAttitude};
 
 use camera::CameraPose;
 
 use super::Tracker;
 use crate::error::TrackerError;
-use crate::loss::LossRule;
 use crate::search::Search;
+use crate::searching::Job;
 use crate::transport::CoreTransport;
-
-/// An attempt sent to the vision thread.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct LocateJob {
-    /// The frame's index.
-    pub index: usize,
-    /// Its trigger time [µs].
-    pub t_us: u64,
-    /// The IMU sample after which the answer is applied (lock-step).
-    pub due: usize,
-    /// Since when the model was lost [µs]; `None` for the start.
-    pub lost_at: Option<u64>,
-}
-
-/// The search state of an inertial run that started cold.
-#[derive(Debug, Default)]
-pub(crate) struct Searcher {
-    /// Whether the core has been given a found pose.
-    started: bool,
-    /// The attempt with the search thread.
-    job: Option<LocateJob>,
-    /// The loss rule, with the core's mode as each frame's judgement.
-    loss: LossRule,
-}
-
-/// What to do at a trigger.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum AtTrigger {
-    /// Send an attempt: for the start (`None`), or for the loss since this time [µs].
-    Attempt(Option<u64>),
-    /// The core is tracking.
-    Tracking,
-    /// Nothing.
-    Wait,
-}
-
-impl Searcher {
-    /// At a trigger at `t_us`: updates the loss rule from the core's statuses, and says what
-    /// to do.
-    pub fn at_trigger(
-        &mut self,
-        statuses: &crate::session::Recent<protocol::Status>,
-        t_us: u64,
-    ) -> AtTrigger {
-        self.loss.note_statuses(statuses, t_us);
-        if !self.started {
-            return match self.job {
-                None => AtTrigger::Attempt(None),
-                Some(_) => AtTrigger::Wait,
-            };
-        }
-        let tracking = statuses.last().is_some_and(|s| s.mode == Mode::Tracking);
-        if tracking && !self.loss.diverged() {
-            self.loss.frame(true, t_us);
-            return AtTrigger::Tracking;
-        }
-        self.loss.frame(false, t_us);
-        match self.loss.search_due(t_us, self.job.is_some()) {
-            Some(since) => AtTrigger::Attempt(Some(since)),
-            None => AtTrigger::Wait,
-        }
-    }
-
-    /// Whether the core has been given a found pose.
-    pub fn started(&self) -> bool {
-        self.started
-    }
-
-    /// Whether the model is lost at `t_us`.
-    pub fn lost(&self, t_us: u64) -> bool {
-        self.loss.lost(t_us)
-    }
-
-    /// Asks for an attempt at the next trigger, as after a divergence at `t_us`
-    /// ([`crate::Tracker::relocate`]).
-    pub fn force(&mut self, t_us: u64) {
-        self.started = true;
-        self.loss.force(t_us);
-    }
-
-    /// Records the attempt just sent.
-    pub fn sent(&mut self, job: LocateJob) {
-        self.job = Some(job);
-    }
-}
 
 impl<T: CoreTransport> Tracker<T> {
     /// Applies the attempt with the search thread if it is due: in lock-step
@@ -127,7 +42,7 @@ impl<T: CoreTransport> Tracker<T> {
         lock_step_k: Option<usize>,
         now_us: u64,
     ) -> Result<(), TrackerError> {
-        let Some(job) = self.searcher_mut().and_then(|s| s.job) else {
+        let Some(job) = self.searching.job() else {
             return Ok(());
         };
         let Some(search) = &self.search else {
@@ -144,32 +59,25 @@ impl<T: CoreTransport> Tracker<T> {
         if let Some(from) = from {
             self.tell(crate::event::Detail::Database(from));
         }
-        if let Some(s) = self.searcher_mut() {
-            s.job = None;
-        }
+        self.searching.answered();
         self.found(job, attempt, now_us)
     }
 
     /// Applies an attempt's answer: records it, and gives the core a verified pose.
     fn found(
         &mut self,
-        job: LocateJob,
+        job: Job,
         attempt: locate::Attempt,
         now_us: u64,
     ) -> Result<(), TrackerError> {
         let search = Search::new(job.index, job.t_us, attempt).applied(now_us);
-        self.tell_search(job.lost_at, search, None);
-        self.tell_located(job.index, attempt.pose);
-        let Some(pose) = attempt.pose else {
+        let Some(pose) = self.searched(job.lost_at, search, None) else {
             return Ok(());
         };
         let init = self.keep_tilt_init(&pose, job.t_us, now_us);
         self.core.send(&HostToCore::Init(init))?;
-        if let Some(s) = self.searcher_mut() {
-            s.started = true;
-            // The new start gets the same grace as a loss before it counts as lost.
-            s.loss.found(Some(now_us));
-        }
+        // The new start gets the same grace as a loss before it counts as lost.
+        self.searching.found(Some(now_us));
         Ok(())
     }
 

@@ -21,13 +21,13 @@ use std::time::{Duration, Instant};
 use protocol::{HostToCore, Init, InitAttitude, Mode, StatusReason};
 use vision::{FrameImage, FrameJob};
 
-use super::cold_start::{AtTrigger, LocateJob, Searcher};
 use super::on_core::OnCore;
 use super::outage::{Attempt, MAX_BACKLOG_US, Open};
 use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
 use crate::error::TrackerError;
 use crate::event::{Detail, LatencyNote};
 use crate::record::Fate;
+use crate::searching::{AtTrigger, Job, SearchMachine};
 use crate::transport::CoreTransport;
 
 /// One IMU sample pushed into the tracker.
@@ -80,8 +80,6 @@ pub(crate) struct Inertial {
     pub pending: VecDeque<Pending>,
     /// The samples of the last [`MAX_BACKLOG_US`], for a core that missed them.
     pub recent: VecDeque<Sent>,
-    /// The cold start's search state (runs with no start pose).
-    pub searcher: Option<Searcher>,
     /// The outage in progress.
     pub open: Option<Open>,
     /// Attached to a running core: its last sample's time [µs]; samples up to it are skipped.
@@ -95,7 +93,7 @@ pub(crate) struct Inertial {
 }
 
 impl Inertial {
-    pub(crate) fn new(latency_samples: usize, searcher: Option<Searcher>) -> Self {
+    pub(crate) fn new(latency_samples: usize) -> Self {
         Self {
             latency_samples,
             k: 0,
@@ -104,7 +102,6 @@ impl Inertial {
             late: None,
             pending: VecDeque::new(),
             recent: VecDeque::new(),
-            searcher,
             open: None,
             attached_after_us: None,
             last_sent_us: None,
@@ -122,11 +119,6 @@ impl<T: CoreTransport> Tracker<T> {
                 "this tracker runs the vision-only model: its clock is the frames', and it takes no IMU samples".into(),
             )
         })
-    }
-
-    /// The cold start's search state, in runs with no start pose.
-    pub(crate) fn searcher_mut(&mut self) -> Option<&mut Searcher> {
-        self.inertial.as_mut().and_then(|i| i.searcher.as_mut())
     }
 
     /// The start of a run with an IMU: the handshake, the latency checked against the core's
@@ -150,7 +142,9 @@ impl<T: CoreTransport> Tracker<T> {
         };
         let cold = attached.is_none() && self.config.start == Start::Locate;
         let latency = (self.config.latency_s * self.config.rig.imu_rate_hz).round() as usize;
-        let mut inertial = Inertial::new(latency, cold.then(Searcher::default));
+        // Searches are run in a run that starts cold (and after a relocation).
+        self.searching = SearchMachine::new(cold, false);
+        let mut inertial = Inertial::new(latency);
         inertial.attached_after_us = attached;
         inertial.on_core = self.config.imu_on_core.map(OnCore::new);
         self.inertial = Some(inertial);
@@ -370,11 +364,7 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// At a trigger: the loss rule, and an attempt on the frame where it asks for one.
     fn attempt_step(&mut self, frame: &Frame, t_us: u64, due: usize) -> Result<(), TrackerError> {
-        let statuses = &self.session.statuses;
-        let step = match self.inertial.as_mut().and_then(|i| i.searcher.as_mut()) {
-            Some(s) => s.at_trigger(statuses, t_us),
-            None => AtTrigger::Wait,
-        };
+        let step = self.searching.at_trigger(&self.session.statuses, t_us);
         if step == AtTrigger::Tracking {
             self.tell(Detail::RecoveryEnded(t_us));
         }
@@ -394,14 +384,12 @@ impl<T: CoreTransport> Tracker<T> {
             Ok(image) => {
                 search.send_locate(image, self.config.cache.clone())?;
                 self.settle(frame.index, Fate::Searched);
-                if let Some(s) = self.searcher_mut() {
-                    s.sent(LocateJob {
-                        index: frame.index,
-                        t_us,
-                        due,
-                        lost_at,
-                    });
-                }
+                self.searching.sent(Job {
+                    index: frame.index,
+                    t_us,
+                    due,
+                    lost_at,
+                });
             }
             // An unreadable frame is no attempt, as it is no analysis: reported, and the
             // next frame is tried.
@@ -641,8 +629,8 @@ impl<T: CoreTransport> Tracker<T> {
     pub(crate) fn judge_inertial(&mut self, t_us: u64) {
         self.loss.note_statuses(&self.session.statuses, t_us);
         let mode = self.session.mode();
-        let searching = self.inertial.as_ref().and_then(|i| i.searcher.as_ref());
-        let state = match searching.map(|s| (s.started(), s.lost(t_us))) {
+        let s = &self.searching;
+        let state = match s.active().then(|| (s.started(), s.lost(t_us))) {
             Some((false, _)) => State::Locating,
             Some((true, true)) => State::Lost,
             _ => match mode {

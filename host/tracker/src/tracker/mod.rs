@@ -48,6 +48,7 @@ use crate::loss::LossRule;
 use crate::record::Fate;
 use crate::rig::HandEye;
 use crate::search::Search;
+use crate::searching::{Job, SearchMachine};
 use crate::session::CoreSession;
 use crate::settings::check_config;
 pub use crate::settings::{Answers, Frame, ImuOnCore, Start, TrackerConfig};
@@ -84,16 +85,6 @@ pub(crate) struct Judged {
     pub weakest: Option<camera::WeakDirection>,
 }
 
-/// A search on the search thread: its frame's index and time [µs], and since when the model
-/// was lost [µs] (`None`: the start's, with no pose yet).
-#[derive(Debug, Clone, Copy)]
-struct InSearch {
-    index: usize,
-    t_us: u64,
-    /// `None`: the start's search.
-    lost_at: Option<u64>,
-}
-
 /// The tracker: frames in, events out, the core behind `T`.
 ///
 /// A tracker exists only once [`Tracker::new`] has finished starting it (the handshake, the
@@ -128,13 +119,13 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     tilt: TiltBranch,
     /// Vision-only: the last tick's time [µs].
     last_us: Option<u64>,
-    /// Vision-only: whether the core has a pose.
-    started: bool,
-    /// Vision-only: a frame has been tracked since the core was last given a pose.
+    /// A frame has been tracked since the core was last given a pose.
     tracked_since_start: bool,
-    /// Vision-only: the loss rule, with the tracked rule's verdicts.
+    /// The searches: locating, started, and lost (vision-only, its loss rule takes the
+    /// verdicts; with an IMU, the core's mode).
+    pub(crate) searching: SearchMachine,
+    /// With an IMU: the loss rule of the verdicts, which the state follows.
     loss: LossRule,
-    in_search: Option<InSearch>,
     since_check: usize,
     /// Runs with an IMU: their state.
     pub(crate) inertial: Option<Inertial>,
@@ -208,10 +199,9 @@ impl<T: CoreTransport> Tracker<T> {
             session_id: config.session_id,
             tilt: TiltBranch::default(),
             last_us: None,
-            started: config.start != Start::Locate,
             tracked_since_start: false,
+            searching: SearchMachine::new(vision_only, config.start != Start::Locate),
             loss: LossRule::default(),
-            in_search: None,
             since_check: 0,
             inertial: None,
             model: spare,
@@ -264,7 +254,7 @@ impl<T: CoreTransport> Tracker<T> {
                 "refused the configuration: {e}"
             )));
         }
-        self.state = if self.started {
+        self.state = if self.searching.started() {
             State::Starting
         } else {
             State::Locating
@@ -411,7 +401,7 @@ impl<T: CoreTransport> Tracker<T> {
     fn track(&mut self, index: usize, image: GrayImage, t_us: u64) -> Result<(), TrackerError> {
         if !self.start_step(index, &image, t_us)? {
             // No pose yet: the frame was searched, or taken while a search ran.
-            let searched = self.in_search.is_some_and(|s| s.index == index)
+            let searched = self.searching.job().is_some_and(|s| s.index == index)
                 || self.config.answers == Answers::AtNextFrame;
             let fate = if searched {
                 Fate::Searched
@@ -426,8 +416,8 @@ impl<T: CoreTransport> Tracker<T> {
         self.tick(t_us)?;
         let check_due = self.since_check >= TILT_CHECK_EVERY
             && !self.tilt.in_flight()
-            && self.in_search.is_none()
-            && self.loss.untracked_since().is_none();
+            && self.searching.job().is_none()
+            && self.searching.loss.untracked_since().is_none();
         let check_image = check_due.then(|| image.clone());
         let (analysed, correspondences) = self.analyse(index, image, t_us)?;
         self.check_step(check_image, analysed, index)?;
@@ -448,7 +438,7 @@ impl<T: CoreTransport> Tracker<T> {
         image: &GrayImage,
         t_us: u64,
     ) -> Result<bool, TrackerError> {
-        if self.started {
+        if self.searching.started() {
             return Ok(true);
         }
         let answer = if self.config.answers == Answers::AtNextFrame {
@@ -457,30 +447,30 @@ impl<T: CoreTransport> Tracker<T> {
                 .locate(image.clone(), self.config.cache.clone())?;
             Some((a, from, index, t_us))
         } else {
-            match self.in_search {
+            match self.searching.job() {
                 Some(s) => self.searcher()?.try_locate()?.map(|(a, from)| {
-                    self.in_search = None;
+                    self.searching.answered();
                     (a, from, s.index, s.t_us)
                 }),
                 None => None,
             }
         };
         if let Some((a, from, at, at_us)) = answer {
-            self.tell_search(None, Search::new(at, at_us, a).applied(t_us), from);
-            self.tell_located(at, a.pose);
-            if let Some(pose) = a.pose {
+            let search = Search::new(at, at_us, a).applied(t_us);
+            if let Some(pose) = self.searched(None, search, from) {
                 self.core.send(&HostToCore::Init(init_at(&pose)))?;
-                self.started = true;
+                self.searching.start();
                 self.set_state(State::Starting);
                 return Ok(true);
             }
         }
-        if self.config.answers == Answers::WhenReady && self.in_search.is_none() {
+        if self.config.answers == Answers::WhenReady && self.searching.job().is_none() {
             self.searcher()?
                 .send_locate(image.clone(), self.config.cache.clone())?;
-            self.in_search = Some(InSearch {
+            self.searching.sent(Job {
                 index,
                 t_us,
+                due: 0,
                 lost_at: None,
             });
         }
@@ -494,23 +484,23 @@ impl<T: CoreTransport> Tracker<T> {
     fn take_answers(&mut self, t_us: u64) -> Result<(), TrackerError> {
         let block = self.config.answers == Answers::AtNextFrame;
         // Divergences since the last frame lose the model at once.
-        self.loss.note_statuses(&self.session.statuses, t_us);
-        if let Some(s) = self.in_search {
+        self.searching
+            .loss
+            .note_statuses(&self.session.statuses, t_us);
+        if let Some(s) = self.searching.job() {
             let done = if block {
                 Some(self.searcher()?.locate_result()?)
             } else {
                 self.searcher()?.try_locate()?
             };
             if let Some((a, from)) = done {
-                self.in_search = None;
+                self.searching.answered();
                 let search = Search::new(s.index, s.t_us, a).applied(t_us);
-                self.tell_search(s.lost_at, search, from);
-                self.tell_located(s.index, a.pose);
-                if let Some(pose) = a.pose {
+                if let Some(pose) = self.searched(s.lost_at, search, from) {
                     self.core.send(&HostToCore::Init(init_at(&pose)))?;
                     self.tilt.restart();
                     self.tell_tilt();
-                    self.loss.found(None);
+                    self.searching.found(None);
                     self.tracked_since_start = false;
                 }
             }
@@ -535,7 +525,7 @@ impl<T: CoreTransport> Tracker<T> {
         image: &GrayImage,
         t_us: u64,
     ) -> Result<(), TrackerError> {
-        if !self.loss.lost(t_us) {
+        if !self.searching.lost(t_us) {
             self.tell(Detail::RecoveryEnded(t_us));
             return Ok(());
         }
@@ -544,13 +534,13 @@ impl<T: CoreTransport> Tracker<T> {
             // An untextured model: lost until its contour is found again, never searched.
             return Ok(());
         }
-        let busy = self.in_search.is_some() || self.tilt.in_flight();
-        if let Some(lost_at) = self.loss.search_due(t_us, busy) {
+        if let Some(lost_at) = self.searching.due(t_us, self.tilt.in_flight()) {
             self.searcher()?
                 .send_locate(image.clone(), self.config.cache.clone())?;
-            self.in_search = Some(InSearch {
+            self.searching.sent(Job {
                 index,
                 t_us,
+                due: 0,
                 lost_at: Some(lost_at),
             });
         }
@@ -681,11 +671,11 @@ impl<T: CoreTransport> Tracker<T> {
     /// Step 8: the frame's judgement into the loss rule, the state, and the frame's event.
     fn judge(&mut self, judged: Option<Judged>, index: usize, t_us: u64, correspondences: usize) {
         let tracked = judged.is_some_and(|j| j.tracked);
-        self.loss.frame(tracked, t_us);
+        self.searching.loss.frame(tracked, t_us);
         if tracked {
             self.tracked_since_start = true;
         }
-        let state = if self.loss.lost(t_us) {
+        let state = if self.searching.lost(t_us) {
             State::Lost
         } else if self.tracked_since_start {
             State::Tracking
@@ -767,12 +757,14 @@ impl<T: CoreTransport> Tracker<T> {
             let model = self.model.take().ok_or(TrackerError::NeedsStartPose)?;
             self.search = Some(search_worker(&self.config, model)?);
         }
-        match self.inertial.as_mut() {
+        match self.inertial.as_ref() {
             Some(i) => {
                 let t_us = i.recent.back().map_or(0, |s| s.t_us);
-                i.searcher.get_or_insert_with(Default::default).force(t_us);
+                self.searching.force(t_us);
             }
-            None if self.started => self.loss.force(self.last_us.unwrap_or(0)),
+            None if self.searching.started() => {
+                self.searching.loss.force(self.last_us.unwrap_or(0))
+            }
             // Still locating: every frame gets an attempt already.
             None => return Ok(()),
         }
@@ -848,7 +840,7 @@ impl<T: CoreTransport> Tracker<T> {
         }
         self.tilt.restart();
         self.tell_tilt();
-        if let Some(s) = self.in_search.take() {
+        if let Some(s) = self.searching.answered() {
             let (a, from) = self.searcher()?.locate_result()?;
             self.tell_search(s.lost_at, Search::new(s.index, s.t_us, a), from);
         }
@@ -940,6 +932,20 @@ impl<T: CoreTransport> Tracker<T> {
         if self.config.details {
             self.tell(Detail::Latency(note, Instant::now()));
         }
+    }
+
+    /// Tells a search's answer (its attempt, where its database came from, and what it
+    /// found), and returns the pose it verified.
+    pub(crate) fn searched(
+        &mut self,
+        lost_at: Option<u64>,
+        search: Search,
+        from: Option<locate::database::Provenance>,
+    ) -> Option<CameraPose> {
+        let (index, pose) = (search.index, search.attempt.pose);
+        self.tell_search(lost_at, search, from);
+        self.tell_located(index, pose);
+        pose
     }
 
     /// Tells a search's attempt, and where its database came from.
