@@ -11,11 +11,11 @@ use host_vision::camera::{Camera, CameraPose, read_camera_json, read_euroc_senso
 use host_vision::frames::{FrameInput, VideoOptions};
 use host_vision::locate::database::{Database, DatabaseConfig, DatabaseError, Provenance};
 use host_vision::locate::run::{LocateError, LocateInput, LocateOptions, run};
-use host_vision::locate::{LocateConfig, Locator};
+use host_vision::locate::{Attempt, LocateConfig, Locator};
 use host_vision::model::{self, Model};
 use host_vision::start_pose::read_start_pose;
 use host_vision::track;
-use host_vision::track::vision::{Vision, VisionOptions};
+use host_vision::track::vision::{Verified, Vision, VisionOptions};
 use image::GrayImage;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
@@ -327,209 +327,297 @@ fn the_cube_is_found_on_50_frames_spread_over_the_video_where_half_of_it_shows()
     let wanted = evenly(&half_visible(VIDEO_FRAMES), 50);
     assert_eq!(wanted.len(), 50);
     let started = Instant::now();
-    let mut accepted = 0;
-    let mut compared = 0;
-    let mut disagree = Vec::new();
-    let mut other_tilt = Vec::new();
-    let mut raw_disagree = 0;
-    let mut sigmas = Vec::new();
-    let mut poorly_pinned = Vec::new();
+    let mut tally = SpreadTally::default();
+    print_spread_header();
+    for (i, img) in frames(&dir.join("cube_video.mp4"), &wanted) {
+        let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
+        tally.accepted += usize::from(a.accepted());
+        let reference = tracking_reference(&mut vision, &img, tracking.holds(i));
+        let agreement = match (a.pose, reference) {
+            (Some(found), Some((raw, refit))) => {
+                tally.against_tracking(&mut vision, &img, i, &found, &raw, refit.as_ref())
+            }
+            (_, None) => "not tracked".into(),
+            (None, Some(_)) => "-".into(),
+        };
+        print_attempt_row(i, &a, &agreement);
+        print_mirror_check(&a);
+        print_rivals(&a);
+    }
+    tally.report(wanted.len(), started, tracking.recoveries.len());
+}
+
+/// The reference for frame `img` where tracking holds there (at `at`): tracking's pose, and its
+/// refit where that passes tracking's rule.
+fn tracking_reference(
+    vision: &mut Vision,
+    img: &GrayImage,
+    at: Option<&CameraPose>,
+) -> Option<(CameraPose, Option<Verified>)> {
+    // The reference: tracking's pose, re-fitted to its own registrations in this frame
+    // (the verification run from it). Tracking's output is the filter's pose, which a
+    // single visible face pins down poorly in the turn about the cube; the refit puts it
+    // where the frame's evidence has it, and keeps it in tracking's basin (the two-fold
+    // ambiguity of a planar face included). Without a refit that passes the rule, the
+    // filter's pose itself. The refit is judged by tracking's own rule (tracking is what
+    // holds or not here), not by the cold start's stricter count.
+    at.map(|at| {
+        let (v, _) = host_vision::locate::converged(vision, img, at, false).unwrap();
+        let refitted = track::TrackedRule::default().holds(&v.assessment);
+        (*at, refitted.then_some(v))
+    })
+}
+
+/// How far a located pose is from tracking's estimates in one frame.
+#[derive(Debug, Clone, Copy)]
+struct Gap {
+    /// The video frame.
+    frame: usize,
+    /// Centre [m] and rotation [°] from tracking's refit (its filter's pose without one).
+    refit: (f64, f64),
+    /// Centre [m] and rotation [°] from the nearer of the refit and the filter's pose.
+    near: (f64, f64),
+}
+
+/// What the 50-frame test counts over its frames.
+#[derive(Default)]
+struct SpreadTally {
+    accepted: usize,
+    compared: usize,
+    disagree: Vec<(usize, f64, f64, f64)>,
+    other_tilt: Vec<(usize, f64, f64)>,
+    raw_disagree: usize,
+    sigmas: Vec<f64>,
+    poorly_pinned: Vec<(usize, f64, f64)>,
+}
+
+impl SpreadTally {
+    /// Compares the pose `found` in frame `i` with tracking's pose there (`raw`, the filter's)
+    /// and its refit, counts the outcome, and returns the table's column for it.
+    fn against_tracking(
+        &mut self,
+        vision: &mut Vision,
+        img: &GrayImage,
+        i: usize,
+        found: &CameraPose,
+        raw: &CameraPose,
+        refit: Option<&Verified>,
+    ) -> String {
+        let (dr, dra) = difference(found, raw);
+        let (dc, da) = difference(found, refit.map_or(raw, |v| &v.pose));
+        self.compared += 1;
+        self.sigmas
+            .extend(refit.map(|r| pose_sigma(vision.ideal_camera(), r).0));
+        let mut note = String::new();
+        // Tracking has two estimates here, its output (the filter's pose) and its
+        // refit; the nearer one is compared. In a frame with ~20 registrations the
+        // verification run from two starts can end in two places (frame 892 after
+        // issue 33: the filter's pose 5.9 mm from the located one, its refit 26.6 mm).
+        let (near, near_a) = if dr < dc { (dr, dra) } else { (dc, da) };
+        if !(near < 0.01 && near_a < 2.0) {
+            let gap = Gap {
+                frame: i,
+                refit: (dc, da),
+                near: (near, near_a),
+            };
+            note = self.beyond_1_cm_or_2_degrees(vision, img, found, refit, gap);
+        }
+        if !(dr < 0.01 && dra < 2.0) {
+            self.raw_disagree += 1;
+        }
+        format!(
+            "{:.1} mm {da:.2}°{}{note} (filter's pose: {:.1} mm {dra:.2}°)",
+            dc * 1e3,
+            if refit.is_some() { "" } else { " (no refit)" },
+            dr * 1e3
+        )
+    }
+
+    /// Judges a located pose `found` that is beyond 1 cm or 2° of tracking (`gap`): on the
+    /// other tilt, within what the frame pins down, or a disagreement. Returns the note for
+    /// the table.
+    fn beyond_1_cm_or_2_degrees(
+        &mut self,
+        vision: &mut Vision,
+        img: &GrayImage,
+        found: &CameraPose,
+        refit: Option<&Verified>,
+        gap: Gap,
+    ) -> String {
+        let Gap {
+            frame: i,
+            refit: (dc, da),
+            near: (near, near_a),
+        } = gap;
+        // Which of the two the image favours, by the locator's own judgement of
+        // two poses (eqs. P2, P3). Where it favours the located pose decisively,
+        // tracking is on the other tilt of the face there.
+        let verdict = refit.map(|r| {
+            let (l, _) = host_vision::locate::converged(vision, img, found, false).unwrap();
+            host_vision::locate::compare(vision, img, &l, r).unwrap()
+        });
+        let favours_found = verdict.is_some_and(|c| c.verdict == Some(std::cmp::Ordering::Less));
+        if favours_found && da > 5.0 {
+            self.other_tilt.push((i, dc, da));
+            " (the image favours the located pose: tracking is on the other tilt)".into()
+        } else {
+            let (sc, sa) = refit.map_or((f64::NAN, f64::NAN), |r| {
+                pose_sigma(vision.ideal_camera(), r)
+            });
+            // Within what the frame pins down: two estimates from one frame, each
+            // with the reference's σ along the worst directions, so their
+            // difference has √2 σ; its 95 % bound is 1.96 √2 σ.
+            let bound = 1.96 * std::f64::consts::SQRT_2;
+            let pinned = near <= (bound * sc).max(0.01) && near_a <= (bound * sa).max(2.0);
+            if pinned {
+                self.poorly_pinned.push((i, near, sc));
+            } else {
+                self.disagree.push((i, near, near_a, sc));
+            }
+            format!(
+                " ({}; the image: {:?}; the reference's σ {:.1} mm, {sa:.2}°)",
+                if pinned {
+                    "within the 95 % bound of what this frame pins down"
+                } else {
+                    "disagrees"
+                },
+                verdict.and_then(|c| c.verdict),
+                sc * 1e3
+            )
+        }
+    }
+
+    /// Prints the totals over the `tried` frames (from `started`; `recoveries` of the tracking
+    /// run) and asserts issue 15's criteria.
+    fn report(mut self, tried: usize, started: Instant, recoveries: usize) {
+        let Self {
+            accepted,
+            compared,
+            raw_disagree,
+            ..
+        } = self;
+        println!(
+            "{accepted} of {tried} accepted ({:.1} %), {compared} compared with tracking: {} disagree with the nearer of its refit and its output, {} where the image favours the located pose (tracking on the other tilt), {raw_disagree} with the filter's pose; {:.1} s; recoveries of the tracking run: {recoveries}",
+            100.0 * accepted as f64 / tried as f64,
+            self.disagree.len(),
+            self.other_tilt.len(),
+            started.elapsed().as_secs_f64(),
+        );
+        let sigmas = &mut self.sigmas;
+        sigmas.sort_by(f64::total_cmp);
+        if let (Some(lo), Some(hi)) = (sigmas.first(), sigmas.last()) {
+            println!(
+                "the reference's centre σ along its worst direction: {:.1} to {:.1} mm, median {:.1} mm",
+                lo * 1e3,
+                hi * 1e3,
+                sigmas[sigmas.len() / 2] * 1e3
+            );
+        }
+        assert!(accepted * 10 >= tried * 9, "{accepted} of {tried} accepted");
+        let (disagree, poorly_pinned) = (&self.disagree, &self.poorly_pinned);
+        println!(
+            "beyond 1 cm or 2° but within the 95 % bound of what the frame pins down (frame, mm, the centre's σ mm): {:?}",
+            poorly_pinned
+                .iter()
+                .map(|(i, d, s)| (i, (d * 1e4).round() / 10.0, (s * 1e4).round() / 10.0))
+                .collect::<Vec<_>>()
+        );
+        // Issue 15: every compared frame within 1 cm and 2° of tracking from the given start,
+        // where tracking holds there. Tracking does not hold where the image decisively favours
+        // the located pose on the other tilt of the face (eqs. P2, P3;
+        // docs/notes/issue15-cold-start.md §7); and where one frame pins the camera centre only
+        // to σ ≥ 5 mm along its worst direction (a one-face view, in the turn about the cube),
+        // two estimates from it agree to within their difference's 95 % bound, not to 1 cm.
+        // Measured: 1 such frame of 45 (Vulkan: 908), 3 of 46 (GL: 844, 892, 908).
+        assert!(
+            disagree.is_empty(),
+            "{} of {compared} disagree with tracking: {disagree:?}",
+            disagree.len()
+        );
+        assert!(
+            poorly_pinned.len() * 10 <= compared,
+            "{} of {compared} beyond 1 cm: {poorly_pinned:?}",
+            poorly_pinned.len()
+        );
+    }
+}
+
+/// Prints the two header lines of the 50-frame table: a frame's row, then a rival's.
+fn print_spread_header() {
     println!(
         "frame | keypoints matches inliers | registered rms[px] ncc | accepted | mirror, alternatives or ambiguous | against tracking refitted (against its filter's pose)"
     );
     println!(
         "      rival: registered rms ncc | apart from the chosen | eq. P2 correlations chosen/rival over pixels | eq. P3 log-odds for the chosen"
     );
-    for (i, img) in frames(&dir.join("cube_video.mp4"), &wanted) {
-        let (a, _) = locator.attempt(&mut vision, &img, false).unwrap();
-        accepted += usize::from(a.accepted());
-        // The reference: tracking's pose, re-fitted to its own registrations in this frame
-        // (the verification run from it). Tracking's output is the filter's pose, which a
-        // single visible face pins down poorly in the turn about the cube; the refit puts it
-        // where the frame's evidence has it, and keeps it in tracking's basin (the two-fold
-        // ambiguity of a planar face included). Without a refit that passes the rule, the
-        // filter's pose itself. The refit is judged by tracking's own rule (tracking is what
-        // holds or not here), not by the cold start's stricter count.
-        let reference = tracking.holds(i).map(|at| {
-            let (v, _) = host_vision::locate::converged(&mut vision, &img, at, false).unwrap();
-            let refitted = track::TrackedRule::default().holds(&v.assessment);
-            (*at, refitted.then_some(v))
-        });
-        let agreement = match (a.pose, reference) {
-            (Some(found), Some((raw, refit))) => {
-                let (dr, dra) = difference(&found, &raw);
-                let (dc, da) = difference(&found, refit.as_ref().map_or(&raw, |v| &v.pose));
-                compared += 1;
-                sigmas.extend(
-                    refit
-                        .as_ref()
-                        .map(|r| pose_sigma(vision.ideal_camera(), r).0),
-                );
-                let mut note = String::new();
-                // Tracking has two estimates here, its output (the filter's pose) and its
-                // refit; the nearer one is compared. In a frame with ~20 registrations the
-                // verification run from two starts can end in two places (frame 892 after
-                // issue 33: the filter's pose 5.9 mm from the located one, its refit 26.6 mm).
-                let (near, near_a) = if dr < dc { (dr, dra) } else { (dc, da) };
-                if !(near < 0.01 && near_a < 2.0) {
-                    // Which of the two the image favours, by the locator's own judgement of
-                    // two poses (eqs. P2, P3). Where it favours the located pose decisively,
-                    // tracking is on the other tilt of the face there.
-                    let verdict = refit.as_ref().map(|r| {
-                        let (l, _) =
-                            host_vision::locate::converged(&mut vision, &img, &found, false)
-                                .unwrap();
-                        host_vision::locate::compare(&mut vision, &img, &l, r).unwrap()
-                    });
-                    let favours_found =
-                        verdict.is_some_and(|c| c.verdict == Some(std::cmp::Ordering::Less));
-                    if favours_found && da > 5.0 {
-                        other_tilt.push((i, dc, da));
-                        note =
-                            " (the image favours the located pose: tracking is on the other tilt)"
-                                .into();
-                    } else {
-                        let (sc, sa) = refit.as_ref().map_or((f64::NAN, f64::NAN), |r| {
-                            pose_sigma(vision.ideal_camera(), r)
-                        });
-                        // Within what the frame pins down: two estimates from one frame, each
-                        // with the reference's σ along the worst directions, so their
-                        // difference has √2 σ; its 95 % bound is 1.96 √2 σ.
-                        let bound = 1.96 * std::f64::consts::SQRT_2;
-                        let pinned =
-                            near <= (bound * sc).max(0.01) && near_a <= (bound * sa).max(2.0);
-                        if pinned {
-                            poorly_pinned.push((i, near, sc));
-                        } else {
-                            disagree.push((i, near, near_a, sc));
-                        }
-                        note = format!(
-                            " ({}; the image: {:?}; the reference's σ {:.1} mm, {sa:.2}°)",
-                            if pinned {
-                                "within the 95 % bound of what this frame pins down"
-                            } else {
-                                "disagrees"
-                            },
-                            verdict.and_then(|c| c.verdict),
-                            sc * 1e3
-                        );
-                    }
-                }
-                if !(dr < 0.01 && dra < 2.0) {
-                    raw_disagree += 1;
-                }
-                format!(
-                    "{:.1} mm {da:.2}°{}{note} (filter's pose: {:.1} mm {dra:.2}°)",
-                    dc * 1e3,
-                    if refit.is_some() { "" } else { " (no refit)" },
-                    dr * 1e3
-                )
-            }
-            (_, None) => "not tracked".into(),
-            (None, Some(_)) => "-".into(),
-        };
+}
+
+/// Prints frame `i`'s row of the 50-frame table: attempt `a`'s figures and its `agreement`
+/// with tracking.
+fn print_attempt_row(i: usize, a: &Attempt, agreement: &str) {
+    println!(
+        "{i:5} | {:5} {:4} {:4} | {:3} {:5.2} {:6.3} | {:3} | {:9} | {agreement}",
+        a.keypoints,
+        a.matches,
+        a.inliers,
+        a.registered,
+        a.rms_px.unwrap_or(f64::NAN),
+        a.ncc.unwrap_or(f64::NAN),
+        if a.accepted() { "yes" } else { "no" },
+        match (a.alternatives, a.mirror_chosen, a.ambiguous) {
+            (_, _, true) => "ambiguous".to_string(),
+            (_, true, _) => "mirror".to_string(),
+            (0, false, _) => String::new(),
+            (n, false, _) => format!("{n} alt."),
+        },
+    );
+}
+
+/// Prints attempt `a`'s mirror check (eqs. P2, P3), where it made one.
+fn print_mirror_check(a: &Attempt) {
+    if let Some(c) = a.mirror_check {
         println!(
-            "{i:5} | {:5} {:4} {:4} | {:3} {:5.2} {:6.3} | {:3} | {:9} | {agreement}",
-            a.keypoints,
-            a.matches,
-            a.inliers,
-            a.registered,
-            a.rms_px.unwrap_or(f64::NAN),
-            a.ncc.unwrap_or(f64::NAN),
-            if a.accepted() { "yes" } else { "no" },
-            match (a.alternatives, a.mirror_chosen, a.ambiguous) {
-                (_, _, true) => "ambiguous".to_string(),
-                (_, true, _) => "mirror".to_string(),
-                (0, false, _) => String::new(),
-                (n, false, _) => format!("{n} alt."),
-            },
+            "      mirror check: eq. P2 {:.3}/{:.3} over {} | eq. P3 {}",
+            c.contrast.first.unwrap_or(f64::NAN),
+            c.contrast.second.unwrap_or(f64::NAN),
+            c.contrast.pixels,
+            match c.evidence {
+                Some(_) if c.one_minimum() => "one minimum".to_string(),
+                Some(e) => format!("{:.1}", e.log_odds),
+                None => "-".to_string(),
+            }
         );
-        if let Some(c) = a.mirror_check {
-            println!(
-                "      mirror check: eq. P2 {:.3}/{:.3} over {} | eq. P3 {}",
+    }
+}
+
+/// Prints a line for each of attempt `a`'s rivals: its judgement, how far it is from the
+/// chosen pose, and how the image tells the two apart (eqs. P2, P3).
+fn print_rivals(a: &Attempt) {
+    for r in a.rivals.iter().flatten() {
+        let apart = a
+            .chosen
+            .map_or((f64::NAN, f64::NAN), |c| difference(&c, &r.pose));
+        let p2 = r.compared.map_or(String::from("-"), |c| {
+            format!(
+                "{:.3}/{:.3} over {}",
                 c.contrast.first.unwrap_or(f64::NAN),
                 c.contrast.second.unwrap_or(f64::NAN),
-                c.contrast.pixels,
-                match c.evidence {
-                    Some(_) if c.one_minimum() => "one minimum".to_string(),
-                    Some(e) => format!("{:.1}", e.log_odds),
-                    None => "-".to_string(),
-                }
-            );
-        }
-        for r in a.rivals.iter().flatten() {
-            let apart = a
-                .chosen
-                .map_or((f64::NAN, f64::NAN), |c| difference(&c, &r.pose));
-            let p2 = r.compared.map_or(String::from("-"), |c| {
-                format!(
-                    "{:.3}/{:.3} over {}",
-                    c.contrast.first.unwrap_or(f64::NAN),
-                    c.contrast.second.unwrap_or(f64::NAN),
-                    c.contrast.pixels
-                )
-            });
-            let p3 = r
-                .compared
-                .and_then(|c| c.evidence)
-                .map_or(String::from("-"), |e| format!("{:.1}", e.log_odds));
-            println!(
-                "      rival: {:3} {:5.2} {:6.3} | {:6.1} mm {:5.2}° | {p2} | {p3}",
-                r.assessment.features,
-                rms(&r.assessment),
-                r.assessment.ncc.unwrap_or(f64::NAN),
-                apart.0 * 1e3,
-                apart.1
-            );
-        }
-    }
-    println!(
-        "{accepted} of {} accepted ({:.1} %), {compared} compared with tracking: {} disagree with the nearer of its refit and its output, {} where the image favours the located pose (tracking on the other tilt), {raw_disagree} with the filter's pose; {:.1} s; recoveries of the tracking run: {}",
-        wanted.len(),
-        100.0 * accepted as f64 / wanted.len() as f64,
-        disagree.len(),
-        other_tilt.len(),
-        started.elapsed().as_secs_f64(),
-        tracking.recoveries.len()
-    );
-    sigmas.sort_by(f64::total_cmp);
-    if let (Some(lo), Some(hi)) = (sigmas.first(), sigmas.last()) {
+                c.contrast.pixels
+            )
+        });
+        let p3 = r
+            .compared
+            .and_then(|c| c.evidence)
+            .map_or(String::from("-"), |e| format!("{:.1}", e.log_odds));
         println!(
-            "the reference's centre σ along its worst direction: {:.1} to {:.1} mm, median {:.1} mm",
-            lo * 1e3,
-            hi * 1e3,
-            sigmas[sigmas.len() / 2] * 1e3
+            "      rival: {:3} {:5.2} {:6.3} | {:6.1} mm {:5.2}° | {p2} | {p3}",
+            r.assessment.features,
+            rms(&r.assessment),
+            r.assessment.ncc.unwrap_or(f64::NAN),
+            apart.0 * 1e3,
+            apart.1
         );
     }
-    assert!(
-        accepted * 10 >= wanted.len() * 9,
-        "{accepted} of {} accepted",
-        wanted.len()
-    );
-    println!(
-        "beyond 1 cm or 2° but within the 95 % bound of what the frame pins down (frame, mm, the centre's σ mm): {:?}",
-        poorly_pinned
-            .iter()
-            .map(|(i, d, s)| (i, (d * 1e4).round() / 10.0, (s * 1e4).round() / 10.0))
-            .collect::<Vec<_>>()
-    );
-    // Issue 15: every compared frame within 1 cm and 2° of tracking from the given start, where
-    // tracking holds there. Tracking does not hold where the image decisively favours the
-    // located pose on the other tilt of the face (eqs. P2, P3; docs/notes/issue15-cold-start.md
-    // §7); and where one frame pins the camera centre only to σ ≥ 5 mm along its worst
-    // direction (a one-face view, in the turn about the cube), two estimates from it agree
-    // to within their difference's 95 % bound, not to 1 cm. Measured: 1 such frame of 45
-    // (Vulkan: 908), 3 of 46 (GL: 844, 892, 908).
-    assert!(
-        disagree.is_empty(),
-        "{} of {compared} disagree with tracking: {disagree:?}",
-        disagree.len()
-    );
-    assert!(
-        poorly_pinned.len() * 10 <= compared,
-        "{} of {compared} beyond 1 cm: {poorly_pinned:?}",
-        poorly_pinned.len()
-    );
 }
 
 /// The image with the rectangle around the cube's projection at `pose` (grown by 30 px)

@@ -6,6 +6,8 @@
 //! - [`builder`]: a [`Tracker`] from a camera, a model and what differs from the defaults
 //!   ([`TrackerBuilder`]);
 //! - [`rig`], [`config`]: the sensors, and the core's configuration that follows from them;
+//! - `clock`: a clock per input mode (the frames', or the IMU's samples), each owning its
+//!   time base and what waits on it;
 //! - [`transport`], [`in_process`]: the core behind a [`CoreTransport`], and the core called
 //!   in-process (the links to a board are the `core-link` crate's);
 //! - [`session`]: the exchanges with the core that wait for its answers, and the bounded
@@ -59,6 +61,7 @@
 //! ```
 
 pub mod builder;
+mod clock;
 pub mod config;
 mod error;
 pub mod event;

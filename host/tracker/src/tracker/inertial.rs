@@ -24,6 +24,7 @@ use vision::{FrameImage, FrameJob};
 use super::on_core::OnCore;
 use super::outage::{Attempt, MAX_BACKLOG_US, Open};
 use super::{Answers, Event, Frame, FrameReport, Start, State, Tracker};
+use crate::clock::SampleClock;
 use crate::error::TrackerError;
 use crate::event::{Detail, LatencyNote};
 use crate::record::Fate;
@@ -67,12 +68,8 @@ pub(crate) struct Pending {
 pub(crate) struct Inertial {
     /// The latency from trigger to correspondences in a replay [samples].
     pub latency_samples: usize,
-    /// Samples pushed so far (the next one's index).
-    pub k: usize,
-    /// The last sample's stamp [ns].
-    pub last_ns: Option<u64>,
-    /// The frame waiting for its trigger, the next sample.
-    pub queued: Option<Frame>,
+    /// The clock: the samples, counted, and the frame waiting for the next.
+    pub clock: SampleClock,
     /// Live: a frame triggered whose prediction had not come yet, analysed when it comes
     /// (before the next trigger), with its trigger's time [µs] and the sample it is due at.
     pub late: Option<(Frame, u64, usize)>,
@@ -96,9 +93,7 @@ impl Inertial {
     pub(crate) fn new(latency_samples: usize) -> Self {
         Self {
             latency_samples,
-            k: 0,
-            last_ns: None,
-            queued: None,
+            clock: SampleClock::default(),
             late: None,
             pending: VecDeque::new(),
             recent: VecDeque::new(),
@@ -208,16 +203,7 @@ impl<T: CoreTransport> Tracker<T> {
                 "the core samples its own IMU in this run: the program pushes frames only".into(),
             ));
         }
-        if let Some(last) = self.imu_mut()?.last_ns
-            && sample.t_ns <= last
-        {
-            let t0 = self.origin_ns.unwrap_or(0);
-            return Err(TrackerError::TimeBackwards {
-                what: "IMU sample".into(),
-                t_us: (sample.t_ns as i64 - t0) / 1000,
-                previous_us: (last as i64 - t0) / 1000,
-            });
-        }
+        self.imu_mut()?.clock.check(sample.t_ns)?;
         let step = self.imu_step(sample);
         if let Err(e) = &step {
             self.stopped = Some(e.to_string());
@@ -228,14 +214,13 @@ impl<T: CoreTransport> Tracker<T> {
 
     /// [`Self::push_imu`]'s steps for a sample in order.
     fn imu_step(&mut self, sample: ImuSample) -> Result<(), TrackerError> {
-        let t0 =
-            u64::try_from(self.origin(i64::try_from(sample.t_ns).unwrap_or(i64::MAX))).unwrap_or(0);
+        let clock = &mut self.imu_mut()?.clock;
+        let first = clock.origin_ns().is_none();
+        let (k, t_us, frame) = clock.take(sample.t_ns);
+        if first && let Some(t0) = clock.origin_ns() {
+            self.tell(Detail::Origin(t0));
+        }
         let inertial = self.imu_mut()?;
-        inertial.last_ns = Some(sample.t_ns);
-        let t_us = (sample.t_ns - t0) / 1000;
-        let k = inertial.k;
-        inertial.k += 1;
-        let frame = inertial.queued.take();
         if let Some(last_us) = inertial.attached_after_us {
             // Attached: the core had the samples up to its last; the first after goes on.
             if t_us <= last_us {

@@ -38,6 +38,7 @@ use protocol::{HostToCore, Init, InitAttitude, ModelKind, StatusReason, Tick};
 use vision::{FrameImage, FrameJob};
 
 use self::inertial::Inertial;
+use crate::clock::FrameClock;
 use crate::config::vision_config;
 use crate::error::TrackerError;
 use crate::event::{Detail, LatencyNote};
@@ -55,11 +56,6 @@ pub use crate::settings::{Answers, Frame, ImuOnCore, Start, TrackerConfig};
 use crate::tilt::{TiltBranch, TiltNote};
 use crate::transport::CoreTransport;
 use crate::worker::{VisionWorker, is_textured};
-
-/// Longest interval between two ticks [µs]: frames further apart (a stalled camera, dropped
-/// frames) are bridged by ticks without a trigger, as the core refuses clock gaps of a
-/// second.
-const MAX_TICK_GAP_US: u64 = 500_000;
 
 /// Events queued at most between two polls: about four minutes of an IMU's poses at 200 Hz.
 /// A program that polls after each push never comes near it; one that never polls keeps
@@ -104,9 +100,6 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     adapter: String,
     /// The exchanges with the core, and what the steps need of what it said.
     pub(crate) session: CoreSession,
-    /// The input's time [ns] the run's times [µs] count from: its first IMU sample, or
-    /// (vision-only) the first frame taken.
-    pub(crate) origin_ns: Option<i64>,
     /// The mount the core was configured with: the rig's, or none (vision-only).
     pub(crate) core_hand_eye: HandEye,
     /// This run's name for its configuration of the core (an attach takes the core's).
@@ -117,8 +110,8 @@ pub struct Tracker<T: CoreTransport = InProcessCore> {
     pub(crate) judge: Judge,
     /// Vision-only: the tilt checks of tracked poses and their flips.
     tilt: TiltBranch,
-    /// Vision-only: the last tick's time [µs].
-    last_us: Option<u64>,
+    /// Vision-only: the clock (the frames', and the ticks sent at them).
+    frames: FrameClock,
     /// A frame has been tracked since the core was last given a pose.
     tracked_since_start: bool,
     /// The searches: locating, started, and lost (vision-only, its loss rule takes the
@@ -194,11 +187,10 @@ impl<T: CoreTransport> Tracker<T> {
             gate: 0.0,
             judge,
             session: CoreSession::new(config.details),
-            origin_ns: None,
             core_hand_eye: hand_eye,
             session_id: config.session_id,
             tilt: TiltBranch::default(),
-            last_us: None,
+            frames: FrameClock::default(),
             tracked_since_start: false,
             searching: SearchMachine::new(vision_only, config.start != Start::Locate),
             loss: LossRule::default(),
@@ -348,12 +340,7 @@ impl<T: CoreTransport> Tracker<T> {
         if self.imu_on_core() {
             return self.queue_on_core(frame);
         }
-        let inertial = self.imu_mut()?;
-        if inertial.queued.is_some() {
-            return Err(TrackerError::NoTrigger { index: frame.index });
-        }
-        inertial.queued = Some(frame);
-        Ok(())
+        self.imu_mut()?.clock.queue(frame)
     }
 
     /// Whether `image` is of the camera's size.
@@ -382,19 +369,12 @@ impl<T: CoreTransport> Tracker<T> {
                 .into_luma8(),
         };
         self.check_size(frame.index, &image)?;
-        let t0 = self.origin(frame.t_ns);
-        let t_us = frame.t_ns.saturating_sub(t0) / 1000;
-        // The frame's tick must come after the last tick, which is 1 µs past the last frame.
-        if let Some(last) = self.last_us
-            && t_us <= last as i64 + 1
-        {
-            return Err(TrackerError::TimeBackwards {
-                what: format!("frame {}", frame.index),
-                t_us,
-                previous_us: last.saturating_sub(1) as i64,
-            });
+        let first = self.frames.origin_ns().is_none();
+        let t_us = self.frames.time_of(frame.index, frame.t_ns);
+        if first && let Some(t0) = self.frames.origin_ns() {
+            self.tell(Detail::Origin(t0));
         }
-        Ok((u64::try_from(t_us).unwrap_or(0), image))
+        Ok((t_us?, image))
     }
 
     /// Steps 2 to 8 for the frame `index` at `t_us`.
@@ -550,11 +530,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// Step 5: the core's clock to the frame at `t_us`, bridging long gaps, with the trigger;
     /// then everything the core answered.
     fn tick(&mut self, t_us: u64) -> Result<(), TrackerError> {
-        if let Some(mut at) = self.last_us {
-            while t_us - at > MAX_TICK_GAP_US {
-                at += MAX_TICK_GAP_US;
-                self.send_tick(at, false)?;
-            }
+        for at in self.frames.bridge(t_us) {
+            self.send_tick(at, false)?;
         }
         self.send_tick(t_us, true)?;
         self.barrier()
@@ -563,9 +540,8 @@ impl<T: CoreTransport> Tracker<T> {
     /// Sends one tick at `t_us` and records its stamp.
     fn send_tick(&mut self, t_us: u64, trigger: bool) -> Result<(), TrackerError> {
         self.core.send(&HostToCore::Tick(Tick { t_us, trigger }))?;
-        let t0 = u64::try_from(self.origin_ns.unwrap_or(0)).unwrap_or(0);
-        self.tell(Detail::Clock(t0 + t_us * 1000));
-        self.last_us = Some(t_us);
+        let stamp = self.frames.ticked(t_us);
+        self.tell(Detail::Clock(stamp));
         Ok(())
     }
 
@@ -585,10 +561,9 @@ impl<T: CoreTransport> Tracker<T> {
         };
         let every = self.config.keep_image_every;
         let omega_c = self.omega_c(t_us);
-        let t0 = u64::try_from(self.origin_ns.unwrap_or(0)).unwrap_or(0);
         self.worker.send(FrameJob {
             index,
-            stamp: t0 + t_us * 1000,
+            stamp: self.frames.stamp_ns(t_us),
             image: FrameImage::Decoded(image),
             prediction: p,
             keep_image: every > 0 && index.is_multiple_of(every),
@@ -763,7 +738,7 @@ impl<T: CoreTransport> Tracker<T> {
                 self.searching.force(t_us);
             }
             None if self.searching.started() => {
-                self.searching.loss.force(self.last_us.unwrap_or(0))
+                self.searching.loss.force(self.frames.last_us().unwrap_or(0))
             }
             // Still locating: every frame gets an attempt already.
             None => return Ok(()),
@@ -974,17 +949,6 @@ impl<T: CoreTransport> Tracker<T> {
         }
     }
 
-    /// The run's time origin, set by the first frame or sample (later ones keep it) [ns].
-    pub(crate) fn origin(&mut self, t_ns: i64) -> i64 {
-        match self.origin_ns {
-            Some(t0) => t0,
-            None => {
-                self.origin_ns = Some(t_ns);
-                self.tell(Detail::Origin(t_ns));
-                t_ns
-            }
-        }
-    }
 
     /// Sends the correspondences of the frame `frame_id` (the input's frame `index`)
     /// triggered at `trigger_us` to the core, and tells its analysis. Returns how many went,

@@ -191,8 +191,7 @@ impl<T: CoreTransport> Tracker<T> {
                 None => on_core.unclocked.push(s.t_us),
             }
             let inertial = self.imu_mut()?;
-            let k = inertial.k;
-            inertial.k += 1;
+            let k = inertial.clock.count();
             inertial.last_sent_us = Some(s.t_us);
             self.latency(LatencyNote::SampleSent(s.t_us));
             self.take_triggers(k, s.t_us);
@@ -202,7 +201,7 @@ impl<T: CoreTransport> Tracker<T> {
             self.judge_inertial(s.t_us);
         }
         if !lock_step {
-            let k = self.imu_mut()?.k;
+            let k = self.imu_mut()?.clock.next_index();
             self.deliver_due(k, false)?;
             self.pair_frames(false)?;
         }
