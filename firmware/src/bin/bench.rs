@@ -192,6 +192,49 @@ fn bench_contour(timer: &Timer, model: ModelKind) {
     }
 }
 
+/// The 40 correspondences of a session's frame, seen from the resting camera at `c_w` with
+/// orientation `r_wc`.
+fn frame_correspondences(
+    vision: bool,
+    c_w: &Vector3<f32>,
+    r_wc: &Matrix3<f32>,
+) -> [Correspondence; 40] {
+    let mut all = [protocol::samples::correspondence([0.0; 2], [0.0; 3]); 40];
+    for (i, c) in all.iter_mut().enumerate() {
+        // The inertial session's points lie on a line (kept so that its figures stay
+        // comparable with earlier ones: gravity makes up the missing directions);
+        // without an IMU they must fix the whole pose: an 8 × 5 grid.
+        let p_c = if vision {
+            let (u, v) = ((i % 8) as f32, (i / 8) as f32);
+            Vector3::new(-0.6 + 0.17 * u, -0.4 + 0.2 * v, 2.0)
+        } else {
+            Vector3::new(-0.6 + 0.03 * i as f32, -0.3 + 0.015 * i as f32, 2.0)
+        };
+        let m_w = c_w + r_wc * p_c;
+        *c = Correspondence {
+            m_n: [p_c.x / p_c.z, p_c.y / p_c.z],
+            cov_n: [1e-5, 0.0, 1e-5],
+            m_w: [m_w.x, m_w.y, m_w.z],
+            cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
+        };
+    }
+    all
+}
+
+/// The session's clock message at `t_us`: a tick (vision-only) or a resting IMU sample.
+fn clock_message(vision: bool, t_us: u64, trigger: bool) -> HostToCore {
+    if vision {
+        HostToCore::Tick(protocol::Tick { t_us, trigger })
+    } else {
+        HostToCore::Imu(protocol::ImuSample {
+            t_us,
+            gyro: [0.0; 3],
+            accel: [0.0, 0.0, 9.81],
+            trigger,
+        })
+    }
+}
+
 /// A session through the device loop, as the host would drive it: handshake, configure, init,
 /// a still second, then 25 Hz frames of 40 correspondences arriving 50 ms late. The
 /// vision-only model instead gets a tick per frame (25 Hz, every one a trigger), and each
@@ -262,19 +305,7 @@ fn session(timer: &Timer, model: ModelKind) {
     };
     for k in 0..400u64 {
         let trigger = k >= first && (k - first) % every == 0;
-        let msg = if vision {
-            HostToCore::Tick(protocol::Tick {
-                t_us: k * period,
-                trigger,
-            })
-        } else {
-            HostToCore::Imu(protocol::ImuSample {
-                t_us: k * period,
-                gyro: [0.0; 3],
-                accel: [0.0, 0.0, 9.81],
-                trigger,
-            })
-        };
+        let msg = clock_message(vision, k * period, trigger);
         let mark = if k >= first { mark_message } else { mark_other };
         let ins = feed_timed(io, &msg, mark);
         if k >= first {
@@ -287,25 +318,7 @@ fn session(timer: &Timer, model: ModelKind) {
         if let Some((frame_id, t_us, due)) = pending
             && due == k
         {
-            let mut all = [protocol::samples::correspondence([0.0; 2], [0.0; 3]); 40];
-            for (i, c) in all.iter_mut().enumerate() {
-                // The inertial session's points lie on a line (kept so that its figures stay
-                // comparable with earlier ones: gravity makes up the missing directions);
-                // without an IMU they must fix the whole pose: an 8 × 5 grid.
-                let p_c = if vision {
-                    let (u, v) = ((i % 8) as f32, (i / 8) as f32);
-                    Vector3::new(-0.6 + 0.17 * u, -0.4 + 0.2 * v, 2.0)
-                } else {
-                    Vector3::new(-0.6 + 0.03 * i as f32, -0.3 + 0.015 * i as f32, 2.0)
-                };
-                let m_w = pose.c_w + r_wc * p_c;
-                *c = Correspondence {
-                    m_n: [p_c.x / p_c.z, p_c.y / p_c.z],
-                    cov_n: [1e-5, 0.0, 1e-5],
-                    m_w: [m_w.x, m_w.y, m_w.z],
-                    cov_w: [1e-6, 0.0, 0.0, 1e-6, 0.0, 1e-6],
-                };
-            }
+            let all = frame_correspondences(vision, &pose.c_w, &r_wc);
             if let Ok(parts) = Correspondences::split(frame_id, t_us, &all) {
                 let mut frame_total = 0;
                 for part in parts {

@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! Camera geometry: pinhole intrinsics with skew, lens distortion, undistortion maps,
 //! calibration files, the camera pose and its files ([`start_pose`]: a `cMo` in JSON or a TUM
 //! line).

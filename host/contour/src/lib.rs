@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! The contour modality (docs/VISION.md §9): objects without texture tracked by their
 //! silhouette. Per frame:
 //!

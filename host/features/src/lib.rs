@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! Natural features (paper §3, docs/VISION.md §3-§5): FAST corners in free areas of the rendering,
 //! Gaussian pyramids, the photometric KLT that registers rendered patches in the live image
 //! while estimating contrast and brightness, the feature map, and the correspondences sent to

@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! Finding the model in an image with no pose given (the cold start; the method and its
 //! equations are in docs/notes/issue15-cold-start.md):
 //!

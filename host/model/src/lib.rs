@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! Textured triangle models in metres: Wavefront OBJ + MTL ([`load_obj`]), glTF 2.0
 //! ([`load_gltf`]) and procedural test scenes ([`procedural`]); the edges a person would draw
 //! ([`Model::crease_edges`]).

@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! Offscreen rendering of the textured model from a camera pose (wgpu): colour, grayscale,
 //! metric depth and a validity mask, read back to the CPU.
 //!

@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! The tracking engine as a library. The vision host's side of the paper's system: frames
 //! in, the fusion core behind a [`CoreTransport`], poses out.
 //!

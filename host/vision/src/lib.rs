@@ -1,5 +1,4 @@
 #![deny(missing_docs)]
-#![warn(clippy::too_many_lines)]
 //! One camera frame through the vision host (docs/ARCHITECTURE.md §3, docs/VISION.md): the live
 //! image undistorted, the model rendered at the predicted pose, features registered with the
 //! photometric KLT, outliers dropped, correspondences made ([`analysis`], [`Vision`]); and the

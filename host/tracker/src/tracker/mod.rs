@@ -737,9 +737,10 @@ impl<T: CoreTransport> Tracker<T> {
                 let t_us = i.recent.back().map_or(0, |s| s.t_us);
                 self.searching.force(t_us);
             }
-            None if self.searching.started() => {
-                self.searching.loss.force(self.frames.last_us().unwrap_or(0))
-            }
+            None if self.searching.started() => self
+                .searching
+                .loss
+                .force(self.frames.last_us().unwrap_or(0)),
             // Still locating: every frame gets an attempt already.
             None => return Ok(()),
         }
@@ -948,7 +949,6 @@ impl<T: CoreTransport> Tracker<T> {
             self.tell(Detail::Tilt(note));
         }
     }
-
 
     /// Sends the correspondences of the frame `frame_id` (the input's frame `index`)
     /// triggered at `trigger_us` to the core, and tells its analysis. Returns how many went,
