@@ -131,7 +131,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let done = tracker.finish();
     done.result?;
     let at_one = first_minute.unwrap_or(f64::NAN);
-    let tracker::judge::Tally { tracked, judged } = done.tally;
+    let tracker::Tally { tracked, judged } = done.tally;
     println!(
         "memory: VmRSS {at_one:.1} MB after one minute, {rss:.1} MB at the end ({:+.1} %); peak VmHWM {:.1} MB; {judged} frames judged, {tracked} tracked",
         100.0 * (rss / at_one - 1.0),

@@ -453,7 +453,7 @@ impl Tracker {
         let mut done = py.detach(move || tracker.finish());
         self.keep(std::mem::take(&mut done.events));
         done.result.map_err(of_tracker)?;
-        let tracker::judge::Tally { tracked, judged } = done.tally;
+        let tracker::Tally { tracked, judged } = done.tally;
         let d = PyDict::new(py);
         d.set_item("tracked", tracked)?;
         d.set_item("judged", judged)?;

@@ -23,18 +23,18 @@ pub struct Tally {
 
 /// A frame's verdict, with what it was given on.
 #[derive(Debug, Clone, Copy)]
-pub struct Verdict {
+pub(crate) struct Verdict {
     /// Whether the frame counts as tracked (the tracked rule).
-    pub tracked: bool,
+    pub(crate) tracked: bool,
     /// The assessment, with the weakest direction's σ where it was judged by it.
-    pub assessment: Assessment,
+    pub(crate) assessment: Assessment,
     /// The direction the pose pins down least (eq. T7), where it has a covariance.
-    pub weakest: Option<WeakDirection>,
+    pub(crate) weakest: Option<WeakDirection>,
 }
 
 /// The judge of a run.
 #[derive(Debug)]
-pub struct Judge {
+pub(crate) struct Judge {
     /// The rule (its bounds scale with the model's size).
     rule: TrackedRule,
     /// The model's centre: the weakest direction is measured about it.
@@ -48,7 +48,7 @@ pub struct Judge {
 
 impl Judge {
     /// The judge of a model of diagonal `diagonal` [m] centred at `centre`.
-    pub fn new(diagonal: f64, centre: Vector3<f64>) -> Self {
+    pub(crate) fn new(diagonal: f64, centre: Vector3<f64>) -> Self {
         Self {
             rule: TrackedRule::for_object(diagonal),
             centre,
@@ -59,14 +59,14 @@ impl Judge {
     }
 
     /// The rule.
-    pub fn rule(&self) -> &TrackedRule {
+    pub(crate) fn rule(&self) -> &TrackedRule {
         &self.rule
     }
 
     /// The verdict on frame `frame_id` assessed as `a` at `pose` of covariance `cov`.
     /// `by_weakest`: the weakest direction's σ is part of the verdict (eq. T9, vision-only
     /// poses); else it is only reported.
-    pub fn judge(
+    pub(crate) fn judge(
         &mut self,
         frame_id: u32,
         mut a: Assessment,
@@ -94,12 +94,16 @@ impl Judge {
 
     /// A tracked pose's weak direction: its `weakest`, where that exceeds the rule's
     /// `weak_sigma` (eq. T7).
-    pub fn weak(&self, weakest: Option<WeakDirection>, tracked: bool) -> Option<WeakDirection> {
+    pub(crate) fn weak(
+        &self,
+        weakest: Option<WeakDirection>,
+        tracked: bool,
+    ) -> Option<WeakDirection> {
         weakest.filter(|w| tracked && w.sigma > self.rule.weak_sigma)
     }
 
     /// The tilt branch withholds these frames: they no longer count as tracked.
-    pub fn withhold(&mut self, frame_ids: &[u32]) {
+    pub(crate) fn withhold(&mut self, frame_ids: &[u32]) {
         for id in frame_ids {
             if let Some(t) = self.recent.get_mut(id)
                 && *t
@@ -111,14 +115,14 @@ impl Judge {
     }
 
     /// The tally so far.
-    pub fn tally(&self) -> Tally {
+    pub(crate) fn tally(&self) -> Tally {
         self.tally
     }
 }
 
 /// The direction `pose`, of covariance `cov`, is pinned down least, in units of `rule`'s
 /// bounds, about `centre` (docs/VISION.md eq. T7).
-pub fn weakest(
+pub(crate) fn weakest(
     rule: &TrackedRule,
     centre: &Vector3<f64>,
     pose: &CameraPose,

@@ -7,12 +7,12 @@
 //! - [`rig`], [`config`]: the sensors, and the core's configuration that follows from them;
 //! - `clock`: a clock per input mode (the frames', or the IMU's samples), each owning its
 //!   time base and what waits on it;
-//! - [`transport`], [`in_process`]: the core behind a [`CoreTransport`], and the core called
+//! - [`transport`], `in_process`: the core behind a [`CoreTransport`], and the core called
 //!   in-process (the links to a board are the `core-link` crate's);
-//! - [`session`]: the exchanges with the core that wait for its answers, and the bounded
+//! - `session`: the exchanges with the core that wait for its answers, and the bounded
 //!   window of what it said that the steps need;
-//! - [`worker`]: the vision threads (a frame's analysis, a search, a tilt check);
-//! - [`search`], `searching`, [`loss`], [`tilt`], [`judge`]: the searches and their one
+//! - `worker`: the vision threads (a frame's analysis, a search, a tilt check);
+//! - [`search`], `searching`, `loss`, [`tilt`], `judge`: the searches and their one
 //!   machine (locating, started, lost), the loss rule that sends them, the tilt checks of
 //!   tracked poses, and the verdicts;
 //! - [`settings`], [`event`]: how a tracker runs and the frames it takes; what it tells,
@@ -64,22 +64,22 @@ mod clock;
 pub mod config;
 mod error;
 pub mod event;
-pub mod in_process;
-pub mod judge;
+mod in_process;
+mod judge;
 pub mod latency;
 pub mod live;
 pub mod log;
-pub mod loss;
+mod loss;
 pub mod record;
 pub mod rig;
 pub mod search;
 mod searching;
-pub mod session;
+mod session;
 pub mod settings;
 pub mod tilt;
 pub mod tracker;
 pub mod transport;
-pub mod worker;
+mod worker;
 
 pub use builder::TrackerBuilder;
 pub use camera;
@@ -87,6 +87,7 @@ pub use error::TrackerError;
 pub use fusion_core::Precision;
 pub use image;
 pub use in_process::InProcessCore;
+pub use judge::Tally;
 pub use model;
 pub use rig::{HandEye, ImuNoiseDensities, Rig};
 pub use tracker::inertial::ImuSample;

@@ -46,7 +46,7 @@ impl Default for LossRule {
 impl LossRule {
     /// Takes the core's statuses not yet seen: a divergence at `t_us` loses the model at
     /// once.
-    pub fn note_statuses(&mut self, statuses: &Recent<Status>, t_us: u64) {
+    pub(crate) fn note_statuses(&mut self, statuses: &Recent<Status>, t_us: u64) {
         if statuses
             .since(self.statuses_seen)
             .any(|s| s.mode == Mode::Diverged)

@@ -34,20 +34,20 @@ const CONFIRM_TRIES: usize = 10;
 
 /// Predictions, frames' update reports, statuses and refusals kept at most: far more than
 /// are ever waited on at once (a few frames in flight, a few messages answered).
-pub const KEPT: usize = 256;
+pub(crate) const KEPT: usize = 256;
 
 /// State reports kept: 20 s at 200 Hz, longer than a search takes (its found pose is carried
 /// forward by the core's rotation since its frame).
-pub const STATES_KEPT: usize = 4096;
+pub(crate) const STATES_KEPT: usize = 4096;
 
 /// The core's own samples and triggers queued at most before the tracker takes them (it
 /// takes them at every pump).
-pub const QUEUED: usize = 65_536;
+pub(crate) const QUEUED: usize = 65_536;
 
 /// A queue of the last [`KEPT`] items and the count of all, so that "those since the mark"
 /// can be asked of it.
 #[derive(Debug)]
-pub struct Recent<T> {
+pub(crate) struct Recent<T> {
     items: VecDeque<T>,
     total: usize,
 }
@@ -72,25 +72,25 @@ impl<T> Recent<T> {
     }
 
     /// How many came so far: a mark for [`Self::since`].
-    pub fn mark(&self) -> usize {
+    pub(crate) fn mark(&self) -> usize {
         self.total
     }
 
     /// Those that came since `mark` (the last [`KEPT`] of them at most).
-    pub fn since(&self, mark: usize) -> impl DoubleEndedIterator<Item = &T> {
+    pub(crate) fn since(&self, mark: usize) -> impl DoubleEndedIterator<Item = &T> {
         let new = self.total.saturating_sub(mark).min(self.items.len());
         self.items.range(self.items.len() - new..)
     }
 
     /// The last one.
-    pub fn last(&self) -> Option<&T> {
+    pub(crate) fn last(&self) -> Option<&T> {
         self.items.back()
     }
 }
 
 /// What the tracker's steps need of what the core said, and the exchanges with it.
 #[derive(Debug, Default)]
-pub struct CoreSession {
+pub(crate) struct CoreSession {
     /// Pose predictions by trigger time [µs], until taken.
     predictions: BTreeMap<u64, PosePrediction>,
     /// Update reports by frame id, until taken.
@@ -102,9 +102,9 @@ pub struct CoreSession {
     /// State reports not yet told as poses.
     untold: VecDeque<StateReport>,
     /// Mode changes.
-    pub statuses: Recent<Status>,
+    pub(crate) statuses: Recent<Status>,
     /// Refusals.
-    pub errors: Recent<ErrorReport>,
+    pub(crate) errors: Recent<ErrorReport>,
     /// The core's own samples (protocol 3.1), until taken.
     raw_imu: VecDeque<protocol::ImuSample>,
     /// The core's camera triggers (protocol 3.1), until taken.
@@ -128,7 +128,7 @@ pub struct CoreSession {
 
 impl CoreSession {
     /// A session that hands on what it takes (`keep`) or not.
-    pub fn new(keep: bool) -> Self {
+    pub(crate) fn new(keep: bool) -> Self {
         Self {
             keep,
             ..Self::default()
@@ -136,7 +136,7 @@ impl CoreSession {
     }
 
     /// Takes one item from the core.
-    pub fn take(&mut self, mut item: Incoming) {
+    pub(crate) fn take(&mut self, mut item: Incoming) {
         if let Incoming::Message(m) = &mut item {
             match m {
                 CoreToHost::HelloAck(_) => self.acks += 1,
@@ -186,29 +186,29 @@ impl CoreSession {
     }
 
     /// The current core's id of the session's frame `id`.
-    pub fn core_frame_id(&self, id: u32) -> u32 {
+    pub(crate) fn core_frame_id(&self, id: u32) -> u32 {
         id.wrapping_sub(self.frame_offset)
     }
 
     /// A new core (reset, and configured again) numbers its frames from 0: they follow the
     /// old core's.
-    pub fn new_core(&mut self) {
+    pub(crate) fn new_core(&mut self) {
         self.frame_offset = self.next_frame;
     }
 
     /// The current mode (last status).
-    pub fn mode(&self) -> Option<Mode> {
+    pub(crate) fn mode(&self) -> Option<Mode> {
         self.statuses.last().map(|s| s.mode)
     }
 
     /// Whether the prediction for the trigger at `t_us` came.
-    pub fn has_prediction(&self, t_us: u64) -> bool {
+    pub(crate) fn has_prediction(&self, t_us: u64) -> bool {
         self.predictions.contains_key(&t_us)
     }
 
     /// Takes the prediction for the trigger at `t_us`, and drops those of earlier triggers
     /// (frames given up).
-    pub fn take_prediction(&mut self, t_us: u64) -> Option<PosePrediction> {
+    pub(crate) fn take_prediction(&mut self, t_us: u64) -> Option<PosePrediction> {
         let later = self.predictions.split_off(&(t_us + 1));
         let p = self.predictions.remove(&t_us);
         self.predictions = later;
@@ -217,7 +217,7 @@ impl CoreSession {
 
     /// Takes the update reports of frame `frame_id` in the order of their parts, and drops
     /// those of earlier frames.
-    pub fn take_updates(&mut self, frame_id: u32) -> Vec<UpdateReport> {
+    pub(crate) fn take_updates(&mut self, frame_id: u32) -> Vec<UpdateReport> {
         let later = self.updates.split_off(&(frame_id + 1));
         let mut reports = self.updates.remove(&frame_id).unwrap_or_default();
         self.updates = later;
@@ -226,33 +226,33 @@ impl CoreSession {
     }
 
     /// The last state report.
-    pub fn last_state(&self) -> Option<&StateReport> {
+    pub(crate) fn last_state(&self) -> Option<&StateReport> {
         self.states.back()
     }
 
     /// The state report at or just before `t_us`, among the last [`STATES_KEPT`].
-    pub fn state_at(&self, t_us: u64) -> Option<&StateReport> {
+    pub(crate) fn state_at(&self, t_us: u64) -> Option<&StateReport> {
         let i = self.states.partition_point(|s| s.t_us <= t_us);
         i.checked_sub(1).and_then(|i| self.states.get(i))
     }
 
     /// The last state reported while tracking.
-    pub fn last_tracking(&self) -> Option<&StateReport> {
+    pub(crate) fn last_tracking(&self) -> Option<&StateReport> {
         self.last_tracking.as_ref()
     }
 
     /// The state reports not yet told, oldest first.
-    pub fn take_untold(&mut self) -> impl Iterator<Item = StateReport> + '_ {
+    pub(crate) fn take_untold(&mut self) -> impl Iterator<Item = StateReport> + '_ {
         self.untold.drain(..)
     }
 
     /// The next of the core's own samples.
-    pub fn next_raw_imu(&mut self) -> Option<protocol::ImuSample> {
+    pub(crate) fn next_raw_imu(&mut self) -> Option<protocol::ImuSample> {
         self.raw_imu.pop_front()
     }
 
     /// The next of the core's triggers, if it is at or before `t_us`.
-    pub fn next_trigger_by(&mut self, t_us: u64) -> Option<protocol::Trigger> {
+    pub(crate) fn next_trigger_by(&mut self, t_us: u64) -> Option<protocol::Trigger> {
         self.triggers
             .front()
             .is_some_and(|t| t.t_us <= t_us)
@@ -261,18 +261,18 @@ impl CoreSession {
     }
 
     /// The core's last sampling report.
-    pub fn last_sampling(&self) -> Option<&protocol::SamplingReport> {
+    pub(crate) fn last_sampling(&self) -> Option<&protocol::SamplingReport> {
         self.last_sampling.as_ref()
     }
 
     /// Everything taken since the last call, in order (kept only when the session was made
     /// to keep it).
-    pub fn take_outbox(&mut self) -> Vec<Incoming> {
+    pub(crate) fn take_outbox(&mut self) -> Vec<Incoming> {
         std::mem::take(&mut self.outbox)
     }
 
     /// `Hello`s sent again on a lossy line since the last call.
-    pub fn take_resent(&mut self) -> usize {
+    pub(crate) fn take_resent(&mut self) -> usize {
         std::mem::take(&mut self.resent)
     }
 }
@@ -295,7 +295,7 @@ fn bounded_push<T>(queue: &mut VecDeque<T>, item: T) {
 impl CoreSession {
     /// The handshake: `Hello`, and the version's verdict. Refusals of messages sent before
     /// it (to a core that was reset, say) may come first and are taken.
-    pub fn handshake(
+    pub(crate) fn handshake(
         &mut self,
         link: &mut impl CoreTransport,
         timeout: Duration,
@@ -347,7 +347,7 @@ impl CoreSession {
     }
 
     /// Sends `Hello` and takes everything up to its answer.
-    pub fn barrier(
+    pub(crate) fn barrier(
         &mut self,
         link: &mut impl CoreTransport,
         timeout: Duration,
@@ -365,7 +365,7 @@ impl CoreSession {
 
     /// Sends a `Configure` or `Init` and takes the answers. On a lossy line, where it may be
     /// lost, it is sent again until a status with `reason` confirms it.
-    pub fn send_confirmed(
+    pub(crate) fn send_confirmed(
         &mut self,
         link: &mut impl CoreTransport,
         msg: &HostToCore,
@@ -398,7 +398,7 @@ impl CoreSession {
     }
 
     /// Takes everything the core has sent so far, without waiting.
-    pub fn drain(&mut self, link: &mut impl CoreTransport) -> Result<(), TrackerError> {
+    pub(crate) fn drain(&mut self, link: &mut impl CoreTransport) -> Result<(), TrackerError> {
         while let Some(item) = link.try_recv()? {
             self.take(item);
         }
@@ -409,7 +409,7 @@ impl CoreSession {
 /// Whether the core's error `code` is what a lossy line causes rather than a refusal: a frame
 /// the line damaged (`Decode`), or a message that arrived while the damaged `Hello` or
 /// `Configure` before it was being sent again (`NoHandshake`, `NotConfigured`).
-pub fn is_line_noise(code: &protocol::ErrorCode) -> bool {
+pub(crate) fn is_line_noise(code: &protocol::ErrorCode) -> bool {
     use protocol::ErrorCode::{Decode, NoHandshake, NotConfigured};
     matches!(code, Decode(_) | NoHandshake | NotConfigured)
 }
