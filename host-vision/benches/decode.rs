@@ -8,7 +8,7 @@ use std::path::Path;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use host_vision::frames::{FrameInput, VideoOptions};
+use frames::{FrameInput, VideoOptions};
 
 const VIDEO: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),

@@ -18,9 +18,9 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 use firmware_sim::sim::scenario::ScenarioName;
+use frames::FrameInput;
 use host_vision::camera::read_camera_json;
 use host_vision::eval::{ensure_dataset, options_for};
-use host_vision::frames::FrameInput;
 use host_vision::start_pose::read_start_pose;
 use host_vision::track::{self, FrameRow, Pacing, TrackOptions, TrackRun};
 use protocol::ModelKind;

@@ -8,8 +8,8 @@ use std::path::Path;
 use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use frames::{FrameInput, VideoOptions};
 use host_vision::camera::{Pinhole, pinhole_camera, read_camera_json};
-use host_vision::frames::{FrameInput, VideoOptions};
 use host_vision::locate::database::{Database, DatabaseConfig};
 use host_vision::locate::{LocateConfig, Locator};
 use host_vision::track::vision::{Vision, VisionOptions};

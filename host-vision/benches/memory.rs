@@ -18,7 +18,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use firmware_sim::sim::scenario::ScenarioName;
-use host_vision::dataset::Dataset;
+use frames::euroc::Dataset;
 use host_vision::eval::ensure_synth;
 use host_vision::synth::SynthOptions;
 use protocol::ModelKind;

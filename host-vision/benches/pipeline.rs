@@ -15,7 +15,7 @@ use std::time::Duration;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use firmware_sim::sim::scenario::ScenarioName;
-use host_vision::dataset::Dataset;
+use frames::euroc::Dataset;
 use host_vision::synth::{FrameOptions, SynthOptions};
 use host_vision::track::vision::{
     FrameImage, FrameJob, StageTimes, Vision, VisionOptions, prediction_pose,

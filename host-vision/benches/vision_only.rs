@@ -14,8 +14,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
+use frames::{FrameInput, VideoOptions};
 use host_vision::camera::read_camera_json;
-use host_vision::frames::{FrameInput, VideoOptions};
 use host_vision::start_pose::read_start_pose;
 use host_vision::track::{self, TrackOptions};
 use protocol::ModelKind;

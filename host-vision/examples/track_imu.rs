@@ -8,7 +8,8 @@
 
 use anyhow::Context;
 use firmware_sim::sim::scenario::ScenarioName;
-use host_vision::{dataset::Dataset, eval::ensure_synth, synth::SynthOptions};
+use frames::euroc::Dataset;
+use host_vision::{eval::ensure_synth, synth::SynthOptions};
 use tracker::{Event, Frame, ImuSample, Start, TrackerBuilder};
 
 fn main() -> anyhow::Result<()> {

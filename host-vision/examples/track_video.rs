@@ -7,7 +7,7 @@
 
 use std::time::{Duration, Instant};
 
-use host_vision::frames::{FrameInput, VideoOptions};
+use frames::{FrameInput, VideoOptions};
 use tracker::{Event, TrackerBuilder, camera, model};
 
 /// The shared cube video, or a video, its `camera.json`, a textured model and the start pose.

@@ -17,10 +17,8 @@
 pub use ::camera;
 pub use ::render::backproject;
 pub mod corpus;
-pub mod dataset;
 pub mod eval;
 pub use ::features;
-pub mod frames;
 pub mod link;
 pub mod locate;
 pub use ::model;

@@ -45,7 +45,7 @@ fn p02_negative_numbers_are_values() {
     let ds = dataset();
     let out = tmp("p02");
     // The dataset's own start pose (x is negative) given by hand.
-    let d = host_vision::dataset::Dataset::open(&ds).unwrap();
+    let d = frames::euroc::Dataset::open(&ds).unwrap();
     let (p, q) = d.groundtruth_at(d.imu[0].stamp).unwrap();
     let pos = format!("{},{},{}", p.x, p.y, p.z);
     let yaw = format!("{}", q.euler_angles().2.to_degrees());
@@ -695,7 +695,7 @@ fn p16_a_start_pose_file_snaps_on_as_the_ground_truth() {
     expect(&track_args(&ds, &base, &["--overlay-every", "0"]), 0);
     let gt = summary(&base);
 
-    let d = host_vision::dataset::Dataset::open(&ds).unwrap();
+    let d = frames::euroc::Dataset::open(&ds).unwrap();
     let (s_w, q_ws) = d.groundtruth_at(d.imu[0].stamp).unwrap();
     let (c_w, q_cw) = d.hand_eye.camera_pose(&s_w, &q_ws);
     let json = tmp("p16-pose.json");
@@ -1605,7 +1605,7 @@ fn i35_live_bad_input_is_named_and_what_was_tracked_is_written() {
     let bytes = std::fs::read(&whole).unwrap();
     let cut = tmp("i35-cut.mkv");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let d = host_vision::dataset::Dataset::open(&ds).unwrap();
+    let d = frames::euroc::Dataset::open(&ds).unwrap();
     let (s_w, q_ws) = d.groundtruth_at(d.frames[0].stamp).unwrap();
     let (c_w, q_cw) = d.hand_eye.camera_pose(&s_w, &q_ws);
     let pose = tmp("i35-pose.json");

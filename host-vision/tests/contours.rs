@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use firmware_sim::sim::scenario::ScenarioName;
-use host_vision::dataset::Dataset;
+use frames::euroc::Dataset;
 use host_vision::synth::{SynthOptions, TextureOptions, UNTEXTURED_COLOUR};
 use nalgebra::Vector2;
 use protocol::PosePrediction;

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use host_vision::frames::{Frame, FrameError, FrameInput, VideoOptions};
+use frames::{Frame, FrameError, FrameInput, VideoOptions};
 
 const HV: &str = env!("CARGO_BIN_EXE_host-vision");
 

@@ -7,8 +7,8 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
+use frames::{FrameInput, VideoOptions};
 use host_vision::camera::{Camera, CameraPose, read_camera_json, read_euroc_sensor_yaml};
-use host_vision::frames::{FrameInput, VideoOptions};
 use host_vision::locate::database::{Database, DatabaseConfig, DatabaseError, Provenance};
 use host_vision::locate::run::{LocateError, LocateInput, LocateOptions, run};
 use host_vision::locate::{Attempt, LocateConfig, Locator};

@@ -17,7 +17,7 @@ FRAMES = 120
 
 def decode(video, count):
     """The video's first `count` grey frames, decoded as the command line decodes them (ffmpeg's
-    `format=gray`, host-vision/src/frames/video.rs)."""
+    `format=gray`, host/frames/src/video.rs)."""
     out = subprocess.run(
         ["ffmpeg", "-hide_banner", "-nostdin", "-loglevel", "error", "-copyts", "-i", str(video),
          "-map", "0:v:0", "-vf", "format=gray", "-fps_mode", "passthrough", "-frames:v",

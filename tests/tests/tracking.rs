@@ -11,7 +11,7 @@ use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 
 use firmware_sim::sim::scenario::ScenarioName;
-use host_vision::dataset::Dataset;
+use frames::euroc::Dataset;
 use host_vision::eval::{ensure_dataset, options_for};
 use host_vision::track::{self, Faults, Pacing, TrackOptions, TrackRun};
 use nalgebra::Vector3;

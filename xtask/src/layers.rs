@@ -115,6 +115,11 @@ pub const TREES: &[Tree] = &[
         module: &[],
     },
     Tree {
+        name: "frames",
+        dir: "host/frames/src",
+        module: &[],
+    },
+    Tree {
         name: "vitracker (Python)",
         dir: "python/src",
         module: &[],

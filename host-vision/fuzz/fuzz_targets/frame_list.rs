@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use fuzz_support::LimitAlloc;
-use host_vision::dataset::parse_frame_list;
+use frames::euroc::parse_frame_list;
 use libfuzzer_sys::fuzz_target;
 
 #[global_allocator]

@@ -4,8 +4,8 @@
 #![no_main]
 
 use fuzz_support::LimitAlloc;
-use host_vision::frames::showinfo::{Line, parse};
-use host_vision::frames::video::frame_time_ns;
+use frames::showinfo::{Line, parse};
+use frames::video::frame_time_ns;
 use libfuzzer_sys::fuzz_target;
 
 #[global_allocator]

@@ -10,12 +10,12 @@ use serde::Serialize;
 use super::database::{Database, DatabaseConfig, DatabaseError, Provenance, bounding_sphere};
 use super::{Attempt, LocateConfig, Locator};
 use crate::camera::Camera;
-use crate::frames::{FrameError, FrameInput, VideoOptions};
 use crate::model::{self, ModelError};
 use crate::out_folder::{OutFolder, OutFolderError};
 use crate::start_pose::start_pose_json;
 use crate::track::vision::Vision;
 use crate::track::{TrackError, overlay};
+use frames::{FrameError, FrameInput, VideoOptions};
 
 /// The image to locate the model in.
 #[derive(Debug, Clone, PartialEq)]

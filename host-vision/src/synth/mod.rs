@@ -293,10 +293,10 @@ pub fn cam_sensor_yaml(scenario: &Scenario, camera: &Camera) -> String {
     s
 }
 
-/// The file that marks a dataset `synth` has not finished writing: made before anything else,
-/// removed after the last file. A folder that holds it (an interrupted or killed `synth`) is
-/// refused by [`crate::dataset::Dataset::open`] and replaced by the next `synth` into it.
-pub const UNFINISHED: &str = ".synth-unfinished";
+// The file that marks a dataset `synth` has not finished writing: made before anything else,
+// removed after the last file. A folder that holds it (an interrupted or killed `synth`) is
+// refused by `frames::euroc::Dataset::open` and replaced by the next `synth` into it.
+use ::frames::euroc::UNFINISHED;
 
 /// What `synth` writes into its folder.
 const WRITTEN: [&str; 4] = ["mav0", "model", "frames.csv", "manifest.json"];

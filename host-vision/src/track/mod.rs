@@ -48,11 +48,11 @@ pub use tracker::record::{Outage, OutageKind};
 pub use tracker::search::{Recovery, Search};
 
 use crate::camera::{CalibError, CameraError};
-use crate::dataset::{Dataset, DatasetError};
 use crate::features::ImageError;
 use crate::model::ModelError;
 use crate::out_folder::OutFolder;
 use crate::render::RenderError;
+use frames::euroc::{Dataset, DatasetError};
 
 /// Why tracking could not run (or stopped).
 #[derive(Debug, thiserror::Error)]
@@ -101,7 +101,7 @@ pub enum TrackError {
     OutFolder(#[from] crate::out_folder::OutFolderError),
     /// The frames of a video, camera or image folder could not be read.
     #[error(transparent)]
-    Frames(#[from] crate::frames::FrameError),
+    Frames(#[from] frames::FrameError),
     /// Ctrl-C before any IMU sample was sent: nothing was tracked, nothing written.
     #[error("interrupted before tracking began: nothing written")]
     Interrupted,
@@ -272,7 +272,7 @@ pub struct TrackOptions {
     pub imu_on_core: bool,
     /// Frames from a video, camera or image folder instead of the dataset's (vision-only;
     /// `dataset` is then that input, for reports).
-    pub frames: Option<crate::frames::FrameInput>,
+    pub frames: Option<frames::FrameInput>,
     /// The camera of `frames` (its intrinsics), or instead of the dataset's.
     pub camera: Option<crate::camera::Camera>,
     /// Stop after this many frames (vision-only; a live camera never ends by itself).
@@ -626,12 +626,12 @@ pub type Progress<'a> = &'a mut dyn FnMut(usize, usize, usize, Option<protocol::
 fn open_frames(
     options: &TrackOptions,
     dataset: &Dataset,
-) -> Result<Option<crate::frames::FrameSource>, TrackError> {
-    let video = crate::frames::VideoOptions::default();
+) -> Result<Option<frames::FrameSource>, TrackError> {
+    let video = frames::VideoOptions::default();
     Ok(match (&options.frames, options.vision_only()) {
         (Some(input), _) => Some(input.open(&video)?),
         (None, true) => Some(
-            crate::frames::FrameInput::Images {
+            frames::FrameInput::Images {
                 dir: dataset.root.join("mav0/cam0"),
                 fps: None,
             }
@@ -1004,7 +1004,7 @@ pub use tracker::rig::state_pose;
 /// Camera pose `(c_w, q_wc)` of a state report (eq. 5-6: `c_w = s_w + R(q_sw)ᵀ c_s`).
 pub fn camera_of_state(
     s: &StateReport,
-    hand_eye: &crate::dataset::HandEye,
+    hand_eye: &frames::euroc::HandEye,
 ) -> (Vector3<f64>, UnitQuaternion<f64>) {
     hand_eye.camera_of_state(s)
 }

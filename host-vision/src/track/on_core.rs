@@ -21,8 +21,8 @@ use tracker::{ImuOnCore, Tracker};
 use vision::FrameImage;
 
 use super::{FaultyLink, Pacing, Progress, Ran, TrackError, TrackOptions};
-use crate::dataset::Dataset;
 use core_link::LinkSpec;
+use frames::euroc::Dataset;
 
 /// The dataset's frames as the core's trigger would take them: every `every`-th IMU sample
 /// from `first`. Returns `(first, every)`.

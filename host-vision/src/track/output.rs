@@ -21,8 +21,8 @@ use super::{
     CoreLog, HostRecord, Record, TrackError, TrackOptions, camera_of_state, overlay, plot,
     state_pose,
 };
-use crate::dataset::{Dataset, HandEye};
 use crate::locate::database::Provenance;
+use frames::euroc::{Dataset, HandEye};
 
 /// What a run writes into its output folder: files, and the files it writes into its folders
 /// (`dir/prefix*suffix`; other files there are the user's, and stay).

@@ -11,7 +11,7 @@ use nalgebra::Vector3;
 use super::vision::{FrameResult, prediction_pose};
 use super::{Record, TrackError};
 use crate::camera::Camera;
-use crate::dataset::Dataset;
+use frames::euroc::Dataset;
 
 const GREEN: Rgb<u8> = Rgb([40, 230, 40]);
 const RED: Rgb<u8> = Rgb([240, 40, 40]);

@@ -11,7 +11,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use tracker::live::{LiveFrames, Paced};
+use frames::live::{LiveFrames, Paced};
 use tracker::record::Record;
 use tracker::{Tracker, TrackerBuilder, TrackerError};
 use vision::FrameImage;
@@ -19,8 +19,8 @@ use vision::FrameImage;
 use super::{FaultyLink, Progress, Ran, TrackError, TrackOptions};
 
 use crate::camera::CameraPose;
-use crate::dataset::Dataset;
-use crate::frames::{Frame, FrameSource};
+use frames::euroc::Dataset;
+use frames::{Frame, FrameSource};
 
 /// Frame rate assumed when the input states none [Hz].
 const DEFAULT_CAMERA_RATE_HZ: f64 = 30.0;
@@ -38,7 +38,7 @@ pub(super) fn open_dataset(options: &TrackOptions) -> Result<Dataset, TrackError
         }
         Some(input) => {
             if !input.path().exists() {
-                return Err(crate::frames::FrameError::Missing {
+                return Err(frames::FrameError::Missing {
                     path: input.path().to_owned(),
                 }
                 .into());
@@ -76,7 +76,7 @@ fn vision_start(options: &TrackOptions, dataset: &Dataset, first_stamp: u64) -> 
 ///
 /// A replay takes every frame in order. A live run (a camera, or `--pacing real-time`, which
 /// plays a recording at its own rate as a camera would) reads the source on a capture thread
-/// that keeps only the newest frame ([`tracker::live`]): the tracker takes it when it is
+/// that keeps only the newest frame ([`frames::live`]): the tracker takes it when it is
 /// ready, and the frames it never saw are dropped, never queued.
 pub(super) fn track_frames(
     options: &TrackOptions,

@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
+use frames::FrameInput;
 use host_vision::camera::read_camera_json;
-use host_vision::frames::FrameInput;
 use host_vision::track::{self, TrackOptions};
 use protocol::ModelKind;
 

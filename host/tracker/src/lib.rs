@@ -20,8 +20,6 @@
 //! - [`record`], [`log`], [`latency`]: a run's report kept from the events (the tracker
 //!   keeps none of it): every frame, search and outage, what the core said, and how old each
 //!   pose was when it came out;
-//! - [`live`]: a camera's frames, of which only the newest is kept, and a recording played
-//!   at its own rate;
 //! - [`tracker`]: the push-driven [`Tracker`]: `push_frame`, `poll`, `latest`, `state`,
 //!   `relocate`, `finish`, with its steps: without an IMU in `tracker` itself, with one in
 //!   [`tracker::inertial`] (`push_imu`), its cold start and its outages (a lost link or a
@@ -67,7 +65,6 @@ pub mod event;
 mod in_process;
 mod judge;
 pub mod latency;
-pub mod live;
 pub mod log;
 mod loss;
 pub mod record;

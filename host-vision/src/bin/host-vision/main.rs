@@ -55,8 +55,8 @@ fn frame_input(
     video: &Option<std::path::PathBuf>,
     images: &Option<std::path::PathBuf>,
     fps: Option<f64>,
-) -> Option<host_vision::frames::FrameInput> {
-    use host_vision::frames::FrameInput;
+) -> Option<frames::FrameInput> {
+    use frames::FrameInput;
     match (video, images) {
         (Some(v), _) => Some(FrameInput::Video(v.clone())),
         (None, Some(dir)) => Some(FrameInput::Images {
@@ -71,10 +71,10 @@ fn frame_input(
 /// (the last needs the frame size: the input's first frame is decoded for it).
 fn track_camera(
     a: &TrackArgs,
-    input: &host_vision::frames::FrameInput,
+    input: &frames::FrameInput,
 ) -> Result<Option<host_vision::camera::Camera>, Failure> {
     let size = || {
-        let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
+        let mut source = input.open(&frames::VideoOptions::default())?;
         match source.next() {
             Some(frame) => Ok(frame?.image.dimensions()),
             None => Err(Failure {
@@ -153,8 +153,8 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
             Ok(image::image_dimensions(p).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?)
         }
         LocateInput::VideoFrame { video, .. } => {
-            let input = host_vision::frames::FrameInput::Video(video.clone());
-            let mut source = input.open(&host_vision::frames::VideoOptions::default())?;
+            let input = frames::FrameInput::Video(video.clone());
+            let mut source = input.open(&frames::VideoOptions::default())?;
             match source.next() {
                 Some(frame) => Ok(frame?.image.dimensions()),
                 None => Err(anyhow::anyhow!("{}: no frames", video.display()).into()),
@@ -195,8 +195,8 @@ fn locate(a: &LocateArgs) -> Result<Done, Failure> {
 }
 
 fn frames(a: &FramesArgs) -> Result<Done, Failure> {
+    use frames::{DecodeStats, VideoOptions};
     use host_vision::camera::{pinhole_camera, read_camera_json};
-    use host_vision::frames::{DecodeStats, VideoOptions};
     let usage = |m: String| Failure {
         error: anyhow::anyhow!(m),
         code: exit::USAGE,
@@ -294,7 +294,7 @@ fn track_options(
     a: &TrackArgs,
     dataset: &Path,
     filter: protocol::ModelKind,
-    input: Option<host_vision::frames::FrameInput>,
+    input: Option<frames::FrameInput>,
     camera: Option<host_vision::camera::Camera>,
 ) -> Result<host_vision::track::TrackOptions, Failure> {
     use host_vision::track::{self, Faults, Start, TrackError};
@@ -447,10 +447,7 @@ fn track(a: &TrackArgs) -> Result<Done, Failure> {
 /// silently ignored).
 fn ignored_options(a: &TrackArgs, filter: protocol::ModelKind) -> Result<(), Failure> {
     let vision_only = !filter.has_imu();
-    let euroc = a
-        .images
-        .as_deref()
-        .and_then(host_vision::frames::images::euroc_cam0);
+    let euroc = a.images.as_deref().and_then(frames::images::euroc_cam0);
     let why = if a.fps.is_some() && (a.images.is_none() || euroc.is_some()) {
         Some(
             "--fps is the frame rate of a plain --images folder: a video, a dataset and a EuRoC camera folder (data.csv) carry their own time stamps",

@@ -1,11 +1,21 @@
-//! Frame sources without an IMU: a video or a live camera decoded by the `ffmpeg` program
-//! ([`video`]), or a folder of images ([`images`]), each a stream of 8-bit grey frames with
-//! time stamps, checked as they come (size, order of the time stamps).
+//! Frame input, as a library (kornia-io is this for kornia): the sources a tracker's frames
+//! come from, each a stream of 8-bit grey frames with time stamps, checked as they come (size,
+//! order of the time stamps):
+//!
+//! - [`video`]: a video file, a pipe or a live V4L2 camera, decoded by the `ffmpeg` program;
+//! - [`images`]: a folder of images (a plain one at a given rate, or a EuRoC `cam0`);
+//! - [`euroc`]: a EuRoC/ASL dataset folder (its camera, IMU samples, ground truth, model);
+//! - [`live`]: a live source read on a capture thread that keeps only the newest frame, and a
+//!   recording played at its own rate;
+//! - [`showinfo`], [`stats`]: ffmpeg's frame lines parsed, and the decoding's figures.
 //!
 //! Colour is converted to grey as the dataset code does: images through the `image` crate's
-//! luma conversion, videos by ffmpeg's `gray` pixel format (the luma plane, full range).
+//! luma conversion, videos by ffmpeg's `gray` pixel format (the luma plane, full range). A
+//! [`Frame`] becomes a [`tracker::Frame`] with `.into()`.
 
+pub mod euroc;
 pub mod images;
+pub mod live;
 pub mod showinfo;
 pub mod stats;
 pub mod video;

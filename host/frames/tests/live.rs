@@ -1,14 +1,14 @@
 //! Live tracking (issue 35): a source that delivers frames faster than the tracker analyses
-//! them, read through the capture thread that keeps only the newest ([`tracker::live`]).
+//! them, read through the capture thread that keeps only the newest ([`frames::live`]).
 //! Every frame taken was the newest, the dropped count is the frames never taken, and the
 //! poses of a synthetic scene stay on its ground truth.
 
 use std::time::Duration;
 
 use camera::{Camera, CameraPose, Pinhole, pinhole_camera};
+use frames::live::{LiveFrames, Paced};
 use nalgebra::Vector3;
 use render::{RenderView, Renderer};
-use tracker::live::{LiveFrames, Paced};
 use tracker::{Answers, Event, Frame, InProcessCore, Start, Tracker, TrackerConfig};
 
 /// The source's frame period [ms]: a thousand frames per second, faster than any analysis

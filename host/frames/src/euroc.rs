@@ -13,8 +13,13 @@ use firmware_sim::sim::scenario::euroc::{self, DatasetError as CsvError, GroundT
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Deserialize;
 
-use crate::camera::{CalibError, CameraCalib, read_euroc_sensor_yaml};
+use camera::{CalibError, CameraCalib, read_euroc_sensor_yaml};
 pub use tracker::{HandEye, ImuNoiseDensities};
+
+/// The file `host-vision synth` writes into a dataset folder first and removes last: a
+/// folder that has it is unfinished (interrupted or killed while being written), and
+/// [`Dataset::open`] refuses it.
+pub const UNFINISHED: &str = ".synth-unfinished";
 
 /// Why a dataset cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -114,12 +119,12 @@ fn check_root(root: &Path) -> Result<(), DatasetError> {
             what: "dataset folder",
         });
     }
-    if root.join(crate::synth::UNFINISHED).exists() {
+    if root.join(UNFINISHED).exists() {
         return Err(DatasetError::Invalid {
             path: root.to_owned(),
             what: format!(
                 "an unfinished dataset: `host-vision synth` was interrupted or killed while writing it ({} is there); run synth into it again",
-                crate::synth::UNFINISHED
+                UNFINISHED
             ),
         });
     }
@@ -248,7 +253,7 @@ impl Dataset {
 
     /// A video or image folder at `root` seen by `camera`: no IMU, no ground truth, and the
     /// frames come from the frame source as they are decoded (so the list is empty).
-    pub fn frames_only(root: &Path, camera: crate::camera::Camera) -> Self {
+    pub fn frames_only(root: &Path, camera: camera::Camera) -> Self {
         Dataset {
             root: root.to_owned(),
             imu: Vec::new(),

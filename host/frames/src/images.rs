@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use super::{Frame, FrameError, StreamCheck};
-use crate::dataset::read_frame_list;
+use crate::euroc::read_frame_list;
 
 /// Frames read one by one from image files.
 #[derive(Debug)]

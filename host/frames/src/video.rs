@@ -31,7 +31,7 @@ use image::GrayImage;
 
 use super::showinfo::{self, Line};
 use super::{Frame, FrameError, StreamCheck};
-use crate::camera::MAX_IMAGE_SIDE;
+use camera::MAX_IMAGE_SIDE;
 
 /// How ffmpeg is found.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -9,7 +9,7 @@ use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::settings::Frame;
+use tracker::Frame;
 
 /// A frame as the capture thread took it from its source.
 #[derive(Debug)]
