@@ -356,9 +356,9 @@ impl<T: CoreTransport> Tracker<T> {
         let AtTrigger::Attempt(lost_at) = step else {
             return Ok(());
         };
-        let Some(search) = &self.search else {
+        if self.search.is_none() {
             return Ok(());
-        };
+        }
         let image = match &frame.image {
             FrameImage::Decoded(image) => Ok(image.clone()),
             FrameImage::File(path) => camera::read_frame(path)
@@ -367,14 +367,14 @@ impl<T: CoreTransport> Tracker<T> {
         };
         match image {
             Ok(image) => {
-                search.send_locate(image, self.config.cache.clone())?;
-                self.settle(frame.index, Fate::Searched);
-                self.searching.sent(Job {
+                let job = Job {
                     index: frame.index,
                     t_us,
                     due,
                     lost_at,
-                });
+                };
+                self.send_search(image, job)?;
+                self.settle(frame.index, Fate::Searched);
             }
             // An unreadable frame is no attempt, as it is no analysis: reported, and the
             // next frame is tried.

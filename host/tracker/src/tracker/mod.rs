@@ -37,7 +37,7 @@ use crate::judge::{Judge, Tally};
 use crate::loss::LossRule;
 use crate::record::Fate;
 use crate::rig::HandEye;
-use crate::searching::SearchMachine;
+use crate::searching::{Job, SearchMachine};
 use crate::session::CoreSession;
 use crate::settings::check_config;
 pub use crate::settings::{Answers, Frame, ImuOnCore, Start, TrackerConfig};
@@ -455,6 +455,14 @@ impl<T: CoreTransport> Tracker<T> {
                     .collect()
             },
         }
+    }
+
+    /// Sends a search on `image` to the search thread, and tells the search machine.
+    pub(crate) fn send_search(&mut self, image: GrayImage, job: Job) -> Result<(), TrackerError> {
+        self.searcher()?
+            .send_locate(image, self.config.cache.clone())?;
+        self.searching.sent(job);
+        Ok(())
     }
 
     /// The searches' vision thread.

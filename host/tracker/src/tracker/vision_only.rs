@@ -155,14 +155,13 @@ impl<T: CoreTransport> Tracker<T> {
             }
         }
         if self.config.answers == Answers::WhenReady && self.searching.job().is_none() {
-            self.searcher()?
-                .send_locate(image.clone(), self.config.cache.clone())?;
-            self.searching.sent(Job {
+            let job = Job {
                 index,
                 t_us,
                 due: 0,
                 lost_at: None,
-            });
+            };
+            self.send_search(image.clone(), job)?;
         }
         Ok(false)
     }
@@ -225,14 +224,13 @@ impl<T: CoreTransport> Tracker<T> {
             return Ok(());
         }
         if let Some(lost_at) = self.searching.due(t_us, self.tilt.in_flight()) {
-            self.searcher()?
-                .send_locate(image.clone(), self.config.cache.clone())?;
-            self.searching.sent(Job {
+            let job = Job {
                 index,
                 t_us,
                 due: 0,
                 lost_at: Some(lost_at),
-            });
+            };
+            self.send_search(image.clone(), job)?;
         }
         Ok(())
     }
