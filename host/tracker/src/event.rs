@@ -55,7 +55,7 @@ pub struct FrameReport {
     /// Whether it counts as tracked (the tracked rule at that pose, docs/VISION.md §10); `None`
     /// where it was not analysed (no pose yet, or an unusable image). A later tilt check may still
     /// withhold it (the frames after a flip, until it is confirmed): the record's
-    /// [`Record::tracked`] is final.
+    /// [`crate::record::Record::tracked`] is final.
     pub tracked: Option<bool>,
     /// Correspondences sent to the core, of both kinds (2D/3D and contour).
     pub correspondences: usize,

@@ -24,7 +24,7 @@ pub struct Frame {
     /// vision thread).
     pub image: FrameImage,
     /// When it was captured, on this machine's monotonic clock: a live source's delivery of
-    /// it ([`crate::live`]); `None`: when it is pushed. Its latencies count from here
+    /// it (the `frames` crate's `live`); `None`: when it is pushed. Its latencies count from here
     /// ([`crate::latency`]).
     pub captured: Option<Instant>,
 }
