@@ -144,21 +144,17 @@ pub(super) fn track_frames(
         frames,
         total,
         progress,
-        mut record,
+        record,
         ..
     } = run;
-    let mut finished = match outcome {
+    let finished = match outcome {
         Ok(false) => tracker.abandon(),
         _ => tracker.finish(),
     };
-    record.observe_all(&std::mem::take(&mut finished.events));
-    progress(
-        frames,
-        total.max(frames),
-        record.results.len(),
-        record.log.mode(),
-    );
-    Ok(Ran::of(finished, record, outcome))
+    let ran = Ran::of(finished, record, outcome);
+    let r = &ran.record;
+    progress(frames, total.max(frames), r.results.len(), r.log.mode());
+    Ok(ran)
 }
 
 /// A run's frames pushed into its tracker.

@@ -241,9 +241,9 @@ impl CoreSession {
         self.last_tracking.as_ref()
     }
 
-    /// The state reports not yet told, oldest first.
-    pub(crate) fn take_untold(&mut self) -> impl Iterator<Item = StateReport> + '_ {
-        self.untold.drain(..)
+    /// The oldest state report not yet told.
+    pub(crate) fn next_untold(&mut self) -> Option<StateReport> {
+        self.untold.pop_front()
     }
 
     /// The next of the core's own samples.
@@ -457,7 +457,7 @@ mod tests {
                     cov: [0.0; 21],
                 },
             )));
-            let _ = s.take_untold().count();
+            while s.next_untold().is_some() {}
         }
         assert_eq!(s.states.len(), STATES_KEPT);
         assert!(s.predictions.len() <= KEPT);

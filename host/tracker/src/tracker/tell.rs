@@ -42,8 +42,8 @@ impl<T: CoreTransport> Tracker<T> {
         }
         let hand_eye = self.core_hand_eye;
         let mode = self.session.mode();
-        let states: Vec<_> = self.session.take_untold().collect();
-        for s in states {
+        // Popped one at a time: a sample's push tells its state without a collection.
+        while let Some(s) = self.session.next_untold() {
             self.latency(LatencyNote::PoseOut(s.t_us));
             let (c_w, q_wc) = hand_eye.camera_of_state(&s);
             let pose = Pose {
